@@ -1,0 +1,9 @@
+"""Hardware drivers: servo buses and cameras, real, emulated and simulated.
+
+This package knows nothing above it (no `calib_free`, no `headctl`). Each device kind has
+one abstract interface; each backend lives in its own module and is chosen by name
+(see `drivers.backends`).
+"""
+from drivers.errors import DriverError
+
+__all__ = ["DriverError"]
