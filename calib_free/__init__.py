@@ -1,0 +1,5 @@
+"""The method: a calibration-free gaze map learned online (Karaoguz et al.).
+
+`GazeMap` learns which relative motor command (dpan, dtilt, dverg) brings an image position
+(x, y, d) onto both foveae; `calib_free.sim` is a geometric model of the head to learn on.
+"""
