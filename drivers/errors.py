@@ -60,6 +60,10 @@ class BusDownError(ServoCommError):
     """The bus (adapter) is gone; it is being reopened."""
 
 
+class ServoConfigError(ServoError, ValueError):
+    """A servo-bus configuration is invalid, or names a joint that is not configured."""
+
+
 # --- cameras -----------------------------------------------------------------------------
 class CameraError(DriverError):
     """Root of camera errors."""

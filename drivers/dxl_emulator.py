@@ -1,0 +1,742 @@
+"""A Dynamixel Protocol 2.0 servo emulator serving virtual X-series servos on a pseudo-terminal.
+
+This module owns the Protocol 2.0 wire format (framing, byte stuffing, CRC-16 with
+polynomial 0x8005, status packets with the error byte and Alert bit), `EmulatedServo`
+(an X-series control table with a motion model), and `DxlEmulator`, which serves any
+number of them on an `os.openpty()` pseudo-terminal from its own named thread. The real
+dynamixel-sdk, or any other Protocol 2.0 client, talks to it exactly as to a real bus.
+
+Instructions: Ping (also broadcast), Read, Write, Sync Read, Sync Write, Bulk Read, Bulk
+Write, Reboot; others get an Instruction Error status. Fast Sync Read is not served.
+
+Faults can be injected: dropped replies, corrupted CRCs, delayed replies, hardware error
+bits, a servo power cycle, and the port vanishing and coming back (a stable symlink, like
+a udev rule's, follows the new pseudo-terminal). The motion model runs on an injectable
+clock; reply delays (Return Delay Time, injected delays) are wire timing and real time.
+
+Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`.
+"""
+from __future__ import annotations
+
+import fcntl
+import logging
+import math
+import os
+import queue
+import select
+import struct
+import termios
+import threading
+import time
+import tty
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.dynamixel import (
+    DPS2_PER_ACCELERATION_UNIT,
+    DEG_PER_TICK,
+    DPS_PER_VELOCITY_UNIT,
+    ERRBIT_ALERT,
+    MS_PER_WATCHDOG_UNIT,
+    OPERATING_MODE_POSITION,
+    TICKS_PER_TURN,
+    US_PER_RETURN_DELAY_UNIT,
+    WATCHDOG_FIRED,
+    X_BAUD_CODES,
+    X_MODELS,
+    XAddr,
+)
+from drivers.errors import DeviceStateError, DeviceTimeoutError
+from drivers.servo_bus import TRACE
+from drivers.sim_servo import DEFAULT_SHUTDOWN_BITS, ProfileAxis
+
+log = logging.getLogger(__name__)
+
+# --- the wire format -------------------------------------------------------------------
+HEADER = b"\xff\xff\xfd\x00"
+BROADCAST_ID = 0xFE
+INST_PING, INST_READ, INST_WRITE, INST_REBOOT = 0x01, 0x02, 0x03, 0x08
+INST_STATUS = 0x55
+INST_SYNC_READ, INST_SYNC_WRITE, INST_BULK_READ, INST_BULK_WRITE = 0x82, 0x83, 0x92, 0x93
+ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = range(1, 8)
+MAX_PACKET_LENGTH = 1024
+
+
+def _crc_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return table
+
+
+_CRC_TABLE = _crc_table()
+
+
+def crc16(data: bytes | bytearray) -> int:
+    """CRC-16 of Protocol 2.0: polynomial 0x8005, initial 0, not reflected."""
+    crc = 0
+    for byte in data:
+        crc = ((crc << 8) ^ _CRC_TABLE[((crc >> 8) ^ byte) & 0xFF]) & 0xFFFF
+    return crc
+
+
+def stuff(body: bytes) -> bytes:
+    """Insert an 0xFD after every FF FF FD in instruction + parameters."""
+    out = bytearray()
+    for byte in body:
+        out.append(byte)
+        if byte == 0xFD and out[-3:] == b"\xff\xff\xfd":
+            out.append(0xFD)
+    return bytes(out)
+
+
+def unstuff(body: bytes) -> bytes:
+    """Remove the 0xFD that stuffing inserted after every FF FF FD."""
+    out = bytearray()
+    i = 0
+    while i < len(body):
+        out.append(body[i])
+        if body[i] == 0xFD and out[-3:] == b"\xff\xff\xfd" and i + 1 < len(body) and body[i + 1] == 0xFD:
+            i += 1  # skip the stuffed byte
+        i += 1
+    return bytes(out)
+
+
+def build_packet(servo_id: int, instruction: int, params: bytes = b"") -> bytes:
+    """A complete Protocol 2.0 packet: header, id, length, stuffed body, CRC."""
+    body = stuff(bytes([instruction]) + bytes(params))
+    head = HEADER + bytes([servo_id]) + struct.pack("<H", len(body) + 2)
+    packet = head + body
+    return packet + struct.pack("<H", crc16(packet))
+
+
+def status_packet(servo_id: int, error: int, data: bytes = b"") -> bytes:
+    return build_packet(servo_id, INST_STATUS, bytes([error]) + bytes(data))
+
+
+@dataclass(frozen=True)
+class Packet:
+    servo_id: int
+    instruction: int
+    params: bytes
+    crc_ok: bool
+
+
+class PacketParser:
+    """Splits a byte stream into packets, resynchronising on the header after garbage."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+
+    def reset(self) -> None:
+        self._buffer.clear()
+
+    def feed(self, data: bytes) -> Iterator[Packet]:
+        self._buffer += data
+        buf = self._buffer
+        while True:
+            start = buf.find(HEADER)
+            if start < 0:
+                del buf[: max(0, len(buf) - 3)]  # keep a possible partial header
+                return
+            del buf[:start]
+            if len(buf) < 7:
+                return
+            length = struct.unpack_from("<H", buf, 5)[0]
+            if not 3 <= length <= MAX_PACKET_LENGTH:
+                del buf[:1]
+                continue
+            end = 7 + length
+            if len(buf) < end:
+                return
+            raw = bytes(buf[:end])
+            del buf[:end]
+            crc_ok = crc16(raw[:-2]) == struct.unpack_from("<H", raw, end - 2)[0]
+            body = unstuff(raw[7:-2])
+            yield Packet(raw[4], body[0], body[1:], crc_ok)
+
+
+# --- one servo -------------------------------------------------------------------------
+# Defaults of the control table: address -> (size, value). EEPROM first, then RAM.
+_EEPROM_DEFAULTS: dict[int, tuple[int, int]] = {
+    XAddr.RETURN_DELAY_TIME: (1, 250),
+    XAddr.DRIVE_MODE: (1, 0),
+    XAddr.OPERATING_MODE: (1, OPERATING_MODE_POSITION),
+    12: (1, 255),                        # Secondary ID
+    13: (1, 2),                          # Protocol Type
+    XAddr.MOVING_THRESHOLD: (4, 10),
+    XAddr.TEMPERATURE_LIMIT: (1, 80),
+    XAddr.MAX_VOLTAGE_LIMIT: (2, 160),
+    XAddr.MIN_VOLTAGE_LIMIT: (2, 95),
+    XAddr.VELOCITY_LIMIT: (4, 200),
+    XAddr.MAX_POSITION_LIMIT: (4, TICKS_PER_TURN - 1),
+    XAddr.MIN_POSITION_LIMIT: (4, 0),
+    XAddr.SHUTDOWN: (1, DEFAULT_SHUTDOWN_BITS),
+}
+_RAM_DEFAULTS: dict[int, tuple[int, int]] = {
+    XAddr.STATUS_RETURN_LEVEL: (1, 2),
+    XAddr.PRESENT_INPUT_VOLTAGE: (2, 120),
+    XAddr.PRESENT_TEMPERATURE: (1, 35),
+} | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: (2, XAddr.INDIRECT_DATA_1 + i) for i in range(XAddr.INDIRECT_COUNT)}
+# Writable items: address -> size. Everything else is read-only (Access Error).
+_WRITABLE: dict[int, int] = {
+    XAddr.ID: 1, XAddr.BAUD_RATE: 1, XAddr.RETURN_DELAY_TIME: 1, XAddr.DRIVE_MODE: 1, XAddr.OPERATING_MODE: 1,
+    12: 1, 13: 1, 20: 4, XAddr.MOVING_THRESHOLD: 4, XAddr.TEMPERATURE_LIMIT: 1, XAddr.MAX_VOLTAGE_LIMIT: 2,
+    XAddr.MIN_VOLTAGE_LIMIT: 2, 36: 2, 38: 2, XAddr.VELOCITY_LIMIT: 4, XAddr.MAX_POSITION_LIMIT: 4,
+    XAddr.MIN_POSITION_LIMIT: 4, XAddr.SHUTDOWN: 1, XAddr.TORQUE_ENABLE: 1, XAddr.LED: 1,
+    XAddr.STATUS_RETURN_LEVEL: 1, XAddr.BUS_WATCHDOG: 1, XAddr.GOAL_VELOCITY: 4,
+    XAddr.PROFILE_ACCELERATION: 4, XAddr.PROFILE_VELOCITY: 4, XAddr.GOAL_POSITION: 4,
+} | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: 2 for i in range(XAddr.INDIRECT_COUNT)} | {
+    XAddr.INDIRECT_DATA_1 + i: 1 for i in range(XAddr.INDIRECT_COUNT)}
+_WRITABLE_BYTES = frozenset(addr + i for addr, size in _WRITABLE.items() for i in range(size))
+_INDIRECT_ADDRESS_BYTES = range(XAddr.INDIRECT_ADDRESS_1, XAddr.INDIRECT_ADDRESS_1 + 2 * XAddr.INDIRECT_COUNT)
+_INDIRECT_DATA_BYTES = range(XAddr.INDIRECT_DATA_1, XAddr.INDIRECT_DATA_1 + XAddr.INDIRECT_COUNT)
+
+
+class EmulatedServo:
+    """One X-series servo: its control table and its motion, on `clock`.
+
+    Not thread-safe on its own: `DxlEmulator` serialises access with its lock.
+    """
+
+    BOOT_TIME_S = 0.1
+
+    def __init__(self, servo_id: int, model: str = "XM430-W350", *, clock: Clock = SYSTEM_CLOCK,
+                 baud: int = 1_000_000, firmware: int = 48, position_ticks: int = 2048) -> None:
+        self.model = model
+        self.clock = clock
+        self.table = bytearray(XAddr.TABLE_SIZE)
+        self._set(XAddr.MODEL_NUMBER, 2, X_MODELS[model])
+        self._set(XAddr.FIRMWARE_VERSION, 1, firmware)
+        self._set(XAddr.ID, 1, servo_id)
+        self._set(XAddr.BAUD_RATE, 1, X_BAUD_CODES[baud])
+        for addr, (size, value) in _EEPROM_DEFAULTS.items():
+            self._set(addr, size, value)
+        now = clock.monotonic()
+        self.axis = ProfileAxis(position_ticks, now)
+        self.booting_until_s = -math.inf
+        self.last_contact_s = now
+        self._reset_ram()
+
+    # -- plain table access ----------------------------------------------------------------
+    @property
+    def servo_id(self) -> int:
+        return self.table[XAddr.ID]
+
+    def get(self, addr: int, size: int, signed: bool = False) -> int:
+        return int.from_bytes(self.table[addr: addr + size], "little", signed=signed)
+
+    def _set(self, addr: int, size: int, value: int) -> None:
+        self.table[addr: addr + size] = int(value).to_bytes(size, "little", signed=value < 0)
+
+    @property
+    def torque_on(self) -> bool:
+        return self.table[XAddr.TORQUE_ENABLE] == 1
+
+    @property
+    def return_delay_s(self) -> float:
+        return self.table[XAddr.RETURN_DELAY_TIME] * US_PER_RETURN_DELAY_UNIT / 1e6
+
+    def is_booting(self, now_s: float) -> bool:
+        return now_s < self.booting_until_s
+
+    def _reset_ram(self) -> None:
+        self.table[XAddr.EEPROM_END:] = bytes(XAddr.TABLE_SIZE - XAddr.EEPROM_END)
+        for addr, (size, value) in _RAM_DEFAULTS.items():
+            self._set(addr, size, value)
+        self.axis.hold()
+        self._set(XAddr.GOAL_POSITION, 4, round(self.axis.position))
+        self._publish()
+
+    # -- behaviour -------------------------------------------------------------------------
+    def update(self, now_s: float) -> None:
+        """Advance the motion to `now_s` and refresh the present-value registers."""
+        self.axis.max_velocity = (self.get(XAddr.PROFILE_VELOCITY, 4) or self.get(XAddr.VELOCITY_LIMIT, 4)) \
+            * DPS_PER_VELOCITY_UNIT / DEG_PER_TICK
+        accel_units = self.get(XAddr.PROFILE_ACCELERATION, 4)
+        self.axis.max_acceleration = accel_units * DPS2_PER_ACCELERATION_UNIT / DEG_PER_TICK if accel_units else math.inf
+        watchdog_s = self.table[XAddr.BUS_WATCHDOG] * MS_PER_WATCHDOG_UNIT / 1000.0
+        if (self.torque_on and self.table[XAddr.BUS_WATCHDOG] not in (0, WATCHDOG_FIRED)
+                and now_s - self.last_contact_s > watchdog_s):
+            # The host fell silent: stop where the servo was when the watchdog expired.
+            self.axis.advance_to(self.last_contact_s + watchdog_s)
+            self.axis.hold()
+            self.table[XAddr.BUS_WATCHDOG] = WATCHDOG_FIRED
+            log.info("emulated servo %d: bus watchdog fired", self.servo_id)
+        self.axis.advance_to(now_s)
+        self._publish()
+
+    def _publish(self) -> None:
+        self._set(XAddr.PRESENT_POSITION, 4, round(self.axis.position))
+        self._set(XAddr.PRESENT_VELOCITY, 4, round(self.axis.velocity * DEG_PER_TICK / DPS_PER_VELOCITY_UNIT))
+        self.table[XAddr.MOVING] = 1 if self.axis.moving else 0
+        self.table[XAddr.MOVING_STATUS] = 1 if self.axis.moving else 0
+
+    def contact(self, now_s: float) -> None:
+        """A packet addressed to this servo arrived (feeds the Bus Watchdog)."""
+        self.update(now_s)
+        self.last_contact_s = now_s
+
+    def error_byte(self, error: int = 0) -> int:
+        return error | (ERRBIT_ALERT if self.table[XAddr.HARDWARE_ERROR_STATUS] else 0)
+
+    def read(self, addr: int, length: int) -> tuple[int, bytes]:
+        if length < 1 or addr + length > XAddr.TABLE_SIZE:
+            return ERR_DATA_RANGE, b""
+        out = bytearray()
+        for a in range(addr, addr + length):
+            out.append(self._read_byte(a))
+        return 0, bytes(out)
+
+    def _read_byte(self, addr: int) -> int:
+        if addr in _INDIRECT_DATA_BYTES:
+            target = self.get(XAddr.INDIRECT_ADDRESS_1 + 2 * (addr - XAddr.INDIRECT_DATA_1), 2)
+            if target < XAddr.TABLE_SIZE and target not in _INDIRECT_DATA_BYTES:
+                return self.table[target]
+        return self.table[addr]
+
+    def write(self, addr: int, data: bytes) -> int:
+        """Write `data` at `addr`; returns the status error number (0 = done)."""
+        if not data or addr + len(data) > XAddr.TABLE_SIZE:
+            return ERR_DATA_RANGE
+        # Resolve indirect data to the addresses it stands for.
+        targets = []
+        for i, a in enumerate(range(addr, addr + len(data))):
+            if a in _INDIRECT_DATA_BYTES:
+                a = self.get(XAddr.INDIRECT_ADDRESS_1 + 2 * (a - XAddr.INDIRECT_DATA_1), 2)
+            targets.append((a, data[i]))
+        for a, _value in targets:
+            if a not in _WRITABLE_BYTES:
+                return ERR_ACCESS
+            if self.torque_on and (a < XAddr.EEPROM_END or a in _INDIRECT_ADDRESS_BYTES):
+                return ERR_ACCESS  # EEPROM and the indirect map need torque off
+        if any(a == XAddr.GOAL_POSITION for a, _ in targets) and len(targets) >= 4:
+            goal = int.from_bytes(bytes(v for a, v in targets if XAddr.GOAL_POSITION <= a < XAddr.GOAL_POSITION + 4),
+                                  "little", signed=True)
+            if not self.get(XAddr.MIN_POSITION_LIMIT, 4) <= goal <= self.get(XAddr.MAX_POSITION_LIMIT, 4):
+                return ERR_DATA_LIMIT
+        torque_before = self.torque_on
+        for a, value in targets:
+            if a == XAddr.TORQUE_ENABLE and value and self.table[XAddr.HARDWARE_ERROR_STATUS] & self.table[XAddr.SHUTDOWN]:
+                continue  # a servo in shutdown refuses torque until rebooted
+            if a == XAddr.GOAL_POSITION and self.table[XAddr.BUS_WATCHDOG] == WATCHDOG_FIRED:
+                return ERR_DATA_RANGE  # a fired watchdog blocks goals until it is cleared
+            self.table[a] = value
+        if self.torque_on and not torque_before:
+            # Torque on drives toward the Goal Position register, stale or not.
+            self.axis.set_goal(self.get(XAddr.GOAL_POSITION, 4, signed=True))
+        elif not self.torque_on:
+            self.axis.hold()
+        elif any(XAddr.GOAL_POSITION <= a < XAddr.GOAL_POSITION + 4 for a, _ in targets):
+            self.axis.set_goal(self.get(XAddr.GOAL_POSITION, 4, signed=True))
+        self._publish()
+        return 0
+
+    def reboot(self, now_s: float) -> None:
+        """RAM back to defaults (torque off, hardware error cleared); silent while booting."""
+        self.update(now_s)
+        self._reset_ram()
+        self.booting_until_s = now_s + self.BOOT_TIME_S
+
+    def set_hardware_error(self, bits: int) -> None:
+        self.update(self.clock.monotonic())
+        self.table[XAddr.HARDWARE_ERROR_STATUS] |= bits
+        if bits & self.table[XAddr.SHUTDOWN]:
+            self.table[XAddr.TORQUE_ENABLE] = 0
+            self.axis.hold()
+            self._publish()
+
+
+# --- the emulator ----------------------------------------------------------------------
+_TERMIOS_SPEEDS = {baud: getattr(termios, f"B{baud}") for baud in X_BAUD_CODES if hasattr(termios, f"B{baud}")}
+
+
+class _Faults:
+    """Pending injected faults for one servo id."""
+
+    def __init__(self) -> None:
+        self.drop = 0
+        self.corrupt = 0
+        self.delay_count = 0
+        self.delay_s = 0.0
+
+
+class DxlEmulator:
+    """Virtual Protocol 2.0 servos on a pseudo-terminal, served from a named thread.
+
+    Use as a context manager (or `start()` / `stop(timeout)`); `port` is the pty path to
+    open, `link` (optional) a symlink kept pointing at it, also across `vanish()` and
+    `reappear()`. `baud`: the servos only understand a client whose port is set to this
+    rate (the pty carries the client's termios speed), so scans at other rates find nothing.
+    """
+
+    def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, model: str = "XM430-W350",
+                 clock: Clock = SYSTEM_CLOCK, link: str | None = None, baud: int = 1_000_000,
+                 positions_ticks: dict[int, int] | None = None) -> None:
+        if baud not in X_BAUD_CODES:
+            raise ValueError(f"baud {baud}: an X-series servo offers {sorted(X_BAUD_CODES)}")
+        self.clock = clock
+        self.link = link
+        self.baud = baud
+        positions_ticks = positions_ticks or {}
+        self.servos = {
+            i: EmulatedServo(i, model, clock=clock, baud=baud, position_ticks=positions_ticks.get(i, 2048))
+            for i in sorted(set(ids))
+        }
+        self.packets_received = 0
+        self.replies_sent = 0
+        self._faults = {i: _Faults() for i in self.servos}
+        self._lock = threading.RLock()
+        self._idle = threading.Condition(self._lock)
+        self._busy = False
+        self._stop = threading.Event()
+        self._commands: queue.Queue[tuple[str, threading.Event]] = queue.Queue()
+        self._wake_r, self._wake_w = os.pipe()
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._port: str | None = None
+        self._thread: threading.Thread | None = None
+        self._closed = False
+        self._open_pty()
+
+    # -- lifecycle -------------------------------------------------------------------------
+    @property
+    def port(self) -> str:
+        """The path to open: the symlink if there is one, else the pty itself."""
+        return self.link or self.pty_path
+
+    @property
+    def pty_path(self) -> str:
+        if self._port is None:
+            raise DeviceStateError("dxl emulator: the port has vanished (call reappear())")
+        return self._port
+
+    def start(self) -> "DxlEmulator":
+        if self._closed:
+            raise DeviceStateError("dxl emulator: already stopped; make a new one")
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name=f"dxl-emulator({self.port})", daemon=True)
+            self._thread.start()
+            log.info("dxl emulator: %d servo(s) %s on %s", len(self.servos), sorted(self.servos), self.port)
+        return self
+
+    def stop(self, timeout: float | None = 2.0) -> None:
+        """Stop the thread and release the pty and the symlink. Safe to call twice."""
+        if self._closed:
+            return
+        self._stop.set()
+        self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                raise DeviceTimeoutError(f"dxl emulator on {self.link or self._port}: thread did not stop in {timeout} s")
+        self._closed = True
+        self._close_pty()
+        for fd in (self._wake_r, self._wake_w):
+            os.close(fd)
+
+    close = stop
+
+    def __enter__(self) -> "DxlEmulator":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            log.warning("dxl emulator on %s was not stopped", getattr(self, "_port", "?"))
+
+    # -- fault injection -------------------------------------------------------------------
+    def drop_replies(self, servo_id: int, count: int = 1) -> None:
+        """The next `count` replies of `servo_id` are not sent (a timeout for the client)."""
+        with self._lock:
+            self._faults[servo_id].drop += count
+
+    def corrupt_replies(self, servo_id: int, count: int = 1) -> None:
+        """The next `count` replies of `servo_id` go out with a wrong CRC."""
+        with self._lock:
+            self._faults[servo_id].corrupt += count
+
+    def delay_replies(self, servo_id: int, delay_s: float, count: int = 1) -> None:
+        """The next `count` replies of `servo_id` go out `delay_s` late (real time)."""
+        with self._lock:
+            faults = self._faults[servo_id]
+            faults.delay_s, faults.delay_count = delay_s, faults.delay_count + count
+
+    def set_hardware_error(self, servo_id: int, bits: int) -> None:
+        """Raise Hardware Error Status bits; shutdown bits cut torque (like a real servo)."""
+        with self._lock:
+            self.servos[servo_id].set_hardware_error(bits)
+
+    def power_cycle(self, servo_id: int) -> None:
+        """The servo loses power and comes back: RAM defaults (torque off, indirect map reset)."""
+        with self._lock:
+            self.servos[servo_id].reboot(self.clock.monotonic())
+
+    def vanish(self, timeout: float = 2.0) -> None:
+        """The adapter is unplugged: the pty closes (clients get EIO) and the symlink goes."""
+        self._command("vanish", timeout)
+
+    def reappear(self, timeout: float = 2.0) -> None:
+        """The adapter is back: a new pty, and the symlink points at it."""
+        self._command("reappear", timeout)
+
+    def servo(self, servo_id: int) -> EmulatedServo:
+        """The servo, motion brought up to now (read it while holding no expectations of
+        thread safety beyond this call)."""
+        with self._lock:
+            servo = self.servos[servo_id]
+            servo.update(self.clock.monotonic())
+            return servo
+
+    def wait_idle(self, timeout: float = 2.0) -> None:
+        """Wait until every byte sent to the emulator has been handled and answered."""
+        deadline = time.monotonic() + timeout
+        with self._idle:
+            while self._busy or self._unread_bytes() > 0:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise DeviceTimeoutError(f"dxl emulator on {self.port}: not idle after {timeout} s")
+                # Woken by the thread after each batch; the short cap covers bytes that
+                # arrived while it was between select() and taking the lock.
+                self._idle.wait(min(remaining, 0.01))
+
+    # -- the thread ------------------------------------------------------------------------
+    def _run(self) -> None:
+        parser = PacketParser()
+        while not self._stop.is_set():
+            master = self._master
+            fds = [self._wake_r] + ([master] if master is not None else [])
+            try:
+                readable, _, _ = select.select(fds, [], [], 0.5)
+            except OSError as err:
+                log.error("dxl emulator: select failed: %s", err)
+                break
+            if self._wake_r in readable:
+                os.read(self._wake_r, 64)
+                self._run_commands(parser)
+                continue
+            if master is None or master not in readable:
+                continue
+            with self._lock:
+                self._busy = True
+            try:
+                data = os.read(master, 4096)
+            except OSError:
+                data = b""  # no client has the slave open: nothing to read
+            try:
+                for packet in parser.feed(data):
+                    self._handle(packet)
+            except Exception:  # a bug here must not kill the bus silently: log and go on
+                log.exception("dxl emulator: failed handling a packet")
+            finally:
+                with self._idle:
+                    self._busy = False
+                    self._idle.notify_all()
+        self._run_commands(parser)
+
+    def _run_commands(self, parser: PacketParser) -> None:
+        while True:
+            try:
+                name, done = self._commands.get_nowait()
+            except queue.Empty:
+                return
+            if name == "vanish":
+                self._close_pty()
+                parser.reset()
+                log.info("dxl emulator: port vanished")
+            elif name == "reappear" and self._master is None:
+                self._open_pty()
+                log.info("dxl emulator: port back at %s", self.port)
+            done.set()
+
+    def _command(self, name: str, timeout: float) -> None:
+        done = threading.Event()
+        self._commands.put((name, done))
+        self._wake()
+        if self._thread is None:  # not started: do it here
+            self._run_commands(PacketParser())
+        if not done.wait(timeout):
+            raise DeviceTimeoutError(f"dxl emulator: {name} not done in {timeout} s")
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass  # closed during stop
+
+    def _open_pty(self) -> None:
+        master, slave = os.openpty()
+        # Raw mode from the start: no echo or newline translation even before a client
+        # configures the port. The emulator keeps the slave open so the master never
+        # reads EIO between clients.
+        tty.setraw(slave)
+        self._master, self._slave = master, slave
+        self._port = os.ttyname(slave)
+        if self.link:
+            tmp = f"{self.link}.{os.getpid()}.tmp"
+            if os.path.lexists(tmp):
+                os.unlink(tmp)
+            os.symlink(self._port, tmp)
+            os.replace(tmp, self.link)  # atomic, like udev updating its symlink
+
+    def _close_pty(self) -> None:
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                os.close(fd)
+        self._master = self._slave = None
+        self._port = None
+        if self.link and os.path.islink(self.link):
+            os.unlink(self.link)
+
+    def _unread_bytes(self) -> int:
+        if self._master is None:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(self._master, termios.FIONREAD, b"\0\0\0\0"))[0]
+        except OSError:
+            return 0
+
+    def _client_baud_matches(self) -> bool:
+        want = _TERMIOS_SPEEDS.get(self.baud)
+        try:
+            # On Linux the master reports the slave's termios: the client's baud rate.
+            speed = termios.tcgetattr(self._master)[5]
+        except (termios.error, TypeError):
+            return True
+        return want is None or speed == want
+
+    # -- protocol ----------------------------------------------------------------------------
+    def _handle(self, packet: Packet) -> None:
+        with self._lock:
+            self.packets_received += 1
+            if not self._client_baud_matches():
+                log.log(TRACE, "dxl emulator: packet at another baud rate ignored")
+                return
+            now = self.clock.monotonic()
+            log.log(TRACE, "dxl emulator: rx id %d inst 0x%02x %s", packet.servo_id, packet.instruction,
+                    packet.params.hex())
+            replies = self._dispatch(packet, now)
+        for servo_id, reply in replies:
+            self._send(servo_id, reply)
+
+    def _dispatch(self, packet: Packet, now: float) -> list[tuple[int, bytes]]:
+        inst, params, target = packet.instruction, packet.params, packet.servo_id
+        if target == BROADCAST_ID:
+            addressed = list(self.servos.values())
+        else:
+            addressed = [self.servos[target]] if target in self.servos else []
+        if not packet.crc_ok:
+            return [(s.servo_id, status_packet(s.servo_id, s.error_byte(ERR_CRC)))
+                    for s in addressed if target != BROADCAST_ID and not s.is_booting(now)]
+        if inst == INST_SYNC_READ or inst == INST_SYNC_WRITE:
+            return self._sync(inst, params, now)
+        if inst == INST_BULK_READ or inst == INST_BULK_WRITE:
+            return self._bulk(inst, params, now)
+        replies = []
+        for servo in addressed:
+            if servo.is_booting(now):
+                continue
+            servo.contact(now)
+            error, data = self._single(servo, inst, params, now)
+            if target == BROADCAST_ID and inst != INST_PING:
+                continue  # broadcast: only Ping is answered
+            level = servo.table[XAddr.STATUS_RETURN_LEVEL]
+            if inst == INST_PING or level >= 2 or (level == 1 and inst == INST_READ):
+                replies.append((servo.servo_id, status_packet(servo.servo_id, servo.error_byte(error), data)))
+            if inst == INST_REBOOT:
+                servo.reboot(now)
+        return replies
+
+    def _single(self, servo: EmulatedServo, inst: int, params: bytes, now: float) -> tuple[int, bytes]:
+        if inst == INST_PING:
+            return 0, struct.pack("<HB", servo.get(XAddr.MODEL_NUMBER, 2), servo.table[XAddr.FIRMWARE_VERSION])
+        if inst == INST_READ:
+            if len(params) != 4:
+                return ERR_DATA_LENGTH, b""
+            addr, length = struct.unpack("<HH", params)
+            return servo.read(addr, length)
+        if inst == INST_WRITE:
+            if len(params) < 3:
+                return ERR_DATA_LENGTH, b""
+            return servo.write(struct.unpack_from("<H", params)[0], params[2:]), b""
+        if inst == INST_REBOOT:
+            return 0, b""
+        return ERR_INSTRUCTION, b""
+
+    def _sync(self, inst: int, params: bytes, now: float) -> list[tuple[int, bytes]]:
+        if len(params) < 4:
+            return []
+        addr, length = struct.unpack_from("<HH", params)
+        replies = []
+        if inst == INST_SYNC_READ:
+            for servo_id in params[4:]:
+                servo = self.servos.get(servo_id)
+                if servo is None or servo.is_booting(now):
+                    continue  # an absent servo: the client times out on its reply
+                servo.contact(now)
+                error, data = servo.read(addr, length)
+                replies.append((servo_id, status_packet(servo_id, servo.error_byte(error), data)))
+            return replies
+        stride = 1 + length
+        for offset in range(4, len(params) - stride + 1, stride):
+            servo = self.servos.get(params[offset])
+            if servo is not None and not servo.is_booting(now):
+                servo.contact(now)
+                servo.write(addr, params[offset + 1: offset + stride])
+        return []
+
+    def _bulk(self, inst: int, params: bytes, now: float) -> list[tuple[int, bytes]]:
+        replies = []
+        offset = 0
+        while offset + 5 <= len(params):
+            servo_id, addr, length = struct.unpack_from("<BHH", params, offset)
+            offset += 5
+            servo = self.servos.get(servo_id)
+            data = b""
+            if inst == INST_BULK_WRITE:
+                data = params[offset: offset + length]
+                offset += length
+            if servo is None or servo.is_booting(now):
+                continue
+            servo.contact(now)
+            if inst == INST_BULK_WRITE:
+                servo.write(addr, data)
+            else:
+                error, data = servo.read(addr, length)
+                replies.append((servo_id, status_packet(servo_id, servo.error_byte(error), data)))
+        return replies
+
+    def _send(self, servo_id: int, reply: bytes) -> None:
+        with self._lock:
+            faults = self._faults[servo_id]
+            delay_s = self.servos[servo_id].return_delay_s
+            if faults.drop:
+                faults.drop -= 1
+                log.debug("dxl emulator: injected fault: reply of id %d dropped", servo_id)
+                return
+            if faults.corrupt:
+                faults.corrupt -= 1
+                reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
+                log.debug("dxl emulator: injected fault: reply of id %d with a bad CRC", servo_id)
+            if faults.delay_count:
+                faults.delay_count -= 1
+                delay_s += faults.delay_s
+                log.debug("dxl emulator: injected fault: reply of id %d %.3f s late", servo_id, faults.delay_s)
+            master = self._master
+        if delay_s > 0:
+            # Wire timing (Return Delay Time, injected delays) is real time, not the
+            # motion clock: the client's timeouts are real time too.
+            time.sleep(delay_s)
+        if master is None:
+            return
+        try:
+            os.write(master, reply)
+            self.replies_sent += 1
+        except OSError as err:
+            log.debug("dxl emulator: reply of id %d not delivered: %s", servo_id, err)

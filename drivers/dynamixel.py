@@ -1,0 +1,588 @@
+"""The Dynamixel backend: Protocol 2.0 X-series servos through dynamixel-sdk 4.1.0.
+
+This module owns the X-series control-table knowledge (addresses, models, units), the
+`DynamixelBus` backend of `drivers.servo_bus.ServoBus`, and `scan()`, which finds servos
+on a port. The emulator (`drivers.dxl_emulator`) serves the same control table.
+
+How the known pitfalls of dynamixel-sdk 4.1.0 are handled here:
+
+* `GroupSyncRead` drops each servo's status error byte (the Alert bit). The sync-read
+  block is laid out with indirect addressing so Hardware Error Status (70), Torque
+  Enable, Bus Watchdog and the servo's own ID (a check that the mapping survived) come
+  back in the same transaction as position and velocity; `_SyncRead` also keeps the error
+  byte and the id of the servo that failed, so errors name the joint.
+* A vanished adapter makes the SDK raise a raw `OSError` and leaves `port.is_using` set
+  for good: every `OSError` becomes `BusDownError`, the `PortHandler` is discarded, and
+  the base class reopens a new one with back-off.
+* The SDK computes reply timeouts from a hard-coded 16 ms latency timer and reads a
+  `timeout=0` pyserial port in a busy loop: `_BlockingPortHandler` waits in `select()`
+  until bytes arrive or the deadline passes, on the monotonic clock, with a timeout
+  computed from the adapter's real latency timer and the Return Delay Time.
+* Return Delay Time, Drive Mode, Operating Mode and position limits live in EEPROM,
+  writable only with torque off: they are written only when they differ, and if torque
+  is on the servo is first held (goal = present) and torque restored after.
+* Torque on always follows goal = present (in `ServoBus`), so a stale goal never jumps.
+* The Bus Watchdog (98) is armed while torque is on when configured, and re-armed after
+  it fired (it reads 255 then and the servo ignores goals until cleared).
+"""
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import struct
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+
+from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
+
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import (
+    BusDownError,
+    ServoCommError,
+    ServoConfigError,
+    ServoError,
+    ServoHardwareError,
+    ServoModelError,
+    ServoTimeoutError,
+)
+from drivers.servo_bus import JOINTS, TRACE, JointState, ServoBus, ServoBusConfig, decode_hardware_error
+
+log = logging.getLogger(__name__)
+
+
+# --- the X-series control table (Protocol 2.0) -----------------------------------------
+class XAddr:
+    """Control-table addresses of X-series servos (ROBOTIS e-Manual)."""
+
+    MODEL_NUMBER = 0            # 2 bytes
+    FIRMWARE_VERSION = 6
+    ID = 7
+    BAUD_RATE = 8
+    RETURN_DELAY_TIME = 9       # 2 us units
+    DRIVE_MODE = 10             # bit 0 reverse, bit 2 time-based profile
+    OPERATING_MODE = 11         # 3 = position
+    MOVING_THRESHOLD = 24       # 4 bytes
+    TEMPERATURE_LIMIT = 31
+    MAX_VOLTAGE_LIMIT = 32      # 2 bytes
+    MIN_VOLTAGE_LIMIT = 34      # 2 bytes
+    VELOCITY_LIMIT = 44         # 4 bytes
+    MAX_POSITION_LIMIT = 48     # 4 bytes
+    MIN_POSITION_LIMIT = 52     # 4 bytes
+    SHUTDOWN = 63
+    EEPROM_END = 64             # addresses below are writable only with torque off
+    TORQUE_ENABLE = 64
+    LED = 65
+    STATUS_RETURN_LEVEL = 68
+    HARDWARE_ERROR_STATUS = 70
+    BUS_WATCHDOG = 98           # 20 ms units; 0 off; reads 255 after it fired
+    GOAL_VELOCITY = 104         # 4 bytes
+    PROFILE_ACCELERATION = 108  # 4 bytes, 214.577 rev/min^2 units
+    PROFILE_VELOCITY = 112      # 4 bytes, 0.229 rev/min units
+    GOAL_POSITION = 116         # 4 bytes
+    MOVING = 122
+    MOVING_STATUS = 123
+    PRESENT_CURRENT = 126       # 2 bytes (Present Load on XL430)
+    PRESENT_VELOCITY = 128      # 4 bytes, signed, 0.229 rev/min units
+    PRESENT_POSITION = 132      # 4 bytes, signed
+    PRESENT_INPUT_VOLTAGE = 144  # 2 bytes, 0.1 V units
+    PRESENT_TEMPERATURE = 146
+    INDIRECT_ADDRESS_1 = 168    # 2 bytes each, 28 of them
+    INDIRECT_DATA_1 = 224       # 1 byte each, 28 of them
+    INDIRECT_COUNT = 28
+    TABLE_SIZE = 256            # what the emulator serves (indirect 1-28 end at 251)
+
+
+OPERATING_MODE_POSITION = 3
+# Model name -> model number (ping reply), Protocol 2.0 X-series.
+X_MODELS: dict[str, int] = {
+    "XM430-W350": 1020,
+    "XL430-W250": 1060,
+    "XM540-W270": 1120,
+    "XM540-W150": 1130,
+}
+# Model numbers a scan can name, including Protocol 1.0 servos this bus does not drive.
+KNOWN_MODEL_NAMES: dict[int, str] = {number: name for name, number in X_MODELS.items()} | {
+    12: "AX-12A",
+    29: "MX-28",
+}
+# X-series baud rate register values.
+X_BAUD_CODES: dict[int, int] = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4,
+                                3_000_000: 5, 4_000_000: 6, 4_500_000: 7}
+
+# Units of the X-series control table.
+TICKS_PER_TURN = 4096
+CENTER_TICK = 2048
+DEG_PER_TICK = 360.0 / TICKS_PER_TURN
+DPS_PER_VELOCITY_UNIT = 0.229 * 360.0 / 60.0          # 0.229 rev/min
+DPS2_PER_ACCELERATION_UNIT = 214.577 * 360.0 / 3600.0  # 214.577 rev/min^2
+VOLTS_PER_VOLTAGE_UNIT = 0.1
+US_PER_RETURN_DELAY_UNIT = 2
+MS_PER_WATCHDOG_UNIT = 20
+WATCHDOG_FIRED = 0xFF                                  # -1 as a signed byte
+ERRBIT_ALERT = 0x80
+
+
+def deg_to_ticks(servo_deg: float) -> int:
+    """Servo angle (degrees from centre) -> Goal Position ticks, within one turn."""
+    return min(max(round(servo_deg / DEG_PER_TICK) + CENTER_TICK, 0), TICKS_PER_TURN - 1)
+
+
+def ticks_to_deg(ticks: int) -> float:
+    return (ticks - CENTER_TICK) * DEG_PER_TICK
+
+
+# The sync-read block, gathered with indirect addressing: (address, size) in order.
+READ_BLOCK: tuple[tuple[int, int], ...] = (
+    (XAddr.ID, 1),                      # checks that the indirect mapping is in place
+    (XAddr.HARDWARE_ERROR_STATUS, 1),
+    (XAddr.TORQUE_ENABLE, 1),
+    (XAddr.BUS_WATCHDOG, 1),
+    (XAddr.MOVING, 1),
+    (XAddr.PRESENT_VELOCITY, 4),
+    (XAddr.PRESENT_POSITION, 4),
+    (XAddr.PRESENT_INPUT_VOLTAGE, 2),
+    (XAddr.PRESENT_TEMPERATURE, 1),
+)
+_READ_BLOCK_FORMAT = struct.Struct("<BBBBBiiHB")
+READ_BLOCK_SIZE = _READ_BLOCK_FORMAT.size
+# Indirect Address n points at one byte each: the addresses the block's bytes come from.
+READ_BLOCK_ADDRESSES: tuple[int, ...] = tuple(addr + i for addr, size in READ_BLOCK for i in range(size))
+assert len(READ_BLOCK_ADDRESSES) == READ_BLOCK_SIZE <= XAddr.INDIRECT_COUNT
+
+_COMM_TIMEOUT_RESULTS = {-3001}  # COMM_RX_TIMEOUT
+
+
+def port_access_hint(port: str, err: OSError) -> str:
+    """What fixes a port that cannot be opened: the udev rule or the dialout group."""
+    code = err.errno
+    if code is None and err.args and isinstance(err.args[0], int):
+        code = err.args[0]
+    if code == errno.ENOENT or not os.path.exists(port):
+        return (f"port {port} does not exist: is the adapter plugged in and powered? "
+                "`ls -l /dev/serial/by-id/` lists adapters; install udev/99-headctl-servos.rules "
+                "(sudo cp udev/99-headctl-servos.rules /etc/udev/rules.d/ && sudo udevadm control --reload "
+                "&& sudo udevadm trigger) for the stable name /dev/head-servos")
+    if code in (errno.EACCES, errno.EPERM) or not os.access(port, os.R_OK | os.W_OK):
+        return (f"no permission to open {port}: add your user to the dialout group "
+                "(sudo usermod -aG dialout $USER, then log out and in again), or install "
+                "udev/99-headctl-servos.rules, which gives the adapter MODE 0660 GROUP dialout")
+    if code == errno.EBUSY:
+        return f"port {port} is busy: another program (another headctl, DYNAMIXEL Wizard) has it open"
+    return f"could not open {port}: {err}"
+
+
+def adapter_latency_timer_ms(port: str) -> float | None:
+    """The FTDI latency timer of the USB adapter behind `port`, if the kernel exposes it."""
+    name = os.path.basename(os.path.realpath(port))
+    path = f"/sys/bus/usb-serial/devices/{name}/latency_timer"
+    try:
+        with open(path, encoding="ascii") as f:
+            return float(f.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+# --- the SDK, with its timing fixed ----------------------------------------------------
+class _BlockingPortHandler(PortHandler):
+    """A `PortHandler` that blocks in select() instead of spinning, on the monotonic clock.
+
+    The SDK's reply timeout assumes a 16 ms adapter latency timer (about 34 ms a reply);
+    here it is the wire time of the reply plus twice the real latency timer plus the
+    servos' Return Delay Time plus a margin for host scheduling.
+    """
+
+    def __init__(self, port_name: str, latency_timer_ms: float, reply_slack_ms: float) -> None:
+        super().__init__(port_name)
+        self.latency_timer_ms = latency_timer_ms
+        self.reply_slack_ms = reply_slack_ms
+
+    def setupPort(self, cflag_baud: int) -> bool:
+        opened = super().setupPort(cflag_baud)
+        try:
+            # FTDI adapters (U2D2) hold short replies for their latency timer; ask for 1 ms.
+            # A pseudo-terminal or a non-FTDI adapter refuses, which is harmless.
+            self.ser.set_low_latency_mode(True)
+        except (OSError, ValueError, AttributeError, NotImplementedError):
+            log.log(TRACE, "%s: low-latency mode not available", self.port_name)
+        return opened
+
+    def getCurrentTime(self) -> float:
+        # The SDK uses wall-clock time, which jumps with NTP; control timing is monotonic.
+        return time.monotonic() * 1000.0
+
+    def setPacketTimeout(self, packet_length: int) -> None:
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = (self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms
+                               + self.reply_slack_ms)
+
+    def readPort(self, length: int) -> bytes:
+        remaining_s = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
+        if remaining_s > 0.0:
+            # Sleep until a byte arrives or the deadline passes (the SDK loops on us).
+            select.select([self.ser.fileno()], [], [], remaining_s)
+        return self.ser.read(length)
+
+
+class _SyncRead(GroupSyncRead):
+    """`GroupSyncRead` that keeps each servo's status error byte and the failing id."""
+
+    def rxPacket(self) -> int:
+        self.last_result = False
+        self.errors: dict[int, int] = {}
+        self.failed_id: int | None = None
+        result = COMM_SUCCESS
+        for dxl_id in self.data_dict:
+            data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
+            self.data_dict[dxl_id] = data
+            self.errors[dxl_id] = error
+            if result != COMM_SUCCESS:
+                self.failed_id = dxl_id
+                return result
+        self.last_result = True
+        return result
+
+
+# --- the backend -----------------------------------------------------------------------
+class DynamixelBus(ServoBus):
+    """Four Protocol 2.0 X-series servos on one port; see the module docstring."""
+
+    capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog"})
+
+    # Host scheduling margin added to every reply timeout: a Python thread on a busy
+    # 2-core machine can be late by a couple of milliseconds.
+    REPLY_SLACK_MS = 3.0
+    REBOOT_POLL_S = 0.05
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
+        super().__init__(config, clock=clock, name=name)
+        for joint, jc in config.joints.items():
+            if jc.model not in X_MODELS:
+                raise ServoConfigError(
+                    f"{config.joint_path(joint)}.model: got {jc.model!r}, expected one of "
+                    f"{', '.join(X_MODELS)} (Protocol 2.0 X-series)"
+                )
+        self._ids = {joint: config.joints[joint].servo_id for joint in JOINTS}
+        self._joint_of = {servo_id: joint for joint, servo_id in self._ids.items()}
+        self._packet = PacketHandler(2.0)
+        self._port: _BlockingPortHandler | None = None
+        self._sync_read: _SyncRead | None = None
+        self._sync_write: GroupSyncWrite | None = None
+        self.firmware: dict[str, int] = {}
+
+    # -- hooks ---------------------------------------------------------------------------
+    def _connect(self) -> None:
+        latency_ms = self.config.latency_timer_ms
+        actual_ms = adapter_latency_timer_ms(self.config.port)
+        if actual_ms is not None and actual_ms > latency_ms:
+            log.warning("%s: the adapter's latency timer is %g ms (config says %g ms): every read waits that "
+                        "long; install udev/99-headctl-servos.rules to set it to 1 ms", self.name, actual_ms,
+                        latency_ms)
+            latency_ms = actual_ms
+        slack_ms = self.REPLY_SLACK_MS + len(JOINTS) * self.config.return_delay_us / 1000.0
+        port = _BlockingPortHandler(self.config.port, latency_ms, slack_ms)
+        self._port = port
+        try:
+            opened = port.openPort()
+            if opened:
+                opened = port.setBaudRate(self.config.baud)
+        except OSError as err:
+            raise BusDownError(f"{self.name}: {port_access_hint(self.config.port, err)}") from err
+        if not opened:
+            raise ServoConfigError(f"{self.config.key_path}.baud: dynamixel-sdk refused {self.config.baud} baud")
+        for joint in JOINTS:
+            self._check_model(joint)
+        self._sync_read = _SyncRead(port, self._packet, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE)
+        for servo_id in self._ids.values():
+            self._sync_read.addParam(servo_id)
+        self._sync_write = GroupSyncWrite(port, self._packet, XAddr.GOAL_POSITION, 4)
+
+    def _disconnect(self) -> None:
+        port, self._port = self._port, None
+        self._sync_read = self._sync_write = None
+        if port is None or port.ser is None:
+            return
+        try:
+            port.closePort()
+        except OSError as err:  # closing a vanished adapter can fail; it is gone either way
+            log.debug("%s: closing the port failed: %s", self.name, err)
+
+    def _configure(self, joints: Iterable[str]) -> None:
+        for joint in joints:
+            self._configure_servo(joint)
+
+    def _read_servos(self) -> dict[str, JointState]:
+        states = self._sync_read_states()
+        remapped = [j for j, s in states.items() if s is None]
+        if remapped:
+            # The indirect mapping is gone (the servo lost power and came back with RAM
+            # defaults): program it again and read once more.
+            for joint in remapped:
+                log.warning("%s: indirect mapping lost (servo power cycled?); configuring it again",
+                            self.describe(joint))
+                self._configure_servo(joint)
+            states = self._sync_read_states()
+            bad = [j for j, s in states.items() if s is None]
+            if bad:
+                raise ServoCommError(f"{self.describe(bad[0])}: sync-read block still inconsistent after reconfiguring")
+        return states  # type: ignore[return-value]
+
+    def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
+        sync_write = self._require(self._sync_write)
+        sync_write.clearParam()
+        for joint, servo_deg in goals_deg.items():
+            sync_write.addParam(self._ids[joint], list(struct.pack("<i", deg_to_ticks(servo_deg))))
+        try:
+            result = sync_write.txPacket()
+        except OSError as err:
+            raise BusDownError(f"{self.name}: port failed writing goals: {err}") from err
+        if result != COMM_SUCCESS:
+            raise ServoCommError(f"{self.name}: goal sync write failed: {self._packet.getTxRxResult(result)}")
+
+    def _set_torque(self, joints: Iterable[str], on: bool) -> None:
+        watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
+        for joint in joints:
+            if on:
+                if self._write(joint, XAddr.TORQUE_ENABLE, 1, 1) & ERRBIT_ALERT \
+                        and self._read(joint, XAddr.TORQUE_ENABLE, 1) != 1:
+                    # A servo in shutdown accepts the write and stays limp.
+                    bits = self._read(joint, XAddr.HARDWARE_ERROR_STATUS, 1)
+                    raise ServoHardwareError(
+                        f"{self.describe(joint)}: torque refused, hardware error 0x{bits:02x}: "
+                        + "; ".join(decode_hardware_error(bits))
+                    )
+                if watchdog_units:
+                    self._write(joint, XAddr.BUS_WATCHDOG, 1, watchdog_units)
+            else:
+                if watchdog_units:
+                    self._write(joint, XAddr.BUS_WATCHDOG, 1, 0)
+                self._write(joint, XAddr.TORQUE_ENABLE, 1, 0)
+
+    def _reboot_servo(self, joint: str) -> None:
+        servo_id = self._ids[joint]
+        self._transact(joint, "reboot", lambda: (None, *self._packet.reboot(self._port, servo_id)))
+        deadline_s = self.clock.monotonic() + self.config.reboot_timeout_s
+        while True:
+            self.clock.sleep(self.REBOOT_POLL_S)  # the servo boots for a few hundred ms
+            try:
+                _model, result, _error = self._packet.ping(self._require(self._port), servo_id)
+            except OSError as err:
+                raise BusDownError(f"{self.name}: port failed while {self.describe(joint)} rebooted: {err}") from err
+            if result == COMM_SUCCESS:
+                return
+            if self.clock.monotonic() > deadline_s:
+                raise ServoTimeoutError(
+                    f"{self.describe(joint)}: no answer {self.config.reboot_timeout_s:g} s after reboot"
+                )
+
+    # -- servo setup -----------------------------------------------------------------------
+    def _check_model(self, joint: str) -> None:
+        servo_id = self._ids[joint]
+        model_number, _error = self._transact(joint, "ping", lambda: self._packet.ping(self._port, servo_id))
+        expected_name = self.config.joints[joint].model
+        if model_number != X_MODELS[expected_name]:
+            found = KNOWN_MODEL_NAMES.get(model_number, "an unknown model")
+            raise ServoModelError(
+                f"{self.describe(joint)}: found model number {model_number} ({found}), but "
+                f"{self.config.joint_path(joint)}.model is {expected_name} ({X_MODELS[expected_name]})"
+            )
+        self.firmware[joint] = self._read(joint, XAddr.FIRMWARE_VERSION, 1)
+
+    def _configure_servo(self, joint: str) -> None:
+        """Apply the joint's settings, writing EEPROM only where it differs, torque kept."""
+        jc = self.config.joints[joint]
+        limit_ticks = sorted(deg_to_ticks(jc.servo_angle(a)) for a in (jc.min_angle, jc.max_angle))
+        # (address, size, value) that need torque off: EEPROM and the indirect addresses.
+        wanted = [
+            (XAddr.RETURN_DELAY_TIME, 1, self.config.return_delay_us // US_PER_RETURN_DELAY_UNIT),
+            (XAddr.DRIVE_MODE, 1, 0),  # direction is applied in software; velocity-based profile
+            (XAddr.OPERATING_MODE, 1, OPERATING_MODE_POSITION),
+            (XAddr.MAX_POSITION_LIMIT, 4, limit_ticks[1]),
+            (XAddr.MIN_POSITION_LIMIT, 4, limit_ticks[0]),
+        ] + [(XAddr.INDIRECT_ADDRESS_1 + 2 * i, 2, addr) for i, addr in enumerate(READ_BLOCK_ADDRESSES)]
+        eeprom = self._read_bytes(joint, 0, XAddr.EEPROM_END)
+        indirect = self._read_bytes(joint, XAddr.INDIRECT_ADDRESS_1, 2 * READ_BLOCK_SIZE)
+
+        def current(addr: int, size: int) -> int:
+            block, base = (eeprom, 0) if addr < XAddr.EEPROM_END else (indirect, XAddr.INDIRECT_ADDRESS_1)
+            return int.from_bytes(block[addr - base: addr - base + size], "little")
+
+        changes = [(addr, size, value) for addr, size, value in wanted if current(addr, size) != value]
+        if changes:
+            torque_on = self._read(joint, XAddr.TORQUE_ENABLE, 1) == 1
+            if torque_on:
+                # Hold where it is, so that torque coming back on does not move it.
+                log.info("%s: torque briefly off to write %d setting(s)", self.describe(joint), len(changes))
+                self._write(joint, XAddr.GOAL_POSITION, 4, self._read(joint, XAddr.PRESENT_POSITION, 4))
+                self._write(joint, XAddr.TORQUE_ENABLE, 1, 0)
+            for addr, size, value in changes:
+                log.debug("%s: address %d := %d", self.describe(joint), addr, value)
+                self._write(joint, addr, size, value)
+            if torque_on:
+                self._write(joint, XAddr.TORQUE_ENABLE, 1, 1)
+        # RAM settings, writable any time. The watchdog is cleared (it also clears a fired
+        # one) and armed again when torque goes on.
+        self._write(joint, XAddr.BUS_WATCHDOG, 1, 0)
+        self._write(joint, XAddr.PROFILE_ACCELERATION, 4, round(jc.profile_acceleration / DPS2_PER_ACCELERATION_UNIT))
+        self._write(joint, XAddr.PROFILE_VELOCITY, 4, round(jc.profile_velocity / DPS_PER_VELOCITY_UNIT))
+
+    # -- transactions ----------------------------------------------------------------------
+    def _sync_read_states(self) -> dict[str, JointState | None]:
+        sync_read = self._require(self._sync_read)
+        result = COMM_SUCCESS
+        for attempt in range(self.config.retries + 1):
+            try:
+                result = sync_read.txRxPacket()
+            except OSError as err:
+                raise BusDownError(f"{self.name}: port failed during sync read: {err}") from err
+            if result == COMM_SUCCESS:
+                break
+            log.debug("%s: sync read attempt %d failed at id %s: %s", self.name, attempt + 1,
+                      sync_read.failed_id, self._packet.getTxRxResult(result))
+        else:
+            self._raise_comm(self._joint_of.get(sync_read.failed_id), "sync read", result)
+        states: dict[str, JointState | None] = {}
+        watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
+        for joint, servo_id in self._ids.items():
+            (mapped_id, hw_error, torque, watchdog, moving, velocity, position, voltage,
+             temperature) = _READ_BLOCK_FORMAT.unpack(bytes(sync_read.data_dict[servo_id]))
+            if mapped_id != servo_id:
+                states[joint] = None
+                continue
+            if sync_read.errors.get(servo_id, 0) & ERRBIT_ALERT and not hw_error:
+                hw_error = self._read(joint, XAddr.HARDWARE_ERROR_STATUS, 1)
+            if watchdog == WATCHDOG_FIRED:
+                log.warning("%s: bus watchdog fired (the host was silent too long): servo stopped; re-arming",
+                            self.describe(joint))
+                self._write(joint, XAddr.BUS_WATCHDOG, 1, 0)
+                if torque and watchdog_units:
+                    self._write(joint, XAddr.BUS_WATCHDOG, 1, watchdog_units)
+            states[joint] = JointState(
+                position=ticks_to_deg(position),
+                velocity=velocity * DPS_PER_VELOCITY_UNIT,
+                moving=bool(moving),
+                torque_on=bool(torque),
+                hardware_error_bits=hw_error,
+                temperature_c=float(temperature),
+                input_voltage_v=voltage * VOLTS_PER_VOLTAGE_UNIT,
+            )
+        return states
+
+    def _read(self, joint: str, address: int, size: int) -> int:
+        return int.from_bytes(self._read_bytes(joint, address, size), "little")
+
+    def _read_bytes(self, joint: str, address: int, size: int) -> bytes:
+        servo_id = self._ids[joint]
+        data, _error = self._transact(joint, f"read of address {address}",
+                                      lambda: self._packet.readTxRx(self._port, servo_id, address, size))
+        return bytes(data)
+
+    def _write(self, joint: str, address: int, size: int, value: int) -> int:
+        """Write one item; returns the status error byte (its Alert bit may be set)."""
+        servo_id = self._ids[joint]
+        data = list(value.to_bytes(size, "little", signed=value < 0))
+        _none, error = self._transact(joint, f"write of {value} to address {address}",
+                                      lambda: (None, *self._packet.writeTxRx(self._port, servo_id, address, size, data)))
+        return error
+
+    def _transact(self, joint: str, what: str, call: Callable[[], tuple]) -> tuple:
+        """One request/reply with bounded retries; returns (value, status error byte).
+
+        The Alert bit only says a hardware error is present (read_state reports it); any
+        other error number means the servo refused the instruction.
+        """
+        self._require(self._port)
+        result = COMM_SUCCESS
+        for attempt in range(self.config.retries + 1):
+            try:
+                value, result, error = call()
+            except OSError as err:
+                raise BusDownError(f"{self.name}: port failed during {what} ({self.describe(joint)}): {err}") from err
+            if result != COMM_SUCCESS:
+                log.debug("%s: %s attempt %d: %s", self.describe(joint), what, attempt + 1,
+                          self._packet.getTxRxResult(result))
+                continue
+            if error & ~ERRBIT_ALERT:
+                refusal = self._packet.getRxPacketError(error & ~ERRBIT_ALERT)
+                raise ServoError(f"{self.describe(joint)}: {what} refused: {refusal}")
+            return value, error
+        self._raise_comm(joint, what, result)
+
+    def _raise_comm(self, joint: str | None, what: str, result: int) -> None:
+        where = self.describe(joint) if joint else self.name
+        message = (f"{where}: {what} failed after {self.config.retries + 1} attempt(s): "
+                   f"{self._packet.getTxRxResult(result)}")
+        if result in _COMM_TIMEOUT_RESULTS:
+            raise ServoTimeoutError(message)
+        raise ServoCommError(message)
+
+    def _require(self, thing):
+        if thing is None:
+            raise BusDownError(f"{self.name}: the port is not open")
+        return thing
+
+
+# --- scanning --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ScanResult:
+    servo_id: int
+    model_number: int
+    firmware: int
+    baud: int
+    protocol: float
+
+    @property
+    def model_name(self) -> str:
+        return KNOWN_MODEL_NAMES.get(self.model_number, "unknown model")
+
+
+def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterable[int] = range(253),
+         latency_timer_ms: float = 1.0) -> list[ScanResult]:
+    """Find the servos on `port` at each baud rate.
+
+    Protocol 2.0 uses one broadcast ping per baud (every servo 0-252 answers in turn);
+    Protocol 1.0 has no broadcast ping reply, so each id is pinged and its model read.
+    Raises `ServoCommError` naming the fix when the port cannot be opened.
+    """
+    handler = _BlockingPortHandler(port, latency_timer_ms, DynamixelBus.REPLY_SLACK_MS)
+    packet = PacketHandler(protocol)
+    wanted = set(ids)
+    found: list[ScanResult] = []
+    try:
+        for baud in bauds:
+            try:
+                ok = handler.setBaudRate(baud)
+            except OSError as err:
+                raise ServoCommError(port_access_hint(port, err)) from err
+            if not ok:
+                raise ServoConfigError(f"baud {baud}: not supported by dynamixel-sdk (max 4000000)")
+            log.info("%s: scanning at %d baud, protocol %.1f", port, baud, protocol)
+            try:
+                if protocol == 2.0:
+                    replies, _result = packet.broadcastPing(handler)
+                    found += [ScanResult(i, model, fw, baud, protocol)
+                              for i, (model, fw) in sorted(replies.items()) if i in wanted]
+                else:
+                    found += _scan_unicast(handler, packet, sorted(wanted), baud, protocol)
+            except OSError as err:
+                raise ServoCommError(f"{port}: the port failed during the scan: {err}") from err
+    finally:
+        if handler.ser is not None:
+            try:
+                handler.closePort()
+            except OSError:
+                log.debug("%s: closing after the scan failed", port)
+    return found
+
+
+def _scan_unicast(handler: PortHandler, packet, ids: list[int], baud: int, protocol: float) -> list[ScanResult]:
+    found = []
+    for servo_id in ids:
+        model, result, _error = packet.ping(handler, servo_id)
+        if result != COMM_SUCCESS:
+            continue
+        firmware, result, _error = packet.read1ByteTxRx(handler, servo_id, 2 if protocol == 1.0 else XAddr.FIRMWARE_VERSION)
+        found.append(ScanResult(servo_id, model, firmware if result == COMM_SUCCESS else -1, baud, protocol))
+    return found

@@ -1,0 +1,263 @@
+"""The simulated servo bus: four servos with a motion model and no serial port at all.
+
+This module owns `ProfileAxis`, the motion model shared with the Dynamixel emulator (a
+trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
+velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
+backend built on it. The simulated head and the daemon use it; its fault-injection hooks
+(`inject_bus_down`, `restore_bus`, `inject_hardware_error`) let their tests exercise the
+recovery paths of `drivers.servo_bus` without hardware.
+
+Time comes from an injectable clock, so tests run faster than real time with a
+`drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
+across `open()`/`close()` like real servos do.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Iterable, Mapping
+
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import BusDownError, ServoHardwareError
+from drivers.servo_bus import JOINTS, JointState, ServoBus, ServoBusConfig, decode_hardware_error
+
+log = logging.getLogger(__name__)
+
+# Integration step of the motion model: fine enough that a profile ends within a
+# millisecond of the analytic one, coarse enough that a 10 s jump of a ManualClock costs
+# a few thousand steps.
+_STEP_S = 0.001
+# Hardware Error Status bits that cut torque under the X-series default Shutdown (63) = 52:
+# overheating, electrical shock, overload.
+DEFAULT_SHUTDOWN_BITS = 0b0011_0100
+
+
+class ProfileAxis:
+    """One joint moving toward its goal under a velocity and an acceleration limit.
+
+    Unit-agnostic (degrees for the simulator, ticks for the emulator). A limit of
+    `math.inf` means unlimited. Not thread-safe: its owner serialises access.
+    """
+
+    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
+                 max_acceleration: float = math.inf) -> None:
+        self.position = float(position)
+        self.velocity = 0.0
+        self.goal = float(position)
+        self.max_velocity = max_velocity
+        self.max_acceleration = max_acceleration
+        self.time_s = time_s
+
+    @property
+    def moving(self) -> bool:
+        return self.position != self.goal or self.velocity != 0.0
+
+    def set_goal(self, goal: float) -> None:
+        self.goal = float(goal)
+
+    def hold(self) -> None:
+        """Stop where the axis is now (torque off, watchdog, reboot)."""
+        self.goal = self.position
+        self.velocity = 0.0
+
+    def advance_to(self, time_s: float) -> None:
+        """Move the model forward to `time_s` (earlier times are ignored)."""
+        dt_total = time_s - self.time_s
+        if dt_total <= 0.0:
+            return
+        self.time_s = time_s
+        remaining = dt_total
+        while remaining > 0.0 and self.moving:
+            dt = min(_STEP_S, remaining)
+            remaining -= dt
+            self._step(dt)
+
+    def _step(self, dt: float) -> None:
+        distance = self.goal - self.position
+        direction = math.copysign(1.0, distance) if distance else -math.copysign(1.0, self.velocity)
+        accel = self.max_acceleration
+        # The fastest speed from which the axis can still stop at the goal.
+        stop_speed = math.sqrt(2.0 * accel * abs(distance)) if math.isfinite(accel) else math.inf
+        target_v = direction * min(self.max_velocity, stop_speed)
+        if math.isinf(target_v):
+            self.position, self.velocity = self.goal, 0.0
+            return
+        max_dv = accel * dt
+        self.velocity += min(max(target_v - self.velocity, -max_dv), max_dv)
+        new_position = self.position + self.velocity * dt
+        if (self.goal - new_position) * direction <= 0.0:
+            # Reached (or would pass) the goal: settle exactly on it.
+            self.position, self.velocity = self.goal, 0.0
+            return
+        self.position = new_position
+
+
+class _SimServo:
+    """One simulated servo, in the servo frame (degrees from its centre)."""
+
+    def __init__(self, position_deg: float, time_s: float) -> None:
+        self.axis = ProfileAxis(position_deg, time_s)
+        self.goal_deg = position_deg  # the Goal Position register, kept while torque is off
+        self.torque_on = False
+        self.hardware_error_bits = 0
+        self.temperature_c = 35.0
+        self.input_voltage_v = 12.0
+
+
+class SimulatedServoBus(ServoBus):
+    """A `ServoBus` over simulated servos; see the module docstring.
+
+    `initial_positions` (joint frame, degrees; default 0 for every joint) is where the head
+    rests when the simulation starts. `max_velocity_dps` is the speed a profile velocity of
+    0 ("as fast as possible") stands for.
+    """
+
+    capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
+                              "fault_injection"})
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
+                 initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
+        super().__init__(config, clock=clock, name=name or f"sim-servo-bus({config.port})")
+        self.max_velocity_dps = max_velocity_dps
+        now = clock.monotonic()
+        initial = dict(initial_positions or {})
+        self._servos = {
+            joint: _SimServo(config.joints[joint].servo_angle(initial.get(joint, 0.0)), now) for joint in JOINTS
+        }
+        # Guards the simulated hardware: fault hooks are called from test or daemon threads.
+        self._sim_lock = threading.Lock()
+        self._linked = False
+        self._adapter_present = True
+        self._last_contact_s = now
+
+    # -- fault injection -----------------------------------------------------------------
+    def inject_bus_down(self) -> None:
+        """The adapter vanishes: every bus call fails with `BusDownError` until `restore_bus()`."""
+        with self._sim_lock:
+            self._adapter_present = False
+            self._linked = False
+        log.info("%s: injected fault: adapter unplugged", self.name)
+
+    def restore_bus(self) -> None:
+        """The adapter is back; the bus reopens on its next back-off attempt."""
+        with self._sim_lock:
+            self._adapter_present = True
+        log.info("%s: injected fault cleared: adapter back", self.name)
+
+    def inject_hardware_error(self, joint: str, bits: int) -> None:
+        """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
+        with self._sim_lock:
+            servo = self._servos[joint]
+            servo.axis.advance_to(self.clock.monotonic())
+            servo.hardware_error_bits |= bits
+            if bits & DEFAULT_SHUTDOWN_BITS:
+                servo.torque_on = False
+                servo.axis.hold()
+        log.info("%s: injected hardware error 0x%02x on %s (%s)", self.name, bits, joint,
+                 "; ".join(decode_hardware_error(bits)))
+
+    def true_position(self, joint: str) -> float:
+        """Where the simulated joint really is now (joint frame, degrees), bus or no bus."""
+        with self._sim_lock:
+            servo = self._servos[joint]
+            servo.axis.advance_to(self.clock.monotonic())
+            return self.config.joints[joint].joint_angle(servo.axis.position)
+
+    # -- ServoBus hooks ------------------------------------------------------------------
+    def _connect(self) -> None:
+        with self._sim_lock:
+            if not self._adapter_present:
+                raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+            self._linked = True
+            self._last_contact_s = self.clock.monotonic()
+
+    def _disconnect(self) -> None:
+        with self._sim_lock:
+            self._linked = False
+
+    def _configure(self, joints: Iterable[str]) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            for joint in joints:
+                jc = self.config.joints[joint]
+                servo = self._servos[joint]
+                servo.axis.advance_to(now)
+                servo.axis.max_velocity = jc.profile_velocity or self.max_velocity_dps
+                servo.axis.max_acceleration = jc.profile_acceleration or math.inf
+
+    def _read_servos(self) -> dict[str, JointState]:
+        with self._sim_lock:
+            now = self._contact()
+            states = {}
+            for joint, servo in self._servos.items():
+                servo.axis.advance_to(now)
+                states[joint] = JointState(
+                    position=servo.axis.position,
+                    velocity=servo.axis.velocity,
+                    moving=servo.axis.moving,
+                    torque_on=servo.torque_on,
+                    hardware_error_bits=servo.hardware_error_bits,
+                    temperature_c=servo.temperature_c,
+                    input_voltage_v=servo.input_voltage_v,
+                )
+            return states
+
+    def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            for joint, goal in goals_deg.items():
+                servo = self._servos[joint]
+                servo.axis.advance_to(now)
+                servo.goal_deg = goal
+                if servo.torque_on:
+                    servo.axis.set_goal(goal)
+
+    def _set_torque(self, joints: Iterable[str], on: bool) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            for joint in joints:
+                servo = self._servos[joint]
+                servo.axis.advance_to(now)
+                if on and servo.hardware_error_bits & DEFAULT_SHUTDOWN_BITS:
+                    raise ServoHardwareError(
+                        f"{self.describe(joint)}: torque refused, hardware error 0x{servo.hardware_error_bits:02x}: "
+                        + "; ".join(decode_hardware_error(servo.hardware_error_bits))
+                    )
+                servo.torque_on = on
+                if on:
+                    # Like a real servo: torque on drives toward the Goal Position register.
+                    servo.axis.set_goal(servo.goal_deg)
+                else:
+                    servo.axis.hold()
+
+    def _reboot_servo(self, joint: str) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            servo = self._servos[joint]
+            servo.axis.advance_to(now)
+            servo.axis.hold()
+            servo.goal_deg = servo.axis.position
+            servo.torque_on = False
+            servo.hardware_error_bits = 0
+
+    def _contact(self) -> float:
+        """One packet on the bus: check the link, apply the Bus Watchdog, return now."""
+        if not self._linked:
+            raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+        now = self.clock.monotonic()
+        watchdog_s = self.config.watchdog_ms / 1000.0
+        if watchdog_s and now - self._last_contact_s > watchdog_s:
+            # The host fell silent longer than the watchdog: each torqued servo stopped
+            # where it was at that moment. The driver re-arms the watchdog as soon as it
+            # speaks again (as the Dynamixel backend does), so the trip ends here.
+            trip_s = self._last_contact_s + watchdog_s
+            for joint, servo in self._servos.items():
+                if servo.torque_on and servo.axis.moving:
+                    servo.axis.advance_to(trip_s)
+                    servo.axis.hold()
+                    servo.goal_deg = servo.axis.position
+                    log.warning("%s: bus watchdog expired on %s after %.3f s of silence: servo stopped",
+                                self.name, joint, now - self._last_contact_s)
+        self._last_contact_s = now
+        return now
