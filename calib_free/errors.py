@@ -1,0 +1,14 @@
+"""The one exception hierarchy of `calib_free`."""
+from __future__ import annotations
+
+
+class CalibFreeError(Exception):
+    """Root of every error raised by `calib_free`."""
+
+
+class OutOfRangeError(CalibFreeError, ValueError):
+    """An image position outside the image or the disparity range the map covers."""
+
+
+class MapFileError(CalibFreeError, ValueError):
+    """A saved map that cannot be read: missing, corrupt, or made for another grid."""

@@ -1,0 +1,518 @@
+"""The gaze map W(x, y, d): image position -> relative motor command (paper II-A, II-D, II-E).
+
+W is a lookup grid over (x, y, d) -- left-image pixel position and disparity d = x_r - x_l
+-- whose nodes hold relative commands (dpan, dtilt, dverg) in degrees. It starts random and
+learns online from fixations: a converged fixation says "the command m brought what was at
+r* = (x*, y*, d*) onto both foveae", and W moves towards m around r* (eqs. 10-11) with a
+Gaussian neighbourhood whose widths follow the windowed mean retinal error (eqs. 8-9).
+
+Two profiles:
+  - `paper`: the paper's rule as written, with Table I's values: nearest-node readout and
+    inverse lookup, fixed adaptation rate alpha, target m for every node in the
+    neighbourhood.
+  - `default`: the same map and the same eqs. 8-9 schedule, with what holds the paper's rule
+    back removed (README, "The learning core"): trilinear readout, sub-node inverse lookup,
+    a first-order (local linear) target so a broad neighbourhood does not smear the map, and
+    per-node rates that average rather than overwrite once a node has seen enough samples.
+
+Indices: grid coordinates are continuous node indices (i, j, k) along (x, y, d); pixel and
+disparity positions map onto them linearly, node 0 at the range's start and the last node
+at its end. The image range is -0.5 .. width-0.5 (pixel centres at integers, origin at the
+top-left pixel's centre), the disparity range as configured.
+"""
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import logging
+import os
+import tempfile
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from calib_free import _kernels
+from calib_free.errors import MapFileError, OutOfRangeError
+
+log = logging.getLogger(__name__)
+
+FILE_FORMAT = "calib_free.GazeMap/1"
+PROFILES = ("default", "paper")
+_NO_POLYNOMIAL = np.zeros((0, 0, 0, 3))
+
+
+@dataclass(frozen=True)
+class GazeMapParams:
+    """Everything that defines a map. Table I's values are the defaults."""
+
+    image_size: tuple[int, int] = (320, 240)  # (width, height) of the left image, pixels
+    disparity_range: tuple[float, float] = (-60.0, 60.0)  # pixels; an application choice (II-A)
+    grid_shape: tuple[int, int, int] = (100, 75, 21)  # Table I: input size s_in
+    output_resolution: tuple[int, int, int] = (50, 50, 50)  # Table I: output size s_out
+    # Relative command ranges (deg) the output resolution divides; also the random init range.
+    command_range: tuple[tuple[float, float], ...] = ((-50.0, 50.0), (-35.0, 35.0), (-17.0, 17.0))
+    adaptation_rate: float = 0.6  # Table I: alpha (eq. 10)
+    sigma_max_fraction: float = 0.2  # Table I: sigma_max, fraction of each input dimension (eq. 9)
+    adaptation_slope: float = 5.0  # Table I: s (eq. 9)
+    adaptation_threshold: float = 0.2  # Table I: t (eq. 9)
+    error_window: int = 10  # Table I: w (eq. 9, "averaged over the last ten errors")
+    retinal_error_max_fraction: float = 0.5  # E_max = 50 % of each dimension (eq. 8)
+    gaussian_cutoff: float = 1e-2  # G below this is negligible (< 0.6 % of a step): nodes there are not touched
+    profile: str = "default"
+    # Improvements of the default profile (all off in `paper`):
+    interpolate: bool = True  # trilinear readout of W and sub-node inverse lookup
+    global_degree: int = 3  # > 0: W = polynomial of this degree (RLS) + the grid as its residual
+    global_memory: float = 400.0  # fixations the polynomial remembers when the error is small
+    global_memory_min: float = 40.0  # ... and at the least, when eq. 9's sigmoid saturates
+
+    @classmethod
+    def profile_values(cls, profile: str, **overrides) -> "GazeMapParams":
+        if profile == "paper":
+            base = dict(profile="paper", interpolate=False, global_degree=0)
+        elif profile == "default":
+            base = dict(profile="default", interpolate=True, global_degree=3)
+        else:
+            raise ValueError(f"unknown gaze map profile {profile!r}: expected one of {', '.join(PROFILES)}")
+        base.update(overrides)
+        return cls(**base)
+
+    def __post_init__(self) -> None:
+        w, h = self.image_size
+        if w < 2 or h < 2:
+            raise ValueError(f"image_size must be at least (2, 2) pixels, got {self.image_size}")
+        lo, hi = self.disparity_range
+        if not hi > lo:
+            raise ValueError(f"disparity_range must be (low, high) with low < high, got {self.disparity_range}")
+        if len(self.grid_shape) != 3 or min(self.grid_shape) < 2:
+            raise ValueError(f"grid_shape must be 3 sizes >= 2, got {self.grid_shape}")
+        if len(self.command_range) != 3 or any(not b > a for a, b in self.command_range):
+            raise ValueError(f"command_range must be 3 (low, high) pairs, got {self.command_range}")
+        if not 0 < self.adaptation_rate <= 1:
+            raise ValueError(f"adaptation_rate must be in (0, 1], got {self.adaptation_rate}")
+        if self.error_window < 1:
+            raise ValueError(f"error_window must be >= 1, got {self.error_window}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}")
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "GazeMapParams":
+        data = json.loads(text)
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown gaze map parameters {unknown}")
+        for key in ("image_size", "disparity_range", "grid_shape", "output_resolution"):
+            data[key] = tuple(data[key])
+        data["command_range"] = tuple(tuple(r) for r in data["command_range"])
+        return cls(**data)
+
+
+@dataclass
+class AdaptResult:
+    """What one adaptation did (or why it did not)."""
+
+    accepted: bool
+    reason: str = ""  # why a sample was refused; "" when accepted
+    retinal_error: float = float("nan")  # eq. 8, a fraction of the half-ranges
+    output_error: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # |dW(r*)| per axis, deg
+    mean_retinal_error: float = float("nan")  # E-bar of eq. 9
+    sigma_cells: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # eq. 9 widths, grid cells
+    nodes_updated: int = 0
+
+
+class _PolynomialPart:
+    """The smooth global part of W in the default profile: a polynomial in (x, y, d).
+
+    Fitted by exponentially weighted recursive least squares, each sample weighted by its
+    confidence; the forgetting factor follows eq. 9's sigmoid of the mean retinal error, so
+    the fit remembers `memory` fixations while the map is right and only `memory_min` right
+    after the head has changed. Coordinates are grid indices scaled to [-1, 1] per axis.
+    """
+
+    def __init__(self, degree: int, shape: np.ndarray, command_range: np.ndarray, rng: np.random.Generator):
+        self.degree = degree
+        self.terms = np.array([(i, j, k) for i in range(degree + 1) for j in range(degree + 1 - i)
+                               for k in range(degree + 1 - i - j)], dtype=int)
+        self.half_span = (shape - 1) / 2.0
+        self._power_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
+        n = len(self.terms)
+        # Random initialisation like the paper's: a random smooth map, not a learned one.
+        centre = command_range.mean(axis=1)
+        span = command_range[:, 1] - command_range[:, 0]
+        self.coef = rng.normal(0.0, 0.1, size=(n, 3)) * span
+        self.coef[0] = centre + rng.uniform(-0.25, 0.25, size=3) * span
+        self.prior = 100.0  # P0 = 100 I: a weak prior, the first samples dominate at once
+        self.covariance = np.eye(n) * self.prior
+        self.coefficients_changed()
+
+    def coefficients_changed(self) -> None:
+        """Rebuild the dense (i, j, k, axis) coefficient tensor `block` contracts with."""
+        n = self.degree + 1
+        self.tensor = np.zeros((n, n, n, 3))
+        self.tensor[tuple(self.terms.T)] = self.coef
+
+    def _unit(self, g: np.ndarray) -> np.ndarray:
+        return np.asarray(g, dtype=float) / self.half_span - 1.0
+
+    def features(self, g: np.ndarray) -> np.ndarray:
+        u = self._unit(g)
+        return np.prod(u[None, :] ** self.terms, axis=1)
+
+    def at(self, g: np.ndarray) -> np.ndarray:
+        return self.features(g) @ self.coef
+
+    def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] = (1, 1, 1)) -> np.ndarray:
+        """Values at the nodes lo..hi (exclusive) with `stride`: (3, a, b, c)."""
+        px, py, pd = (self._powers(a, int(lo[a]), int(hi[a]), int(stride[a])) for a in range(3))
+        n = self.degree + 1
+        tensor = self.tensor
+        # Contract one axis at a time with plain matmuls (einsum's path search costs more here).
+        t = (px @ tensor.reshape(n, -1)).reshape(len(px), n, n * 3)  # (a, j, k*m)
+        t = np.matmul(py, t).reshape(len(px), len(py), n, 3)  # (a, b, k, m)
+        return np.matmul(pd, t).transpose(3, 0, 1, 2)  # (m, a, b, c)
+
+    def _powers(self, axis: int, lo: int, hi: int, stride: int) -> np.ndarray:
+        key = (axis, lo, hi, stride)
+        powers = self._power_cache.get(key)
+        if powers is None:
+            unit = np.arange(lo, hi, stride, dtype=float) / self.half_span[axis] - 1.0
+            powers = unit[:, None] ** np.arange(self.degree + 1)[None, :]
+            if len(self._power_cache) < 4096:
+                self._power_cache[key] = powers
+        return powers
+
+    def learn(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float) -> None:
+        """One weighted RLS step on features `phi` (of the sample's position) and its command."""
+        forget = 1.0 - 1.0 / max(memory, 1.0)
+        p_phi = self.covariance @ phi
+        gain = p_phi * confidence / (forget + confidence * (phi @ p_phi))
+        self.coef += np.outer(gain, command - phi @ self.coef)
+        self.coefficients_changed()
+        self.covariance = (self.covariance - np.outer(gain, p_phi)) / forget
+        # Forgetting inflates P along directions no sample excites: keep it bounded.
+        limit = self.prior * len(phi)
+        trace = np.trace(self.covariance)
+        if trace > limit:
+            self.covariance *= limit / trace
+
+
+class GazeMap:
+    """The learned map from image position (x, y, d) to relative command (dpan, dtilt, dverg).
+
+    `grid` holds the SOM nodes (Table I's input size). In the `paper` profile it is W itself;
+    in the `default` profile W = polynomial + grid, the grid learning by eqs. 10-11 what the
+    polynomial leaves (so unvisited nodes are not left random).
+    """
+
+    COARSE_REFRESH = 8  # adaptations between refreshes of the inverse lookup's coarse table
+    COARSE_CANDIDATES = 3  # coarse nodes refined at full resolution
+
+    def __init__(self, params: GazeMapParams, seed: int | None = None,
+                 grid: np.ndarray | None = None) -> None:
+        self.params = params
+        shape = tuple(params.grid_shape)
+        rng = np.random.default_rng(seed)
+        command_range = np.array(params.command_range, dtype=float)
+        self.polynomial = (_PolynomialPart(params.global_degree, np.array(shape), command_range, rng)
+                           if params.global_degree > 0 else None)
+        if grid is None:
+            if self.polynomial is None:
+                # "In all experiments the mapping has been initialized randomly" (III).
+                grid = rng.uniform(command_range[:, 0], command_range[:, 1], size=shape + (3,))
+                grid = grid.transpose(3, 0, 1, 2)
+            else:
+                grid = np.zeros((3,) + shape)
+        grid = np.ascontiguousarray(grid, dtype=np.float64)
+        if grid.shape != (3,) + shape:
+            raise ValueError(f"grid must have shape {(3,) + shape} (planar: one plane per axis), got {grid.shape}")
+        # Planar layout (axis, x, y, d): the neighbourhood update runs twice as fast as with
+        # the command axis last.
+        self.grid = grid
+        self._coarse: np.ndarray | None = None  # W on the coarse subgrid, refreshed periodically
+        self._coarse_age = 0
+        self.recent_errors: deque[float] = deque(maxlen=params.error_window)
+        self.adaptations = 0
+        self._setup_geometry()
+
+    def _setup_geometry(self) -> None:
+        p = self.params
+        w, h = p.image_size
+        # The image spans pixel edges to pixel edges: centres are at 0 .. w-1, so -0.5 .. w-0.5.
+        self._low = np.array([-0.5, -0.5, p.disparity_range[0]])
+        self._high = np.array([w - 0.5, h - 0.5, p.disparity_range[1]])
+        self._shape = np.array(p.grid_shape)
+        self._cells_per_unit = (self._shape - 1) / (self._high - self._low)
+        # eq. 8: E_max is 50 % of each input dimension's size.
+        self._error_max = p.retinal_error_max_fraction * (self._high - self._low)
+        # eq. 9: sigma_max is 20 % of each input dimension's size, here in grid cells.
+        self._sigma_max_cells = p.sigma_max_fraction * (self._shape - 1)
+        cmd = np.array(p.command_range)
+        # Table I's output size: the motor-space resolution, used as the inverse lookup's metric.
+        self._motor_scale = np.array(p.output_resolution) / (cmd[:, 1] - cmd[:, 0])
+        self._half_span = (self._shape - 1) / 2.0
+        self._coarse_stride = (4, 4, 2)
+
+    @classmethod
+    def for_image(cls, width: int, height: int, disparity_range: Sequence[float] = (-60.0, 60.0),
+                  seed: int | None = None, profile: str = "default", **overrides) -> "GazeMap":
+        """A random map for a `width` x `height` left image and a disparity range in pixels."""
+        params = GazeMapParams.profile_values(
+            profile, image_size=(int(width), int(height)),
+            disparity_range=(float(disparity_range[0]), float(disparity_range[1])), **overrides)
+        return cls(params, seed=seed)
+
+    # -- positions ---------------------------------------------------------------------
+    def _check_position(self, position: Sequence[float]) -> str:
+        r = np.asarray(position, dtype=float)
+        if r.shape != (3,) or not np.all(np.isfinite(r)):
+            return f"position must be 3 finite numbers (x, y, d), got {position!r}"
+        names = ("x", "y", "d")
+        for axis in range(3):
+            if not self._low[axis] <= r[axis] <= self._high[axis]:
+                what = "disparity range" if axis == 2 else "image"
+                return (f"{names[axis]}={r[axis]:g} is outside the {what}: expected "
+                        f"{self._low[axis]:g} <= {names[axis]} <= {self._high[axis]:g}")
+        return ""
+
+    def to_grid(self, position: Sequence[float]) -> np.ndarray:
+        """Continuous node indices (i, j, k) of an image position (x, y, d)."""
+        return (np.asarray(position, dtype=float) - self._low) * self._cells_per_unit
+
+    def to_position(self, grid: Sequence[float]) -> np.ndarray:
+        """Image position (x, y, d) of continuous node indices."""
+        return np.asarray(grid, dtype=float) / self._cells_per_unit + self._low
+
+    # -- readout -----------------------------------------------------------------------
+    def command(self, position: Sequence[float]) -> np.ndarray:
+        """The relative command (dpan, dtilt, dverg) in degrees that fixates `position`.
+
+        Raises OutOfRangeError for a position outside the image or the disparity range.
+        """
+        problem = self._check_position(position)
+        if problem:
+            raise OutOfRangeError(problem)
+        return self._value_at(self.to_grid(position))
+
+    def _grid_at(self, g: np.ndarray) -> np.ndarray:
+        if not self.params.interpolate:
+            i, j, k = np.rint(g).astype(int)
+            return self.grid[:, i, j, k].copy()
+        base = np.minimum(np.floor(g).astype(int), self._shape - 2)
+        f = g - base
+        i, j, k = base
+        cube = self.grid[:, i:i + 2, j:j + 2, k:k + 2].reshape(3, 8)
+        fx, fy, fd = f
+        weights = np.array([(1 - fx) * (1 - fy) * (1 - fd), (1 - fx) * (1 - fy) * fd,
+                            (1 - fx) * fy * (1 - fd), (1 - fx) * fy * fd,
+                            fx * (1 - fy) * (1 - fd), fx * (1 - fy) * fd,
+                            fx * fy * (1 - fd), fx * fy * fd])
+        return cube @ weights
+
+    def _value_at(self, g: np.ndarray) -> np.ndarray:
+        value = self._grid_at(g)
+        if self.polynomial is not None:
+            value += self.polynomial.at(g)
+        return value
+
+    def _block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] = (1, 1, 1)) -> np.ndarray:
+        """W at the nodes lo..hi (exclusive) with `stride`, planar: (3, a, b, c)."""
+        values = self.grid[:, lo[0]:hi[0]:stride[0], lo[1]:hi[1]:stride[1], lo[2]:hi[2]:stride[2]]
+        if self.polynomial is not None:
+            values = values + self.polynomial.block(lo, hi, stride)
+        return values
+
+    def node_values(self) -> np.ndarray:
+        """W at every node, (nx, ny, nd, 3) degrees."""
+        return np.array(self._block(np.zeros(3, int), self._shape).transpose(1, 2, 3, 0))
+
+    # -- inverse lookup (eq. 8) ----------------------------------------------------------
+    def inverse(self, command: Sequence[float]) -> np.ndarray:
+        """The image position (x, y, d) the map associates with `command` (eq. 8's x_d, y_d, d_d).
+
+        Nearest node in motor space, the metric scaled by Table I's output resolution; found
+        coarse-to-fine (a strided subgrid, then full resolution around the best few coarse
+        nodes). The coarse subgrid is a table of W refreshed every `COARSE_REFRESH` adaptations:
+        it only nominates candidates, which are then compared on the current map. With
+        `interpolate`, one Gauss-Newton step refines the result between nodes.
+        """
+        m = np.asarray(command, dtype=float)
+        stride = np.array(self._coarse_stride)
+        if self._coarse is None or self._coarse_age >= self.COARSE_REFRESH:
+            self._coarse = np.array(self._block(np.zeros(3, int), self._shape, stride))
+            self._coarse_age = 0
+        n_best = min(self.COARSE_CANDIDATES, self._coarse[0].size)
+        centres = _kernels.best_coarse_nodes(self._coarse, m, self._motor_scale, n_best)
+        starts = np.maximum(centres * stride - stride, 0)
+        stops = np.minimum(centres * stride + stride + 1, self._shape)
+        node, _ = _kernels.nearest_node(self.grid, self._poly_tensor(), self._half_span, m, self._motor_scale,
+                                        starts, stops)
+        if not self.params.interpolate:
+            return self.to_position(node)
+        # One Gauss-Newton step between nodes, the slopes from the neighbouring nodes.
+        value, slopes = _kernels.value_and_slopes(self.grid, self._poly_tensor(), self._half_span, node,
+                                                  self._shape)
+        scaled = slopes * self._motor_scale[:, None]
+        residual = (m - value) * self._motor_scale
+        # Normal equations with a small ridge: stable where the map is flat along an axis.
+        step = np.linalg.solve(scaled.T @ scaled + 1e-6 * np.eye(3), scaled.T @ residual)
+        g = np.clip(node + np.clip(step, -1.0, 1.0), 0.0, self._shape - 1.0)
+        return self.to_position(g)
+
+    def _poly_tensor(self) -> np.ndarray:
+        return self.polynomial.tensor if self.polynomial is not None else _NO_POLYNOMIAL
+
+    # -- learning ----------------------------------------------------------------------
+    def retinal_error(self, found: Sequence[float], expected: Sequence[float]) -> float:
+        """Eq. 8: the distance between two image positions, as a fraction of the half-ranges."""
+        diff = (np.asarray(found, dtype=float) - np.asarray(expected, dtype=float)) / self._error_max
+        return float(np.sqrt(np.sum(diff ** 2)))
+
+    def _sigmoid(self, mean_error: float) -> float:
+        """Eq. 9's sigmoid of the windowed mean retinal error, in (0, 1)."""
+        p = self.params
+        return float(1.0 / (1.0 + np.exp(-p.adaptation_slope * (mean_error - p.adaptation_threshold))))
+
+    def sigma_cells(self, mean_error: float) -> np.ndarray:
+        """Eq. 9: the neighbourhood widths (grid cells) for a windowed mean retinal error."""
+        return self._sigma_max_cells * self._sigmoid(mean_error)
+
+    def adapt(self, position: Sequence[float], command: Sequence[float], confidence: float = 1.0) -> AdaptResult:
+        """Learn that `command` fixated what was at `position` (x*, y*, d*), with a confidence.
+
+        A position outside the map, a non-finite command or a confidence outside (0, 1] is
+        refused (nothing learned) and the result says why.
+        """
+        problem = self._check_position(position)
+        m = np.asarray(command, dtype=float)
+        if not problem and (m.shape != (3,) or not np.all(np.isfinite(m))):
+            problem = f"command must be 3 finite numbers (dpan, dtilt, dverg), got {command!r}"
+        if not problem and not (0.0 < confidence <= 1.0):
+            problem = f"confidence must be in (0, 1], got {confidence!r}"
+        if problem:
+            log.debug("adaptation refused: %s", problem)
+            return AdaptResult(accepted=False, reason=problem)
+        c = float(confidence)
+        g = self.to_grid(position)
+        phi = self.polynomial.features(g) if self.polynomial is not None else None
+        value = self._grid_at(g) + (phi @ self.polynomial.coef if phi is not None else 0.0)
+        # Output error: |dW(x*, y*, d*)| of eq. 11 at the peak of the neighbourhood (G = 1).
+        output_error = np.abs(c * (value - m))
+        # Eq. 8: where the map, before this adaptation, would have put the target of m.
+        error = self.retinal_error(position, self.inverse(m))
+        self.recent_errors.append(error)
+        mean_error = float(np.mean(self.recent_errors))
+        sigma = self.sigma_cells(mean_error)
+        target = m
+        if phi is not None:
+            p = self.params
+            memory = max(p.global_memory_min, p.global_memory * (1.0 - self._sigmoid(mean_error)))
+            self.polynomial.learn(phi, m, c, memory)
+            target = m - phi @ self.polynomial.coef  # the grid learns the residual
+        touched = self._update(g, target, c, sigma)
+        self.adaptations += 1
+        return AdaptResult(accepted=True, retinal_error=error, output_error=output_error,
+                           mean_retinal_error=mean_error, sigma_cells=sigma, nodes_updated=touched)
+
+    def _update(self, g: np.ndarray, target: np.ndarray, c: float, sigma: np.ndarray) -> int:
+        """Eqs. 10-11 on the grid, over the window where G is not negligible; returns nodes touched."""
+        p = self.params
+        reach = sigma * np.sqrt(-2.0 * np.log(p.gaussian_cutoff))
+        # alpha * c * G(x, y, d): eq. 10's step times eq. 11's confidence and neighbourhood
+        touched = _kernels.update_window(self.grid, g, np.asarray(target, dtype=float), p.adaptation_rate * c,
+                                         sigma, reach, self._shape)
+        self._coarse_age += 1
+        return int(touched)
+
+    # -- persistence -------------------------------------------------------------------
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {
+            "format": np.array(FILE_FORMAT),
+            "params": np.array(self.params.to_json()),
+            "grid": self.grid,
+            "recent_errors": np.array(list(self.recent_errors), dtype=np.float64),
+            "adaptations": np.array(self.adaptations, dtype=np.int64),
+        }
+        if self.polynomial is not None:
+            arrays["polynomial_coef"] = self.polynomial.coef
+            arrays["polynomial_covariance"] = self.polynomial.covariance
+        return arrays
+
+    def save(self, path: str | os.PathLike, keep_previous: bool = True) -> None:
+        """Write the map atomically: temp file, fsync, rename; the previous file kept as `<path>.prev`.
+
+        At every instant `path` is either the old complete file or the new complete file.
+        """
+        path = Path(path)
+        buffer = io.BytesIO()
+        np.savez(buffer, **self.state_arrays())
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(buffer.getbuffer())
+                f.flush()
+                os.fsync(f.fileno())
+            if keep_previous and path.exists():
+                # Link, then rename over .prev: `path` itself is never missing.
+                prev_tmp = f"{tmp}.prev"
+                os.link(path, prev_tmp)
+                os.replace(prev_tmp, f"{path}.prev")
+            os.replace(tmp, path)
+        except BaseException:
+            for leftover in (tmp, f"{tmp}.prev"):
+                try:
+                    os.unlink(leftover)
+                except FileNotFoundError:
+                    pass
+            raise
+        dir_fd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+        log.debug("gaze map saved to %s (%d adaptations)", path, self.adaptations)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "GazeMap":
+        """A map saved by `save`. Raises MapFileError naming the file and what is wrong."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except FileNotFoundError as err:
+            raise MapFileError(f"{path}: no such gaze map file") from err
+        except (OSError, ValueError, EOFError) as err:
+            raise MapFileError(f"{path}: not a readable gaze map file ({err})") from err
+        fmt = str(arrays.get("format", ""))
+        if fmt != FILE_FORMAT:
+            raise MapFileError(f"{path}: format {fmt!r}, expected {FILE_FORMAT!r}")
+        required = {"params", "grid", "recent_errors", "adaptations"}
+        missing = required - set(arrays)
+        try:
+            params = GazeMapParams.from_json(str(arrays["params"])) if "params" in arrays else None
+            if params is not None and params.global_degree > 0:
+                missing |= {"polynomial_coef", "polynomial_covariance"} - set(arrays)
+            if missing:
+                raise MapFileError(f"{path}: missing {sorted(missing)}")
+            gm = cls(params, grid=arrays["grid"])
+            if gm.polynomial is not None:
+                for name in ("coef", "covariance"):
+                    saved = arrays[f"polynomial_{name}"]
+                    current = getattr(gm.polynomial, name)
+                    if saved.shape != current.shape:
+                        raise ValueError(f"polynomial_{name} has shape {saved.shape}, expected {current.shape}")
+                    setattr(gm.polynomial, name, np.array(saved, dtype=np.float64))
+                gm.polynomial.coefficients_changed()
+        except (ValueError, TypeError, KeyError) as err:
+            if isinstance(err, MapFileError):
+                raise
+            raise MapFileError(f"{path}: invalid map ({err})") from err
+        gm.recent_errors.extend(float(e) for e in arrays["recent_errors"])
+        gm.adaptations = int(arrays["adaptations"])
+        return gm
