@@ -18,7 +18,6 @@ Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`.
 """
 from __future__ import annotations
 
-import fcntl
 import logging
 import math
 import os
@@ -61,6 +60,8 @@ INST_STATUS = 0x55
 INST_SYNC_READ, INST_SYNC_WRITE, INST_BULK_READ, INST_BULK_WRITE = 0x82, 0x83, 0x92, 0x93
 ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = range(1, 8)
 MAX_PACKET_LENGTH = 1024
+# Not a Dynamixel instruction: the marker `DxlEmulator.wait_idle` sends itself.
+_INST_BARRIER = 0x7F
 
 
 def _crc_table() -> list[int]:
@@ -392,7 +393,8 @@ class DxlEmulator:
         self._faults = {i: _Faults() for i in self.servos}
         self._lock = threading.RLock()
         self._idle = threading.Condition(self._lock)
-        self._busy = False
+        self._barrier_sent = 0
+        self._barrier_seen = 0
         self._stop = threading.Event()
         self._commands: queue.Queue[tuple[str, threading.Event]] = queue.Queue()
         self._wake_r, self._wake_w = os.pipe()
@@ -495,16 +497,20 @@ class DxlEmulator:
             return servo
 
     def wait_idle(self, timeout: float = 2.0) -> None:
-        """Wait until every byte sent to the emulator has been handled and answered."""
-        deadline = time.monotonic() + timeout
+        """Wait until every byte written to the emulator so far has been handled and answered.
+
+        A marker packet goes into the pty behind the client's bytes (through the
+        emulator's own handle on the slave side); bytes are handled in order, so once the
+        marker is seen everything before it was. No polling, no guessing at timing.
+        """
         with self._idle:
-            while self._busy or self._unread_bytes() > 0:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    raise DeviceTimeoutError(f"dxl emulator on {self.port}: not idle after {timeout} s")
-                # Woken by the thread after each batch; the short cap covers bytes that
-                # arrived while it was between select() and taking the lock.
-                self._idle.wait(min(remaining, 0.01))
+            if self._slave is None or self._thread is None:
+                return
+            self._barrier_sent += 1
+            token = self._barrier_sent
+            os.write(self._slave, build_packet(BROADCAST_ID, _INST_BARRIER, token.to_bytes(4, "little")))
+            if not self._idle.wait_for(lambda: self._barrier_seen >= token or self._slave is None, timeout):
+                raise DeviceTimeoutError(f"dxl emulator on {self.port}: not idle after {timeout} s")
 
     # -- the thread ------------------------------------------------------------------------
     def _run(self) -> None:
@@ -523,8 +529,6 @@ class DxlEmulator:
                 continue
             if master is None or master not in readable:
                 continue
-            with self._lock:
-                self._busy = True
             try:
                 data = os.read(master, 4096)
             except OSError:
@@ -534,10 +538,6 @@ class DxlEmulator:
                     self._handle(packet)
             except Exception:  # a bug here must not kill the bus silently: log and go on
                 log.exception("dxl emulator: failed handling a packet")
-            finally:
-                with self._idle:
-                    self._busy = False
-                    self._idle.notify_all()
         self._run_commands(parser)
 
     def _run_commands(self, parser: PacketParser) -> None:
@@ -589,18 +589,12 @@ class DxlEmulator:
         for fd in (self._master, self._slave):
             if fd is not None:
                 os.close(fd)
-        self._master = self._slave = None
-        self._port = None
+        with self._idle:
+            self._master = self._slave = None
+            self._port = None
+            self._idle.notify_all()
         if self.link and os.path.islink(self.link):
             os.unlink(self.link)
-
-    def _unread_bytes(self) -> int:
-        if self._master is None:
-            return 0
-        try:
-            return struct.unpack("i", fcntl.ioctl(self._master, termios.FIONREAD, b"\0\0\0\0"))[0]
-        except OSError:
-            return 0
 
     def _client_baud_matches(self) -> bool:
         want = _TERMIOS_SPEEDS.get(self.baud)
@@ -613,6 +607,11 @@ class DxlEmulator:
 
     # -- protocol ----------------------------------------------------------------------------
     def _handle(self, packet: Packet) -> None:
+        if packet.instruction == _INST_BARRIER and packet.servo_id == BROADCAST_ID and packet.crc_ok:
+            with self._idle:
+                self._barrier_seen = max(self._barrier_seen, int.from_bytes(packet.params, "little"))
+                self._idle.notify_all()
+            return
         with self._lock:
             self.packets_received += 1
             if not self._client_baud_matches():

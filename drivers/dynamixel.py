@@ -11,9 +11,10 @@ How the known pitfalls of dynamixel-sdk 4.1.0 are handled here:
   Enable, Bus Watchdog and the servo's own ID (a check that the mapping survived) come
   back in the same transaction as position and velocity; `_SyncRead` also keeps the error
   byte and the id of the servo that failed, so errors name the joint.
-* A vanished adapter makes the SDK raise a raw `OSError` and leaves `port.is_using` set
-  for good: every `OSError` becomes `BusDownError`, the `PortHandler` is discarded, and
-  the base class reopens a new one with back-off.
+* A vanished adapter makes the SDK raise a raw `OSError` (or `termios.error`, which is
+  not one, from its tcflush) and leaves `port.is_using` set for good: both, and a
+  COMM_PORT_BUSY result, become `BusDownError`, the `PortHandler` is discarded, and the
+  base class reopens a new one with back-off.
 * The SDK computes reply timeouts from a hard-coded 16 ms latency timer and reads a
   `timeout=0` pyserial port in a busy loop: `_BlockingPortHandler` waits in `select()`
   until bytes arrive or the deadline passes, on the monotonic clock, with a timeout
@@ -32,11 +33,12 @@ import logging
 import os
 import select
 import struct
+import termios
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
-from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_PORT_BUSY, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
@@ -153,11 +155,14 @@ READ_BLOCK_ADDRESSES: tuple[int, ...] = tuple(addr + i for addr, size in READ_BL
 assert len(READ_BLOCK_ADDRESSES) == READ_BLOCK_SIZE <= XAddr.INDIRECT_COUNT
 
 _COMM_TIMEOUT_RESULTS = {-3001}  # COMM_RX_TIMEOUT
+# What a vanished adapter raises out of the SDK: pyserial's SerialException is an OSError,
+# but tcflush() on a dead tty raises termios.error, which is not.
+PORT_ERRORS = (OSError, termios.error)
 
 
-def port_access_hint(port: str, err: OSError) -> str:
+def port_access_hint(port: str, err: BaseException) -> str:
     """What fixes a port that cannot be opened: the udev rule or the dialout group."""
-    code = err.errno
+    code = getattr(err, "errno", None)
     if code is None and err.args and isinstance(err.args[0], int):
         code = err.args[0]
     if code == errno.ENOENT or not os.path.exists(port):
@@ -288,7 +293,7 @@ class DynamixelBus(ServoBus):
             opened = port.openPort()
             if opened:
                 opened = port.setBaudRate(self.config.baud)
-        except OSError as err:
+        except PORT_ERRORS as err:
             raise BusDownError(f"{self.name}: {port_access_hint(self.config.port, err)}") from err
         if not opened:
             raise ServoConfigError(f"{self.config.key_path}.baud: dynamixel-sdk refused {self.config.baud} baud")
@@ -306,7 +311,7 @@ class DynamixelBus(ServoBus):
             return
         try:
             port.closePort()
-        except OSError as err:  # closing a vanished adapter can fail; it is gone either way
+        except PORT_ERRORS as err:  # closing a vanished adapter can fail; it is gone either way
             log.debug("%s: closing the port failed: %s", self.name, err)
 
     def _configure(self, joints: Iterable[str]) -> None:
@@ -336,7 +341,7 @@ class DynamixelBus(ServoBus):
             sync_write.addParam(self._ids[joint], list(struct.pack("<i", deg_to_ticks(servo_deg))))
         try:
             result = sync_write.txPacket()
-        except OSError as err:
+        except PORT_ERRORS as err:
             raise BusDownError(f"{self.name}: port failed writing goals: {err}") from err
         if result != COMM_SUCCESS:
             raise ServoCommError(f"{self.name}: goal sync write failed: {self._packet.getTxRxResult(result)}")
@@ -368,7 +373,7 @@ class DynamixelBus(ServoBus):
             self.clock.sleep(self.REBOOT_POLL_S)  # the servo boots for a few hundred ms
             try:
                 _model, result, _error = self._packet.ping(self._require(self._port), servo_id)
-            except OSError as err:
+            except PORT_ERRORS as err:
                 raise BusDownError(f"{self.name}: port failed while {self.describe(joint)} rebooted: {err}") from err
             if result == COMM_SUCCESS:
                 return
@@ -435,10 +440,12 @@ class DynamixelBus(ServoBus):
         for attempt in range(self.config.retries + 1):
             try:
                 result = sync_read.txRxPacket()
-            except OSError as err:
+            except PORT_ERRORS as err:
                 raise BusDownError(f"{self.name}: port failed during sync read: {err}") from err
             if result == COMM_SUCCESS:
                 break
+            if result == COMM_PORT_BUSY:
+                raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure (sync read)")
             log.debug("%s: sync read attempt %d failed at id %s: %s", self.name, attempt + 1,
                       sync_read.failed_id, self._packet.getTxRxResult(result))
         else:
@@ -498,8 +505,10 @@ class DynamixelBus(ServoBus):
         for attempt in range(self.config.retries + 1):
             try:
                 value, result, error = call()
-            except OSError as err:
+            except PORT_ERRORS as err:
                 raise BusDownError(f"{self.name}: port failed during {what} ({self.describe(joint)}): {err}") from err
+            if result == COMM_PORT_BUSY:
+                raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure ({what})")
             if result != COMM_SUCCESS:
                 log.debug("%s: %s attempt %d: %s", self.describe(joint), what, attempt + 1,
                           self._packet.getTxRxResult(result))
@@ -554,7 +563,7 @@ def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterabl
         for baud in bauds:
             try:
                 ok = handler.setBaudRate(baud)
-            except OSError as err:
+            except PORT_ERRORS as err:
                 raise ServoCommError(port_access_hint(port, err)) from err
             if not ok:
                 raise ServoConfigError(f"baud {baud}: not supported by dynamixel-sdk (max 4000000)")
@@ -566,7 +575,7 @@ def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterabl
                               for i, (model, fw) in sorted(replies.items()) if i in wanted]
                 else:
                     found += _scan_unicast(handler, packet, sorted(wanted), baud, protocol)
-            except OSError as err:
+            except PORT_ERRORS as err:
                 raise ServoCommError(f"{port}: the port failed during the scan: {err}") from err
     finally:
         if handler.ser is not None:

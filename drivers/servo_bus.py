@@ -520,7 +520,7 @@ class ServoBus(Device, abc.ABC):
         acted = False
         now = self.clock.monotonic()
         if self.config.reboot_on_hardware_error:
-            for joint in faults:
+            for joint in list(faults):
                 if now - self._last_auto_reboot_s.get(joint, -math.inf) < AUTO_REBOOT_HOLDOFF_S:
                     continue  # came back right after a reboot: report, do not loop
                 self._last_auto_reboot_s[joint] = now

@@ -108,8 +108,8 @@ class _SimServo:
 class SimulatedServoBus(ServoBus):
     """A `ServoBus` over simulated servos; see the module docstring.
 
-    `initial_positions` (joint frame, degrees; default 0 for every joint) is where the head
-    rests when the simulation starts. `max_velocity_dps` is the speed a profile velocity of
+    `initial_positions` (joint frame, degrees; default: each servo at its centre) is where
+    the head rests when the simulation starts. `max_velocity_dps` is the speed a profile velocity of
     0 ("as fast as possible") stands for.
     """
 
@@ -122,8 +122,11 @@ class SimulatedServoBus(ServoBus):
         self.max_velocity_dps = max_velocity_dps
         now = clock.monotonic()
         initial = dict(initial_positions or {})
+        # Without a given position a joint rests at its servo's centre, like a fresh servo
+        # (and the emulator) does.
         self._servos = {
-            joint: _SimServo(config.joints[joint].servo_angle(initial.get(joint, 0.0)), now) for joint in JOINTS
+            joint: _SimServo(config.joints[joint].servo_angle(initial[joint]) if joint in initial else 0.0, now)
+            for joint in JOINTS
         }
         # Guards the simulated hardware: fault hooks are called from test or daemon threads.
         self._sim_lock = threading.Lock()

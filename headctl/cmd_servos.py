@@ -1,8 +1,94 @@
-"""Subcommands of `headctl` for the servos (filled in by the servos work)."""
+"""Subcommands of `headctl` for the servos: `emulate-servos` and `scan`.
+
+`emulate-servos` serves virtual Protocol 2.0 servos on a pseudo-terminal (see
+`drivers.dxl_emulator`) so anyone can develop without a head; `scan` finds the servos on a
+port, which is what people do first with a new head.
+"""
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import threading
+
+from drivers.errors import ServoError
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from err
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one value")
+    return values
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to `sub`."""
+    from drivers.dynamixel import X_BAUD_CODES, X_MODELS
+
+    emulate = sub.add_parser(
+        "emulate-servos",
+        help="serve virtual Dynamixel X-series servos (Protocol 2.0) on a pseudo-terminal",
+        description="Serve virtual Dynamixel X-series servos on a pseudo-terminal and print its path; "
+                    "runs until interrupted (Ctrl-C or SIGTERM).",
+    )
+    emulate.add_argument("--ids", type=_int_list, default=[1, 2, 3, 4], help="servo ids (default 1,2,3,4)")
+    emulate.add_argument("--model", choices=sorted(X_MODELS), default="XM430-W350", help="servo model")
+    emulate.add_argument("--baud", type=int, choices=sorted(X_BAUD_CODES), default=1_000_000,
+                         help="the servos' baud rate (default 1000000)")
+    emulate.add_argument("--link", metavar="PATH",
+                         help="also keep a symlink PATH pointing at the pty (a stable name, like a udev rule's)")
+    emulate.set_defaults(func=_emulate)
+
+    scan = sub.add_parser(
+        "scan",
+        help="find the Dynamixel servos on a port",
+        description="Ping ids 0-252 at each baud rate and print id, model, firmware and baud.",
+    )
+    scan.add_argument("--port", required=True, help="serial port, e.g. /dev/head-servos or /dev/ttyUSB0")
+    scan.add_argument("--baud", type=_int_list, default=[57600, 1_000_000],
+                      help="comma-separated baud rates to try (default 57600,1000000)")
+    scan.add_argument("--protocol", choices=["1.0", "2.0"], default="2.0", help="protocol version (default 2.0)")
+    scan.set_defaults(func=_scan)
+
+
+def _emulate(args: argparse.Namespace) -> int:
+    from drivers.dxl_emulator import DxlEmulator
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        with DxlEmulator(args.ids, model=args.model, baud=args.baud, link=args.link) as emulator:
+            print(emulator.pty_path, flush=True)
+            if args.link:
+                print(f"{args.link} -> {emulator.pty_path}", file=sys.stderr, flush=True)
+            print(f"serving {len(args.ids)} {args.model} servo(s), ids {','.join(map(str, args.ids))}, "
+                  f"{args.baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
+            try:
+                while not stop.wait(1.0):
+                    pass
+            except KeyboardInterrupt:
+                pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return 0
+
+
+def _scan(args: argparse.Namespace) -> int:
+    from drivers.dynamixel import scan
+
+    try:
+        found = scan(args.port, args.baud, protocol=float(args.protocol))
+    except ServoError as err:
+        print(f"headctl scan: {err}", file=sys.stderr)
+        return 2
+    if not found:
+        print(f"no servos found on {args.port} at {', '.join(map(str, args.baud))} baud "
+              f"(protocol {args.protocol}); check power, wiring and the baud rate")
+        return 1
+    print(f"{'id':>3}  {'model':<12} {'number':>6}  {'firmware':>8}  {'baud':>8}")
+    for r in found:
+        print(f"{r.servo_id:>3}  {r.model_name:<12} {r.model_number:>6}  {r.firmware:>8}  {r.baud:>8}")
+    return 0
