@@ -581,7 +581,7 @@ def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterabl
         if handler.ser is not None:
             try:
                 handler.closePort()
-            except OSError:
+            except PORT_ERRORS:
                 log.debug("%s: closing after the scan failed", port)
     return found
 

@@ -1,0 +1,122 @@
+"""The simulated servo bus and the motion model it shares with the emulator."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from drivers.clock import ManualClock
+from drivers.errors import BusDownError, ServoHardwareError
+from drivers.servo_bus import ServoBusConfig, create_servo_bus
+from drivers.sim_servo import ProfileAxis, SimulatedServoBus
+from servo_rigs import config_mapping
+
+
+# --- ProfileAxis ------------------------------------------------------------------------
+def test_trapezoidal_profile_timing():
+    axis = ProfileAxis(0.0, 0.0, max_velocity=100.0, max_acceleration=500.0)
+    axis.set_goal(90.0)
+    # 0.2 s accelerating (10 deg), 0.7 s at 100 deg/s (70 deg), 0.2 s braking (10 deg).
+    axis.advance_to(0.2)
+    assert axis.velocity == pytest.approx(100.0, rel=0.01)
+    assert axis.position == pytest.approx(10.0, abs=0.2)
+    axis.advance_to(0.9)
+    assert axis.position == pytest.approx(80.0, abs=0.3)
+    assert axis.moving
+    axis.advance_to(1.11)
+    assert not axis.moving and axis.position == 90.0 and axis.velocity == 0.0
+
+
+def test_triangular_profile_when_the_move_is_short():
+    axis = ProfileAxis(0.0, 0.0, max_velocity=1000.0, max_acceleration=100.0)
+    axis.set_goal(4.0)  # peak 20 deg/s after 0.2 s, never reaching the limit
+    axis.advance_to(0.2)
+    assert axis.velocity == pytest.approx(20.0, rel=0.05)
+    axis.advance_to(0.45)
+    assert axis.position == 4.0 and not axis.moving
+
+
+def test_unlimited_axis_jumps_and_a_new_goal_reverses_smoothly():
+    axis = ProfileAxis(0.0, 0.0)
+    axis.set_goal(10.0)
+    axis.advance_to(0.001)
+    assert axis.position == 10.0
+    axis = ProfileAxis(0.0, 0.0, max_velocity=50.0, max_acceleration=100.0)
+    axis.set_goal(50.0)
+    axis.advance_to(0.5)
+    assert axis.velocity > 0
+    axis.set_goal(-10.0)
+    axis.advance_to(0.51)
+    assert axis.velocity > 0  # it cannot reverse instantly
+    axis.advance_to(5.0)
+    assert axis.position == -10.0 and not axis.moving
+
+
+def test_time_going_back_is_ignored():
+    axis = ProfileAxis(0.0, 1.0, max_velocity=10.0, max_acceleration=math.inf)
+    axis.set_goal(5.0)
+    axis.advance_to(0.5)
+    assert axis.position == 0.0
+
+
+# --- SimulatedServoBus ------------------------------------------------------------------
+def _bus(**config):
+    clock = ManualClock(0.0)
+    return SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping(**config)), clock=clock), clock
+
+
+def test_created_by_name_from_the_backend_table():
+    bus = create_servo_bus(ServoBusConfig.from_mapping(config_mapping(backend="sim")), clock=ManualClock())
+    assert isinstance(bus, SimulatedServoBus)
+    assert {"reboot", "fault_injection", "watchdog"} <= bus.capabilities
+
+
+def test_initial_positions_and_state_survive_close_and_reopen():
+    clock = ManualClock(0.0)
+    config = ServoBusConfig.from_mapping(config_mapping())
+    bus = SimulatedServoBus(config, clock=clock, initial_positions={"pan": 15.0})
+    with bus:
+        assert bus.read_state()["pan"].position == pytest.approx(15.0)
+        bus.enable()
+        bus.write_goals({"tilt": 20.0})
+        clock.advance(2.0)
+    assert bus.true_position("tilt") == pytest.approx(20.0)
+    with bus:
+        assert bus.read_state()["tilt"].position == pytest.approx(20.0)
+
+
+def test_read_state_time_is_the_clock():
+    bus, clock = _bus()
+    clock.advance(42.0)
+    with bus:
+        assert bus.read_state().time_s == 42.0
+
+
+def test_bus_down_hook_fails_open_until_restored():
+    bus, clock = _bus()
+    bus.inject_bus_down()
+    with pytest.raises(BusDownError, match="unplugged"):
+        bus.open()
+    bus.restore_bus()
+    with bus:
+        assert not bus.is_down
+
+
+def test_a_shutdown_error_refuses_torque_until_reboot():
+    bus, clock = _bus(reboot_on_hardware_error=False)
+    with bus:
+        bus.inject_hardware_error("pan", 0x20)
+        with pytest.raises(ServoHardwareError, match=r"joint pan \(id 1\).*overload"):
+            bus.enable()
+        bus.reboot("pan")
+        bus.enable()
+        assert bus.read_state()["pan"].torque_on
+
+
+def test_a_non_shutdown_error_keeps_torque():
+    bus, clock = _bus(reboot_on_hardware_error=False)
+    with bus:
+        bus.enable()
+        bus.inject_hardware_error("tilt", 0x01)  # input voltage: not in the default Shutdown mask
+        state = bus.read_state()["tilt"]
+        assert state.torque_on and state.hardware_errors == ("input voltage out of range",)
