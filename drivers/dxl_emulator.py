@@ -28,7 +28,7 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -369,15 +369,17 @@ class _Faults:
 class DxlEmulator:
     """Virtual Protocol 2.0 servos on a pseudo-terminal, served from a named thread.
 
-    Use as a context manager (or `start()` / `stop(timeout)`); `port` is the pty path to
-    open, `link` (optional) a symlink kept pointing at it, also across `vanish()` and
+    Use as a context manager (or `start()` / `stop(timeout)`). An exception while handling
+    a packet is logged, kept in `last_error` and passed to `on_error`; the emulator goes
+    on serving. `port` is the path to open, `link` (optional) a symlink kept pointing at it, also across `vanish()` and
     `reappear()`. `baud`: the servos only understand a client whose port is set to this
     rate (the pty carries the client's termios speed), so scans at other rates find nothing.
     """
 
     def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, model: str = "XM430-W350",
                  clock: Clock = SYSTEM_CLOCK, link: str | None = None, baud: int = 1_000_000,
-                 positions_ticks: dict[int, int] | None = None) -> None:
+                 positions_ticks: dict[int, int] | None = None,
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
         if baud not in X_BAUD_CODES:
             raise ValueError(f"baud {baud}: an X-series servo offers {sorted(X_BAUD_CODES)}")
         self.clock = clock
@@ -388,6 +390,8 @@ class DxlEmulator:
             i: EmulatedServo(i, model, clock=clock, baud=baud, position_ticks=positions_ticks.get(i, 2048))
             for i in sorted(set(ids))
         }
+        self.on_error = on_error
+        self.last_error: BaseException | None = None
         self.packets_received = 0
         self.replies_sent = 0
         self._faults = {i: _Faults() for i in self.servos}
@@ -489,8 +493,8 @@ class DxlEmulator:
         self._command("reappear", timeout)
 
     def servo(self, servo_id: int) -> EmulatedServo:
-        """The servo, motion brought up to now (read it while holding no expectations of
-        thread safety beyond this call)."""
+        """The servo, its motion brought up to now, for inspection. Read it after
+        `wait_idle()`: the emulator thread may change it while requests are in flight."""
         with self._lock:
             servo = self.servos[servo_id]
             servo.update(self.clock.monotonic())
@@ -536,8 +540,11 @@ class DxlEmulator:
             try:
                 for packet in parser.feed(data):
                     self._handle(packet)
-            except Exception:  # a bug here must not kill the bus silently: log and go on
-                log.exception("dxl emulator: failed handling a packet")
+            except Exception as err:  # a bug here must not kill the bus silently
+                log.exception("dxl emulator on %s: failed handling a packet", self._port)
+                self.last_error = err
+                if self.on_error is not None:
+                    self.on_error(err)
         self._run_commands(parser)
 
     def _run_commands(self, parser: PacketParser) -> None:

@@ -290,9 +290,7 @@ class DynamixelBus(ServoBus):
         port = _BlockingPortHandler(self.config.port, latency_ms, slack_ms)
         self._port = port
         try:
-            opened = port.openPort()
-            if opened:
-                opened = port.setBaudRate(self.config.baud)
+            opened = port.setBaudRate(self.config.baud)  # opens the port at that rate
         except PORT_ERRORS as err:
             raise BusDownError(f"{self.name}: {port_access_hint(self.config.port, err)}") from err
         if not opened:
