@@ -1,0 +1,703 @@
+"""The camera interface: typed config, frames, the capture thread, and stereo pairing.
+
+This module owns what every camera backend shares, once:
+  - `CameraConfig`: the typed settings of one camera, parsed from a plain mapping (what YAML
+    gives), unknown keys rejected with the key path, the value and what was expected;
+  - `Frame`: an image (grey (H, W) or BGR (H, W, 3) uint8, OpenCV's channel order) with its
+    frame counter, host monotonic timestamps and the device timestamp where there is one;
+  - `Camera(Device)`: the lifecycle plus a named capture thread per camera that holds the
+    latest frame (and a short history) in a latest-value slot, reports errors to a callback
+    and to `health`/`last_error`, and reopens a lost camera with bounded backoff. Backends
+    implement only the small hooks `_open_device`, `_close_device`, `_start_stream`,
+    `_stop_stream`, `_grab` and, when they declare the capability, `_set_exposure_us` and
+    `_set_gain_db`;
+  - `StereoPair`: a left/right pair whose timestamps agree within a tolerance, and the first
+    pair whose exposures both began after a given monotonic time (frames exposed while the
+    head moved are never used);
+  - `create_camera`: config -> backend class (`drivers.backends`) -> camera.
+
+Times: `clock.monotonic()` seconds for everything the service compares (`time_s`,
+`exposure_start_s`); device clocks only in `device_time_ns`, never mixed with host time.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import enum
+import logging
+import math
+import threading
+import time
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from drivers import backends
+from drivers.base import Device
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import (
+    CameraConfigError,
+    CameraError,
+    CameraLostError,
+    CameraTimeoutError,
+    DeviceStateError,
+)
+
+log = logging.getLogger(__name__)
+
+ImageMode = Literal["grey", "colour"]
+ErrorCallback = Callable[["Camera", BaseException], None]
+# Called on the capture thread with each new frame, and with None when the health changes.
+Listener = Callable[["Frame | None"], None]
+
+
+# --- config ------------------------------------------------------------------------------
+def _type_name(tp: Any) -> str:
+    if typing.get_origin(tp) is Literal:
+        return " or ".join(repr(a) for a in typing.get_args(tp))
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
+    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(tp, str(tp))
+
+
+def _coerce(value: Any, tp: Any, key_path: str) -> Any:
+    """`value` as type `tp` (int, float, str, bool, Literal, unions with None), or raise."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        options = typing.get_args(tp)
+        if value is None and type(None) in options:
+            return None
+        for option in options:
+            if option is type(None):
+                continue
+            try:
+                return _coerce(value, option, key_path)
+            except CameraConfigError:
+                continue
+    elif origin is Literal:
+        if value in typing.get_args(tp):
+            return value
+    elif tp is bool:
+        if isinstance(value, bool):
+            return value
+    elif tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            return float(value)
+    elif tp is str:
+        if isinstance(value, str) and value:
+            return value
+    raise CameraConfigError(f"{key_path}: got {value!r}, expected {_type_name(tp)}")
+
+
+def parse_dataclass(cls: type, data: Any, key_path: str) -> Any:
+    """An instance of dataclass `cls` from a mapping, every key checked against its fields.
+
+    Unknown keys, wrongly typed values and failed `validate()` checks raise
+    `CameraConfigError` naming the key path (`cameras.left.fps`), the value and what was
+    expected.
+    """
+    if not isinstance(data, Mapping):
+        raise CameraConfigError(f"{key_path}: got {data!r}, expected a mapping of settings")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise CameraConfigError(
+            f"{key_path}.{unknown[0]}: unknown key (value {data[unknown[0]]!r}); "
+            f"expected one of {', '.join(sorted(fields))}"
+        )
+    values = {name: _coerce(value, hints[name], f"{key_path}.{name}") for name, value in data.items()}
+    return cls(**values)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """The settings of one camera. None means "leave the camera's own value".
+
+    `device`: V4L2 path, index or udev symlink (opencv). `id`, `serial`: the GenICam device
+    id or serial number (aravis; one of them, or neither for the first camera found).
+    `eye`: which eye of the simulated head (sim). `pixel_format`: Mono8, BayerRG8, RGB8...
+    (aravis) or a FourCC such as MJPG, YUYV (opencv). `image`: frames delivered grey or colour
+    (BGR). `gain_db` is in the camera's own gain unit (dB on most GenICam cameras).
+    """
+
+    backend: str = "sim"
+    device: str | int | None = None
+    id: str | None = None
+    serial: str | None = None
+    eye: Literal["left", "right"] | None = None
+    pixel_format: str | None = None
+    width: int | None = None
+    height: int | None = None
+    fps: float | None = None
+    exposure_us: float | None = None
+    gain_db: float | None = None
+    image: ImageMode = "grey"
+    history: int = 8
+    buffers: int = 8
+    seed: int = 0
+    lens: str = "foveated"
+    noise_std: float = 0.0
+    grab_timeout_s: float = 1.0
+    reconnect_backoff_max_s: float = 2.0
+    reconnect_give_up_s: float = 600.0
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("width", self.width is None or self.width >= 2, "at least 2"),
+            ("height", self.height is None or self.height >= 2, "at least 2"),
+            ("fps", self.fps is None or self.fps > 0, "a positive rate"),
+            ("exposure_us", self.exposure_us is None or self.exposure_us > 0, "a positive time"),
+            ("history", self.history >= 2, "at least 2 frames"),
+            ("buffers", self.buffers >= 2, "at least 2 buffers"),
+            ("noise_std", self.noise_std >= 0, "not negative"),
+            ("grab_timeout_s", self.grab_timeout_s > 0, "a positive time"),
+            ("reconnect_backoff_max_s", self.reconnect_backoff_max_s > 0, "a positive time"),
+            ("reconnect_give_up_s", self.reconnect_give_up_s > 0, "a positive time"),
+        )
+        for key, ok, expected in checks:
+            if not ok:
+                raise CameraConfigError(f"{key}: got {getattr(self, key)!r}, expected {expected}")
+        if self.id is not None and self.serial is not None:
+            raise CameraConfigError(f"id and serial: got both ({self.id!r}, {self.serial!r}), expected one")
+
+    @classmethod
+    def from_mapping(cls, data: Any, key_path: str = "camera") -> "CameraConfig":
+        try:
+            return parse_dataclass(cls, data, key_path)
+        except CameraConfigError as err:
+            message = str(err)
+            if not message.startswith(key_path):  # a __post_init__ check names the bare key
+                message = f"{key_path}.{message}"
+            raise CameraConfigError(message) from err
+
+    def set_keys(self) -> set[str]:
+        """Keys whose value differs from the default (what the user asked for)."""
+        return {f.name for f in dataclasses.fields(self) if getattr(self, f.name) != f.default}
+
+    def check_applies_to(self, backend_class: type["Camera"], key_path: str = "camera") -> None:
+        """Refuse keys the backend does not use, rather than ignore them silently."""
+        unused = sorted(self.set_keys() - backend_class.CONFIG_KEYS - _COMMON_KEYS)
+        if unused:
+            raise CameraConfigError(
+                f"{key_path}.{unused[0]}: not used by the {self.backend!r} backend "
+                f"(value {getattr(self, unused[0])!r}); it uses "
+                f"{', '.join(sorted(backend_class.CONFIG_KEYS | _COMMON_KEYS))}"
+            )
+
+
+_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
+
+
+# --- frames ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Frame:
+    """One image and when it was taken.
+
+    `time_s`: host monotonic time of the frame (its arrival for real cameras, its exposure
+    for simulated ones). `exposure_start_s`: a time no later than the true start of the
+    exposure (the backend's conservative estimate): what "taken after t" is judged on.
+    `device_time_ns`: the camera's own clock, where it has one.
+    """
+
+    camera: str
+    counter: int
+    image: np.ndarray
+    time_s: float
+    exposure_start_s: float
+    device_time_ns: int | None = None
+
+    @property
+    def is_colour(self) -> bool:
+        return self.image.ndim == 3
+
+
+@dataclass(frozen=True)
+class Grab:
+    """What a backend's `_grab` hook returns: an image and its timestamps."""
+
+    image: np.ndarray
+    time_s: float
+    exposure_start_s: float
+    device_time_ns: int | None = None
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What a camera can do, declared rather than discovered by exceptions."""
+
+    device_timestamps: bool = False
+    exposure: bool = False
+    gain: bool = False
+    frame_rate: bool = False
+    colour: bool = True
+    reconnect: bool = False
+    simulated: bool = False
+
+
+class StreamHealth(enum.Enum):
+    STOPPED = "stopped"
+    STREAMING = "streaming"
+    RECONNECTING = "reconnecting"
+    FAILED = "failed"
+
+
+def to_mode(image: np.ndarray, mode: ImageMode, camera: str) -> np.ndarray:
+    """`image` (grey or BGR uint8) as the requested mode; conversions through OpenCV."""
+    import cv2  # OpenCV is a core dependency; imported here to keep this module light
+
+    if mode == "grey":
+        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3:
+        return image
+    if mode == "colour":
+        return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    raise CameraConfigError(f"{camera}: unknown image mode {mode!r}: expected 'grey' or 'colour'")
+
+
+# --- the capture thread ------------------------------------------------------------------
+def _wait_for(cond: threading.Condition, find: Callable[[], Any], check: Callable[[], None],
+              timeout_s: float, timeout_message: Callable[[], str]) -> Any:
+    """Wait on `cond` (held by the caller) until `find()` gives something; `check()` raises
+    when waiting is pointless (a failed stream); `CameraTimeoutError` after `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        found = find()
+        if found is not None:
+            return found
+        check()
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise CameraTimeoutError(timeout_message())
+        cond.wait(remaining)
+
+
+class CaptureThread(threading.Thread):
+    """The named thread that owns a camera's streaming: grabs until its stop event is set."""
+
+    def __init__(self, camera: "Camera") -> None:
+        super().__init__(name=f"camera-{camera.name}", daemon=True)
+        self.camera = camera
+        self.stop_event = threading.Event()
+
+    def run(self) -> None:
+        self.camera._capture_loop(self.stop_event)
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self.stop_event.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+            if self.is_alive():
+                raise CameraTimeoutError(f"{self.camera.name}: capture thread did not stop within {timeout_s} s")
+
+
+# --- the interface -----------------------------------------------------------------------
+class Camera(Device):
+    """A camera with a capture thread holding the latest frame.
+
+    open() opens the device and applies the config; enable() starts streaming and the
+    capture thread; latest()/wait_frame() read the latest-value slot; close() stops all.
+    """
+
+    backend_name: ClassVar[str] = ""
+    capabilities: Capabilities = Capabilities()
+    # Config keys this backend uses beyond the common ones; others set in a config are refused.
+    CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
+
+    def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
+                 on_error: ErrorCallback | None = None) -> None:
+        super().__init__(name or config.eye or str(config.device or config.id or config.serial or config.backend))
+        self.config = config
+        self.clock = clock
+        self.on_error = on_error
+        self._cond = threading.Condition()
+        self._latest: Frame | None = None
+        self._history: collections.deque[Frame] = collections.deque(maxlen=config.history)
+        self._counter = 0
+        self._health = StreamHealth.STOPPED
+        self._last_error: BaseException | None = None
+        self._error_count = 0
+        self._reconnect_count = 0
+        self._listeners: list[Listener] = []
+        self._thread: CaptureThread | None = None
+
+    # -- state seen from outside ---------------------------------------------------------
+    @property
+    def health(self) -> StreamHealth:
+        return self._health
+
+    @property
+    def last_error(self) -> BaseException | None:
+        return self._last_error
+
+    @property
+    def frame_count(self) -> int:
+        return self._counter
+
+    def stats(self) -> dict[str, int]:
+        """Counters: frames delivered, errors, reconnections, plus the backend's own."""
+        return {"frames": self._counter, "errors": self._error_count,
+                "reconnects": self._reconnect_count, **self._backend_stats()}
+
+    def latest(self) -> Frame | None:
+        """The newest frame, or None before the first one."""
+        with self._cond:
+            return self._latest
+
+    def history(self) -> list[Frame]:
+        """The last `config.history` frames, oldest first."""
+        with self._cond:
+            return list(self._history)
+
+    def wait_frame(self, after_s: float | None = None, timeout_s: float = 2.0) -> Frame:
+        """The newest frame whose exposure began at or after `after_s` (monotonic seconds).
+
+        With `after_s` None: the first frame newer than the one held at the call. Raises
+        `CameraTimeoutError` after `timeout_s` (real seconds), or the stream's error at once
+        when it has failed.
+        """
+        with self._cond:
+            baseline = self._counter
+
+            def find() -> Frame | None:
+                frame = self._latest
+                if frame is None:
+                    return None
+                newer = frame.exposure_start_s >= after_s if after_s is not None else frame.counter > baseline
+                return frame if newer else None
+
+            def timeout_message() -> str:
+                what = f"frame exposed after t={after_s:.6f} s" if after_s is not None else "new frame"
+                return (f"{self.name}: no {what} within {timeout_s} s (health {self._health.value}, "
+                        f"{self._counter} frames so far)")
+
+            return _wait_for(self._cond, find, self._raise_if_failed, timeout_s, timeout_message)
+
+    def add_listener(self, listener: Listener) -> None:
+        """Call `listener(frame)` on the capture thread after each frame (None when the health
+        changes, so waiters re-check); keep it short."""
+        with self._cond:
+            self._listeners.append(listener)
+
+    def remove_listener(self, listener: Listener) -> None:
+        with self._cond:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+    # -- settings (template methods over the hooks) --------------------------------------
+    def set_exposure_us(self, exposure_us: float) -> None:
+        self.require_open()
+        self._apply_exposure_us(exposure_us)
+
+    def set_gain_db(self, gain_db: float) -> None:
+        self.require_open()
+        self._apply_gain_db(gain_db)
+
+    def _apply_exposure_us(self, exposure_us: float) -> None:
+        if not self.capabilities.exposure:
+            raise CameraConfigError(f"{self.name}: the {self.backend_name} backend has no exposure control")
+        if not exposure_us > 0:
+            raise CameraConfigError(f"{self.name}: exposure {exposure_us} us, expected a positive time")
+        self._set_exposure_us(float(exposure_us))
+
+    def _apply_gain_db(self, gain_db: float) -> None:
+        if not self.capabilities.gain:
+            raise CameraConfigError(f"{self.name}: the {self.backend_name} backend has no gain control")
+        self._set_gain_db(float(gain_db))
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def _open(self) -> None:
+        self._open_device()
+        if self.config.exposure_us is not None:
+            self._apply_exposure_us(self.config.exposure_us)
+        if self.config.gain_db is not None:
+            self._apply_gain_db(self.config.gain_db)
+
+    def _enable(self) -> None:
+        self._start_stream()
+        self._health = StreamHealth.STREAMING
+        self._last_error = None
+        self._thread = CaptureThread(self)
+        self._thread.start()
+
+    def _disable(self) -> None:
+        thread, self._thread = self._thread, None
+        try:
+            if thread is not None:
+                thread.stop()
+        finally:
+            self._health = StreamHealth.STOPPED
+            self._stop_stream()
+
+    def _close(self) -> None:
+        try:
+            if self._thread is not None:
+                self._disable()
+        finally:
+            self._close_device()
+
+    # -- the capture loop (runs on the CaptureThread) -------------------------------------
+    def _capture_loop(self, stop: threading.Event) -> None:
+        self._stop_event = stop
+        while not stop.is_set():
+            try:
+                grab = self._grab(self.config.grab_timeout_s)
+            except CameraLostError as err:
+                self._report(err)
+                if not self._recover(stop):
+                    return
+                continue
+            except CameraError as err:  # one bad frame: reported, counted, streaming goes on
+                self._report(err)
+                continue
+            except Exception as err:  # a bug or an unknown failure: stop rather than spin
+                self._report(CameraError(f"{self.name}: capture failed: {err!r}"), cause=err)
+                self._health = StreamHealth.FAILED
+                self._notify()
+                return
+            if grab is not None:
+                self._publish(grab)
+
+    def _publish(self, grab: Grab) -> None:
+        image = to_mode(grab.image, self.config.image, self.name)
+        with self._cond:
+            self._counter += 1
+            frame = Frame(self.name, self._counter, image, grab.time_s, grab.exposure_start_s, grab.device_time_ns)
+            self._latest = frame
+            self._history.append(frame)
+            listeners = list(self._listeners)
+            self._cond.notify_all()
+        for listener in listeners:
+            try:
+                listener(frame)
+            except Exception:  # a listener's bug must not stop the camera
+                log.exception("%s: frame listener %r failed", self.name, listener)
+
+    def _recover(self, stop: threading.Event) -> bool:
+        """Reopen a lost camera with exponential backoff, until `reconnect_give_up_s`."""
+        self._health = StreamHealth.RECONNECTING
+        self._notify()
+        if not self.capabilities.reconnect:
+            self._health = StreamHealth.FAILED
+            self._notify()
+            return False
+        delay_s = 0.05
+        deadline = time.monotonic() + self.config.reconnect_give_up_s
+        attempt = 0
+        while not stop.is_set():
+            attempt += 1
+            try:
+                self._reopen()
+            except CameraError as err:
+                log.info("%s: reopen attempt %d failed: %s", self.name, attempt, err)
+                if time.monotonic() + delay_s > deadline:
+                    self._report(CameraLostError(
+                        f"{self.name}: gave up reopening after {attempt} attempts "
+                        f"({self.config.reconnect_give_up_s} s)"), cause=err)
+                    self._health = StreamHealth.FAILED
+                    self._notify()
+                    return False
+                stop.wait(delay_s)
+                delay_s = min(delay_s * 2, self.config.reconnect_backoff_max_s)
+                continue
+            self._reconnect_count += 1
+            self._health = StreamHealth.STREAMING
+            log.info("%s: streaming again after %d attempt(s)", self.name, attempt)
+            self._notify()
+            return True
+        return False
+
+    def _report(self, err: BaseException, cause: BaseException | None = None) -> None:
+        if cause is not None:
+            err.__cause__ = cause
+        self._error_count += 1
+        self._last_error = err
+        log.warning("%s: %s", self.name, err)
+        if self.on_error is not None:
+            try:
+                self.on_error(self, err)
+            except Exception:
+                log.exception("%s: error callback failed", self.name)
+
+    def _notify(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
+            listeners = list(self._listeners)
+        for listener in listeners:
+            try:
+                listener(None)
+            except Exception:
+                log.exception("%s: frame listener %r failed", self.name, listener)
+
+    def _raise_if_failed(self) -> None:
+        if self._health is StreamHealth.FAILED:
+            raise CameraError(f"{self.name}: the stream has failed: {self._last_error}") from self._last_error
+        if self._health is StreamHealth.STOPPED:
+            raise DeviceStateError(f"{self.name}: not streaming (state {self.state.value}); enable() it first")
+
+    def wait_stop(self, seconds: float) -> bool:
+        """For backends on the capture thread: wait up to `seconds`; True when asked to stop."""
+        stop = getattr(self, "_stop_event", None)
+        if stop is None:
+            time.sleep(seconds)
+            return False
+        return stop.wait(seconds)
+
+    # -- hooks for backends ----------------------------------------------------------------
+    def _open_device(self) -> None:
+        """Find and open the device, apply pixel format, size and rate."""
+
+    def _close_device(self) -> None:
+        """Release the device. Must tolerate a partial open and being called twice."""
+
+    def _start_stream(self) -> None:
+        """Start acquisition."""
+
+    def _stop_stream(self) -> None:
+        """Stop acquisition; tolerate a device already gone."""
+
+    def _grab(self, timeout_s: float) -> Grab | None:
+        """One frame with its timestamps, or None when none came within `timeout_s`.
+
+        Raise `CameraLostError` when the device is gone (the base class reopens it).
+        """
+        raise CameraError(f"{self.name}: the {type(self).__name__} backend does not grab frames")
+
+    def _reopen(self) -> None:
+        """Reopen a lost device and stream again (by default: close, open, start)."""
+        try:
+            self._stop_stream()
+        finally:
+            self._close_device()
+        self._open_device()
+        self._start_stream()
+
+    def _set_exposure_us(self, exposure_us: float) -> None:
+        raise CameraConfigError(f"{self.name}: no exposure control")
+
+    def _set_gain_db(self, gain_db: float) -> None:
+        raise CameraConfigError(f"{self.name}: no gain control")
+
+    def _backend_stats(self) -> dict[str, int]:
+        return {}
+
+
+# --- stereo ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StereoFrames:
+    left: Frame
+    right: Frame
+
+    @property
+    def skew_s(self) -> float:
+        return abs(self.left.time_s - self.right.time_s)
+
+    @property
+    def exposure_start_s(self) -> float:
+        return min(self.left.exposure_start_s, self.right.exposure_start_s)
+
+
+class StereoPair:
+    """Left and right cameras read as synchronised pairs.
+
+    A pair is two frames whose `time_s` differ by at most `tolerance_s`. `wait_pair(after_s)`
+    gives the FIRST pair whose exposures both began at or after `after_s`, so a caller that
+    passes the time the head came to rest never gets a frame exposed while it moved.
+    """
+
+    def __init__(self, left: Camera, right: Camera, tolerance_s: float | None = None) -> None:
+        if tolerance_s is None:
+            fps = min(c.config.fps or 30.0 for c in (left, right))
+            tolerance_s = 0.5 / fps
+        if tolerance_s < 0:
+            raise CameraConfigError(f"stereo pair tolerance_s {tolerance_s}: expected >= 0")
+        self.left, self.right, self.tolerance_s = left, right, tolerance_s
+        self._cond = threading.Condition()
+        self._closed = False
+        left.add_listener(self._on_frame)
+        right.add_listener(self._on_frame)
+
+    def _on_frame(self, frame: Frame | None) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def _pairs(self, after_s: float | None) -> list[StereoFrames]:
+        """Matching pairs in the histories, oldest first; each left frame at most once."""
+        lefts = self.left.history()
+        rights = self.right.history()
+        if after_s is not None:
+            lefts = [f for f in lefts if f.exposure_start_s >= after_s]
+            rights = [f for f in rights if f.exposure_start_s >= after_s]
+        pairs = []
+        for lf in lefts:
+            if not rights:
+                break
+            best = min(rights, key=lambda rf: abs(rf.time_s - lf.time_s))
+            if abs(best.time_s - lf.time_s) <= self.tolerance_s:
+                pairs.append(StereoFrames(lf, best))
+        return pairs
+
+    def latest(self) -> StereoFrames | None:
+        """The newest synchronised pair held, or None."""
+        pairs = self._pairs(None)
+        return pairs[-1] if pairs else None
+
+    def wait_pair(self, after_s: float | None = None, timeout_s: float = 2.0) -> StereoFrames:
+        """The first pair exposed entirely at or after `after_s` (None: a pair newer than now held)."""
+        if after_s is None:
+            held = self.latest()
+            baseline = (held.left.counter, held.right.counter) if held else (0, 0)
+
+        def find() -> StereoFrames | None:
+            pairs = self._pairs(after_s)
+            if after_s is None:
+                pairs = [p for p in pairs if p.left.counter > baseline[0] and p.right.counter > baseline[1]]
+            return pairs[0] if pairs else None
+
+        def check() -> None:
+            for camera in (self.left, self.right):
+                camera._raise_if_failed()
+
+        def timeout_message() -> str:
+            what = f"pair exposed after t={after_s:.6f} s" if after_s is not None else "new pair"
+            return (f"stereo {self.left.name}/{self.right.name}: no {what} within {timeout_s} s "
+                    f"with timestamps within {self.tolerance_s * 1e3:.1f} ms")
+
+        with self._cond:
+            return _wait_for(self._cond, find, check, timeout_s, timeout_message)
+
+    def close(self) -> None:
+        """Stop listening to the cameras (they stay open: their owner closes them). Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self.left.remove_listener(self._on_frame)
+        self.right.remove_listener(self._on_frame)
+
+    def __enter__(self) -> "StereoPair":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- construction ------------------------------------------------------------------------
+def create_camera(config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
+                  on_error: ErrorCallback | None = None, key_path: str = "camera", **resources: Any) -> Camera:
+    """The camera `config` describes, not yet opened.
+
+    `resources` are what a backend needs beyond its config and cannot read from YAML (the
+    simulated camera's head model and pose source); a backend not taking them refuses them.
+    """
+    cls = backends.resolve("camera", config.backend)
+    if not (isinstance(cls, type) and issubclass(cls, Camera)):
+        raise CameraConfigError(f"{key_path}.backend: {config.backend!r} is {cls!r}, not a Camera class")
+    config.check_applies_to(cls, key_path)
+    return cls(config, name=name, clock=clock, on_error=on_error, **resources)

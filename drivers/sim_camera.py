@@ -1,0 +1,126 @@
+"""The simulated camera: one eye of the simulated head, a first-class `Camera` backend.
+
+It owns the frame timing of the simulation: frames fall on a grid of the injected clock
+(frame n at n / fps seconds), so the left and right cameras of a head, sharing a clock,
+produce frames with identical timestamps, like hardware-triggered stereo cameras. At each
+frame the capture thread reads the current joint angles from a pose source (a callable
+returning {"pan", "tilt", "left_eye", "right_eye"} in degrees; the service wires the
+simulated servo bus to it) and renders this eye's view with `drivers.sim_scene`.
+
+Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the next frame
+(real time with the system clock; a `ManualClock` then advances as fast as frames render).
+Without it the thread only watches the clock, and frames appear as someone else (a test,
+the simulated servo loop) advances it.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from drivers.camera import Camera, CameraConfig, Capabilities, ErrorCallback, Grab
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import CameraConfigError, CameraError, DeviceStateError
+from drivers.sim_scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene
+
+log = logging.getLogger(__name__)
+
+PoseSource = Callable[[], Mapping[str, float]]
+DEFAULT_FPS = 30.0
+_PACING_STEP_S = 0.02  # longest uninterrupted sleep, so stop() is prompt
+_WATCH_STEP_S = 0.0005  # how often an unpaced camera looks at the clock
+
+
+def fixed_pose(pan: float = 0.0, tilt: float = 0.0, left_eye: float = 0.0, right_eye: float = 0.0) -> PoseSource:
+    """A pose source for a head that does not move (degrees)."""
+    pose = {"pan": pan, "tilt": tilt, "left_eye": left_eye, "right_eye": right_eye}
+    return lambda: pose
+
+
+class SimulatedCamera(Camera):
+    """One eye of a simulated head (config `eye: left|right`), rendered from the pose source."""
+
+    backend_name = "sim"
+    capabilities = Capabilities(frame_rate=True, colour=True, simulated=True)
+    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std"})
+
+    def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
+                 on_error: ErrorCallback | None = None, head: HeadGeometry, pose_source: PoseSource,
+                 scene: Scene | None = None, paced_by_clock: bool = True) -> None:
+        super().__init__(config, name=name, clock=clock, on_error=on_error)
+        if config.eye is None:
+            raise CameraConfigError(f"{self.name}: a simulated camera needs eye: left or right")
+        self.eye_index = 0 if config.eye == "left" else 1
+        lens = head.lens_left if self.eye_index == 0 else head.lens_right
+        for key, wanted, actual in (("width", config.width, lens.width), ("height", config.height, lens.height)):
+            if wanted is not None and wanted != actual:
+                raise CameraConfigError(f"{self.name}: {key} {wanted} differs from the head model's lens ({actual} px)")
+        if scene is not None and scene.colour != (config.image == "colour"):
+            raise CameraConfigError(f"{self.name}: the scene given is {'colour' if scene.colour else 'grey'} "
+                                    f"but image is {config.image!r}")
+        self.head = head
+        self.lens = lens
+        self.pose_source = pose_source
+        self.fps = config.fps or DEFAULT_FPS
+        self.paced_by_clock = paced_by_clock
+        self._scene = scene
+        self._renderer: EyeRenderer | None = None
+        self._last_index: int | None = None
+
+    # -- synchronous use ----------------------------------------------------------------------
+    def render(self, joints: Mapping[str, float]) -> np.ndarray:
+        """This eye's image at the given joint angles (degrees), now, without the thread."""
+        self.require_open()
+        assert self._renderer is not None
+        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
+        return self._renderer.render(rotation, centre)
+
+    # -- hooks --------------------------------------------------------------------------------
+    def _open_device(self) -> None:
+        scene = self._scene or shared_scene(self.config.seed, self.config.image == "colour")
+        self._renderer = EyeRenderer(self.lens, scene)
+        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
+                 self.lens.width, self.lens.height, self.fps, self.config.seed)
+
+    def _close_device(self) -> None:
+        self._renderer = None
+
+    def _start_stream(self) -> None:
+        self._last_index = None
+
+    def _grab(self, timeout_s: float) -> Grab | None:
+        deadline_s = time.monotonic() + timeout_s
+        while True:
+            now_s = self.clock.monotonic()
+            # No rounding up: a frame's time is never later than the clock when it renders,
+            # so the pose it shows is the pose at (or after) its timestamp.
+            index = math.floor(now_s * self.fps)
+            if self._last_index is None or index > self._last_index:
+                break
+            if time.monotonic() >= deadline_s:
+                return None
+            if self.paced_by_clock:
+                self.clock.sleep(min((self._last_index + 1) / self.fps - now_s + 1e-9, _PACING_STEP_S))
+                if self.wait_stop(0.0):
+                    return None
+            elif self.wait_stop(_WATCH_STEP_S):
+                return None
+        self._last_index = index
+        frame_time_s = index / self.fps
+        try:
+            joints = self.pose_source()
+        except Exception as err:
+            raise CameraError(f"{self.name}: the pose source failed: {err!r}") from err
+        if self._renderer is None:
+            raise DeviceStateError(f"{self.name}: rendering on a closed camera")
+        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
+        image = self._renderer.render(rotation, centre)
+        if self.config.noise_std > 0:
+            # Sensor noise, deterministic per (seed, eye, frame).
+            rng = np.random.default_rng((self.config.seed, self.eye_index, index))
+            noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
+            image = np.clip(noisy, 0, 255).astype(np.uint8)
+        return Grab(image, frame_time_s, frame_time_s)
