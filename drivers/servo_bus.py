@@ -359,7 +359,8 @@ class ServoBus(Device, abc.ABC):
         self._reopen_backoff_s = REOPEN_BACKOFF_FIRST_S
         self._next_reopen_s = 0.0
         self._reopen_attempts = 0
-        self._faults: dict[str, int] = {}
+        self._faults: dict[str, int] = {}        # joint -> hardware error bits, last read
+        self._shut_down: set[str] = set()          # faulted joints whose torque is off
         self._last_auto_reboot_s: dict[str, float] = {}
         self._clamping: set[str] = set()
 
@@ -412,6 +413,7 @@ class ServoBus(Device, abc.ABC):
     def _open(self) -> None:
         self._down_reason = None
         self._faults.clear()
+        self._shut_down.clear()
         self._connect()
         self._connected = True
         self._configure(JOINTS)
@@ -509,18 +511,23 @@ class ServoBus(Device, abc.ABC):
         return BusState(time_s=(start_s + end_s) / 2.0, joints=joints)
 
     def _after_read(self, state: BusState) -> BusState:
-        """Log hardware errors once per change; reboot when configured; restore lost torque."""
-        faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}
-        for joint, bits in faults.items():
-            if self._faults.get(joint) != bits:
+        """Log hardware errors once per change; reboot when configured; restore lost torque.
+
+        Only a hardware error that cut a servo's torque (its Shutdown setting) is rebooted
+        away: one that leaves torque on (by default, input voltage) is reported, since a
+        reboot would drop the joint for nothing.
+        """
+        for joint, joint_state in state.joints.items():
+            bits = joint_state.hardware_error_bits
+            if bits and self._faults.get(joint) != bits:
                 log.error("%s", self._hardware_error(joint, bits, "reported"))
-        for joint in self._faults.keys() - faults.keys():
-            log.info("%s: hardware error cleared", self.describe(joint))
-        self._faults = faults
+            elif not bits and joint in self._faults:
+                log.info("%s: hardware error cleared", self.describe(joint))
+        self._note_faults(state)
         acted = False
         now = self.clock.monotonic()
         if self.config.reboot_on_hardware_error:
-            for joint in list(faults):
+            for joint in [j for j in self._faults if not state[j].torque_on]:
                 if now - self._last_auto_reboot_s.get(joint, -math.inf) < AUTO_REBOOT_HOLDOFF_S:
                     continue  # came back right after a reboot: report, do not loop
                 self._last_auto_reboot_s[joint] = now
@@ -536,8 +543,12 @@ class ServoBus(Device, abc.ABC):
                 acted = True
         if acted:
             state = self._io(self._read_state_once)
-            self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}
+            self._note_faults(state)
         return state
+
+    def _note_faults(self, state: BusState) -> None:
+        self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}
+        self._shut_down = {j for j in self._faults if not state[j].torque_on}
 
     def _reboot_and_restore(self, joint: str, reason: str) -> None:
         log.warning("%s: rebooting (%s)", self.describe(joint), reason)
@@ -546,6 +557,7 @@ class ServoBus(Device, abc.ABC):
         if self.is_enabled:
             self._restore_torque([joint])
         self._faults.pop(joint, None)
+        self._shut_down.discard(joint)
         log.info("%s: rebooted%s", self.describe(joint), ", torque restored" if self.is_enabled else "")
 
     def _restore_torque(self, joints: Iterable[str]) -> None:
@@ -570,9 +582,9 @@ class ServoBus(Device, abc.ABC):
             jc = self.config.joints[joint]
             if not isinstance(angle, (int, float)) or not math.isfinite(angle):
                 raise JointLimitError(f"{self.describe(joint)}: goal {angle!r} is not a finite angle; nothing sent")
-            if joint in self._faults:
+            if joint in self._shut_down:
                 raise self._hardware_error(
-                    joint, self._faults[joint], "(the servo ignores goals until rebooted: call reboot())"
+                    joint, self._faults[joint], "cut its torque (it ignores goals until rebooted: call reboot())"
                 )
             if jc.min_angle <= angle <= jc.max_angle:
                 if joint in self._clamping:

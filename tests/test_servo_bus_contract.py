@@ -237,6 +237,18 @@ class TestFaultContract:
             assert state["tilt"].torque_on
             assert state["tilt"].position == pytest.approx(-15.0, abs=TICK_DEG)
 
+    @pytest.mark.parametrize("auto_reboot", [False, True])
+    def test_an_error_that_keeps_torque_is_reported_not_rebooted(self, make, auto_reboot):
+        rig = make(reboot_on_hardware_error=auto_reboot)
+        with rig.bus as bus:
+            bus.enable()
+            rig.hardware_error("tilt", 0x01)  # input voltage: not in the default Shutdown mask
+            state = bus.read_state()["tilt"]
+            assert state.torque_on and state.hardware_errors == ("input voltage out of range",)
+            bus.write_goals({"tilt": 5.0})  # the servo still works: goals go through
+            assert _settle(rig, bus)["tilt"].position == pytest.approx(5.0, abs=TICK_DEG)
+            assert bus.read_state()["tilt"].hardware_error_bits == 0x01
+
     def test_a_repeating_hardware_error_is_not_rebooted_in_a_loop(self, make):
         rig = make(reboot_on_hardware_error=True)
         with rig.bus as bus:

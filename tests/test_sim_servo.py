@@ -111,12 +111,3 @@ def test_a_shutdown_error_refuses_torque_until_reboot():
         bus.reboot("pan")
         bus.enable()
         assert bus.read_state()["pan"].torque_on
-
-
-def test_a_non_shutdown_error_keeps_torque():
-    bus, clock = _bus(reboot_on_hardware_error=False)
-    with bus:
-        bus.enable()
-        bus.inject_hardware_error("tilt", 0x01)  # input voltage: not in the default Shutdown mask
-        state = bus.read_state()["tilt"]
-        assert state.torque_on and state.hardware_errors == ("input voltage out of range",)
