@@ -363,6 +363,7 @@ class ServoBus(Device, abc.ABC):
         self._shut_down: set[str] = set()          # faulted joints whose torque is off
         self._last_auto_reboot_s: dict[str, float] = {}
         self._clamping: set[str] = set()
+        self._torque_off_pending = False  # disable() failed while the bus was down
 
     # -- public API ----------------------------------------------------------------------
     @property
@@ -424,17 +425,31 @@ class ServoBus(Device, abc.ABC):
 
     def _enable_now(self) -> None:
         state = self._read_state_once()
-        for joint, joint_state in state.joints.items():
-            if not joint_state.hardware_error_bits:
-                continue
-            if not self.config.reboot_on_hardware_error:
-                raise self._hardware_error(joint, joint_state.hardware_error_bits, "cannot enable torque")
-            self._reboot_and_restore(joint, "hardware error at enable")
-        self._restore_torque(JOINTS)
+        if self.config.reboot_on_hardware_error:
+            for joint, joint_state in state.joints.items():
+                if joint_state.hardware_error_bits:
+                    self._reboot_and_restore(joint, "hardware error at enable")
+        try:
+            # A servo whose error cut its torque refuses it: the backend raises
+            # ServoHardwareError naming it.
+            self._restore_torque(JOINTS)
+        except DriverError:
+            # All or nothing: do not leave some joints torqued on a bus that is not enabled.
+            try:
+                self._set_torque(JOINTS, False)
+            except DriverError as err:
+                log.warning("%s: could not undo a partial enable: %s", self.name, err)
+            raise
+        self._torque_off_pending = False
         log.info("%s: torque on", self.name)
 
     def _disable(self) -> None:
-        self._io(lambda: self._set_torque(JOINTS, False))
+        try:
+            self._io(lambda: self._set_torque(JOINTS, False))
+        except BusDownError:
+            # Torque goes off as soon as the bus is back (see _reopen_if_due).
+            self._torque_off_pending = True
+            raise
         log.info("%s: torque off", self.name)
 
     def _close(self) -> None:
@@ -486,6 +501,9 @@ class ServoBus(Device, abc.ABC):
             self._configure(JOINTS)
             if self.is_enabled:
                 self._restore_torque(JOINTS)
+            elif self._torque_off_pending:
+                self._set_torque(JOINTS, False)
+                self._torque_off_pending = False
         except (DriverError, OSError) as err:
             self._reopen_backoff_s = min(self._reopen_backoff_s * 2.0, REOPEN_BACKOFF_MAX_S)
             self._next_reopen_s = now + self._reopen_backoff_s

@@ -223,6 +223,18 @@ class TestFaultContract:
             bus.write_goals({"left_eye": 0.0})
             assert _settle(rig, bus)["left_eye"].position == pytest.approx(0.0, abs=TICK_DEG)
 
+    def test_a_servo_in_shutdown_refuses_enable_for_the_whole_bus(self, make):
+        rig = make(reboot_on_hardware_error=False)
+        with rig.bus as bus:
+            rig.hardware_error("pan", 0x20)
+            with pytest.raises(ServoHardwareError, match=r"joint pan \(id 1\).*overload"):
+                bus.enable()
+            assert not bus.is_enabled
+            assert not any(s.torque_on for s in bus.read_state().joints.values())  # all or nothing
+            bus.reboot("pan")
+            bus.enable()
+            assert all(s.torque_on for s in bus.read_state().joints.values())
+
     def test_hardware_error_recovered_by_automatic_reboot(self, make, caplog):
         rig = make(reboot_on_hardware_error=True)
         with rig.bus as bus:
@@ -283,6 +295,20 @@ class TestFaultContract:
             assert state["pan"].position == pytest.approx(12.0, abs=TICK_DEG)
             bus.write_goals({"pan": 0.0})
             assert _settle(rig, bus)["pan"].position == pytest.approx(0.0, abs=TICK_DEG)
+
+    def test_disable_while_the_bus_is_down_takes_effect_when_it_is_back(self, make):
+        rig = make()
+        with rig.bus as bus:
+            bus.enable()
+            rig.bus_down()
+            with pytest.raises(BusDownError):
+                bus.read_state()
+            with pytest.raises(BusDownError):
+                bus.disable()
+            assert not bus.is_enabled
+            rig.bus_up()
+            rig.advance(REOPEN_BACKOFF_MAX_S)
+            assert not any(s.torque_on for s in bus.read_state().joints.values())
 
     def test_bus_watchdog_stops_the_head_when_the_host_falls_silent(self, make):
         rig = make(watchdog_ms=100, joints={"pan": {"profile_velocity": 50.0, "profile_acceleration": 0}})

@@ -6,7 +6,7 @@ import math
 import pytest
 
 from drivers.clock import ManualClock
-from drivers.errors import BusDownError, ServoHardwareError
+from drivers.errors import BusDownError
 from drivers.servo_bus import ServoBusConfig, create_servo_bus
 from drivers.sim_servo import ProfileAxis, SimulatedServoBus
 from servo_rigs import config_mapping
@@ -100,14 +100,3 @@ def test_bus_down_hook_fails_open_until_restored():
     bus.restore_bus()
     with bus:
         assert not bus.is_down
-
-
-def test_a_shutdown_error_refuses_torque_until_reboot():
-    bus, clock = _bus(reboot_on_hardware_error=False)
-    with bus:
-        bus.inject_hardware_error("pan", 0x20)
-        with pytest.raises(ServoHardwareError, match=r"joint pan \(id 1\).*overload"):
-            bus.enable()
-        bus.reboot("pan")
-        bus.enable()
-        assert bus.read_state()["pan"].torque_on
