@@ -571,12 +571,12 @@ class Camera(Device):
         raise CameraError(f"{self.name}: the {type(self).__name__} backend does not grab frames")
 
     def _reopen(self) -> None:
-        """Reopen a lost device and stream again (by default: close, open, start)."""
+        """Reopen a lost device and stream again (by default: close, open and configure, start)."""
         try:
             self._stop_stream()
         finally:
             self._close_device()
-        self._open_device()
+        self._open()  # opens and applies exposure and gain again
         self._start_stream()
 
     def _set_exposure_us(self, exposure_us: float) -> None:
