@@ -28,6 +28,7 @@ import json
 import logging
 import os
 import tempfile
+import zipfile
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,8 +67,9 @@ class GazeMapParams:
     # Improvements of the default profile (all off in `paper`):
     interpolate: bool = True  # trilinear readout of W and sub-node inverse lookup
     global_degree: int = 3  # > 0: W = polynomial of this degree (RLS) + the grid as its residual
-    global_memory: float = 400.0  # fixations the polynomial remembers when the error is small
-    global_memory_min: float = 40.0  # ... and at the least, when eq. 9's sigmoid saturates
+    global_memory: float = 400.0  # fixations the polynomial remembers while the head is unchanged
+    global_memory_min: float = 30.0  # ... and right after it changed (the error jumped)
+    surprise_threshold: float = 2.0  # E-bar over its long-run level beyond which memory shrinks
 
     @classmethod
     def profile_values(cls, profile: str, **overrides) -> "GazeMapParams":
@@ -237,7 +239,10 @@ class GazeMap:
         self.grid = grid
         self._coarse: np.ndarray | None = None  # W on the coarse subgrid, refreshed periodically
         self._coarse_age = 0
+        self._pending_decay = 1.0  # residual-grid forgetting not yet applied
         self.recent_errors: deque[float] = deque(maxlen=params.error_window)
+        self.long_run_error = float("nan")
+        self.memory = params.global_memory  # fixations the polynomial part remembers now
         self.adaptations = 0
         self._setup_geometry()
 
@@ -408,12 +413,30 @@ class GazeMap:
         error = self.retinal_error(position, self.inverse(m))
         self.recent_errors.append(error)
         mean_error = float(np.mean(self.recent_errors))
+        # The error's long-run level: an average over about `global_memory` fixations.
+        if self.adaptations == 0:
+            self.long_run_error = error
+        self.long_run_error += (error - self.long_run_error) / min(self.adaptations + 1, self.params.global_memory)
         sigma = self.sigma_cells(mean_error)
         target = m
         if phi is not None:
             p = self.params
-            memory = max(p.global_memory_min, p.global_memory * (1.0 - self._sigmoid(mean_error)))
+            # When the windowed error jumps above its long-run level the head has changed (lens,
+            # baseline, offset) and what was learned before is wrong: the memory drops to its
+            # minimum, then grows by one a fixation, so the fit weighs the samples since the
+            # change about equally until it remembers `global_memory` fixations again.
+            surprise = mean_error / max(self.long_run_error, 1e-3)
+            if surprise > p.surprise_threshold:
+                self.memory = p.global_memory_min
+            else:
+                self.memory = min(p.global_memory, self.memory + 1.0)
+            memory = self.memory
             self.polynomial.learn(phi, m, c, memory)
+            # The residual grid forgets at the same pace: residuals learned against an old
+            # polynomial must not outlive it. Applied in batches (one pass over the grid).
+            self._pending_decay *= 1.0 - 1.0 / memory
+            if self._pending_decay < 0.95:
+                self.settle()
             target = m - phi @ self.polynomial.coef  # the grid learns the residual
         touched = self._update(g, target, c, sigma)
         self.adaptations += 1
@@ -431,6 +454,14 @@ class GazeMap:
         return int(touched)
 
     # -- persistence -------------------------------------------------------------------
+    def settle(self) -> None:
+        """Apply the batched residual forgetting and drop caches, so that the map is exactly its
+        saved arrays: a map and its reloaded copy then continue identically."""
+        if self._pending_decay != 1.0:
+            self.grid *= self._pending_decay
+            self._pending_decay = 1.0
+        self._coarse = None
+
     def state_arrays(self) -> dict[str, np.ndarray]:
         arrays = {
             "format": np.array(FILE_FORMAT),
@@ -438,6 +469,8 @@ class GazeMap:
             "grid": self.grid,
             "recent_errors": np.array(list(self.recent_errors), dtype=np.float64),
             "adaptations": np.array(self.adaptations, dtype=np.int64),
+            "long_run_error": np.array(self.long_run_error, dtype=np.float64),
+            "memory": np.array(self.memory, dtype=np.float64),
         }
         if self.polynomial is not None:
             arrays["polynomial_coef"] = self.polynomial.coef
@@ -450,6 +483,7 @@ class GazeMap:
         At every instant `path` is either the old complete file or the new complete file.
         """
         path = Path(path)
+        self.settle()
         buffer = io.BytesIO()
         np.savez(buffer, **self.state_arrays())
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
@@ -487,12 +521,12 @@ class GazeMap:
                 arrays = {k: data[k] for k in data.files}
         except FileNotFoundError as err:
             raise MapFileError(f"{path}: no such gaze map file") from err
-        except (OSError, ValueError, EOFError) as err:
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
             raise MapFileError(f"{path}: not a readable gaze map file ({err})") from err
         fmt = str(arrays.get("format", ""))
         if fmt != FILE_FORMAT:
             raise MapFileError(f"{path}: format {fmt!r}, expected {FILE_FORMAT!r}")
-        required = {"params", "grid", "recent_errors", "adaptations"}
+        required = {"params", "grid", "recent_errors", "adaptations", "long_run_error", "memory"}
         missing = required - set(arrays)
         try:
             params = GazeMapParams.from_json(str(arrays["params"])) if "params" in arrays else None
@@ -515,4 +549,6 @@ class GazeMap:
             raise MapFileError(f"{path}: invalid map ({err})") from err
         gm.recent_errors.extend(float(e) for e in arrays["recent_errors"])
         gm.adaptations = int(arrays["adaptations"])
+        gm.long_run_error = float(arrays["long_run_error"])
+        gm.memory = float(arrays["memory"])
         return gm

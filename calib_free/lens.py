@@ -19,8 +19,9 @@ import numpy as np
 # 150 deg diagonal angle of view on a 7.28 x 5.04 mm sensor. A least-squares fit of k1..k4
 # to r(45 deg) = 3.64 mm, r(75 deg) = 4.43 mm, r(31 deg) = 2.52 mm, keeping dr/dtheta >= 0.8
 # mm/rad out to 80 deg (the three figures are not exactly consistent with one smooth lens):
-# 3.63 mm at 45 deg, 4.47 mm at 75 deg, 2.72 mm at 31 deg. Magnification falls 6.75x from
-# centre to edge: the periphery is compressed, the centre foveated.
+# 3.63 mm at 45 deg, 4.47 mm at 75 deg, 2.72 mm at 31 deg. Magnification is 1.8x lower at
+# the left/right edges than at the centre and 4.9x lower in the corners: the periphery is
+# compressed, the centre foveated.
 PAPER_FOCAL_MM = 5.4
 PAPER_SENSOR_MM = (7.28, 5.04)
 FOVEATED_K = (-0.2329, 0.00582, -0.01872, 0.01258)

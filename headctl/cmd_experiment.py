@@ -1,0 +1,157 @@
+"""`headctl experiment NAME`: the paper's simulated experiments, with CSV, plot and summary.
+
+NAME is one of `calib_free.experiments.EXPERIMENTS` (learn, baseline, prism, pan-defect,
+swap). The run learns on the geometric head model with a progress bar, writes
+`<out>/<name>-<profile>.csv` (per fixation: raw and averaged errors) and `.png` (like the
+paper's figures), and prints the paper's figures beside the measured ones, the landing error
+and the representation's floor.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from calib_free import GazeMap
+from calib_free.experiments import (EXPERIMENTS, ExperimentResult, final_head, landing_targets,
+                                    representation_floor, run_experiment)
+from calib_free.gaze_map import PROFILES
+from calib_free.lens import LENS_KINDS
+from calib_free.sim import HeadModel
+
+log = logging.getLogger(__name__)
+
+# The paper's figures for each experiment: what `learn` is compared with (fig. 5), and the
+# re-adaptation windows the issue sets (figs. 6, 8, 9).
+PAPER_LEARN = {"pan_deg": 1.3, "tilt_deg": 1.07, "vergence_deg": 0.5, "retinal_error": 0.0368}
+RECOVERY_GOAL = {"baseline": 500, "prism": 700, "pan-defect": 700, "swap": 700}
+STEADY_OVER = 200  # fixations in the steadier "mean of the last 200" figure
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "experiment", help="run one of the paper's simulated experiments (learning curves, plot, summary)",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", choices=sorted(EXPERIMENTS), help="which experiment")
+    p.add_argument("--profile", choices=PROFILES, default="default",
+                   help="gaze map profile: 'paper' (the rule as written) or 'default' (improved)")
+    p.add_argument("--fixations", type=int, default=None, help="fixations to run (default: the experiment's)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (map initialisation and fixations)")
+    p.add_argument("--width", type=int, default=320, help="image width, px (default 320)")
+    p.add_argument("--height", type=int, default=240, help="image height, px (default 240)")
+    p.add_argument("--lens", choices=LENS_KINDS, default="foveated", help="fish-eye model of both cameras")
+    p.add_argument("--out", type=Path, default=Path("runs"), help="where the CSV and PNG go (default ./runs)")
+    p.add_argument("--floor-samples", type=int, default=50_000,
+                   help="samples for the k-NN representation floor; 0 skips it (default 50000)")
+    p.add_argument("--landing-every", type=int, default=100, help="fixations between landing-error checks")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = EXPERIMENTS[args.name]
+    if args.fixations is not None:
+        if args.fixations < 1:
+            print(f"--fixations must be at least 1, got {args.fixations}", file=sys.stderr)
+            return 2
+        spec = type(spec)(spec.name, args.fixations, tuple(c for c in spec.changes if c.at < args.fixations),
+                          spec.description, spec.paper_figure)
+    head = HeadModel.default(args.width, args.height, lens=args.lens)
+    gm = GazeMap.for_image(args.width, args.height, seed=args.seed, profile=args.profile)
+    drange = gm.params.disparity_range
+    args.out.mkdir(parents=True, exist_ok=True)
+    stem = args.out / f"{spec.name}-{args.profile}"
+
+    started = time.monotonic()
+    with tqdm(total=spec.fixations, desc=f"{spec.name} ({args.profile})", unit="fix",
+              disable=None, file=sys.stderr) as bar:
+        result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
+                                progress=bar.update)
+    learn_s = time.monotonic() - started
+
+    floor_px = None
+    if args.floor_samples > 0:
+        print(f"measuring the representation floor (k-NN on {args.floor_samples} samples)...", file=sys.stderr)
+        end_head = final_head(spec, head)
+        targets = landing_targets(end_head, 500, drange, seed=args.seed + 7919 + spec.fixations)
+        floor_px, best_k = representation_floor(end_head, drange, args.floor_samples, targets, seed=args.seed + 1)
+    write_csv(result, stem.with_suffix(".csv"))
+    from headctl.plots import plot_learning_curves  # matplotlib only when plotting
+
+    plot_learning_curves(result, stem.with_suffix(".png"), floor_px,
+                         title=f"{spec.name} ({args.profile} profile): {spec.description}")
+    summary = summarise(result, floor_px, args.profile, learn_s)
+    stem.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(format_summary(summary))
+    print(f"wrote {stem}.csv, {stem}.png, {stem}.json")
+    return 0
+
+
+def write_csv(result: ExperimentResult, path: Path) -> None:
+    avg_out = result.averaged(result.output_error)
+    avg_ret = result.averaged(result.retinal_error)
+    landing = dict(result.landing)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["fixation", "retinal_error", "pan_error_deg", "tilt_error_deg", "vergence_error_deg",
+                    "retinal_error_avg10", "pan_error_avg10_deg", "tilt_error_avg10_deg",
+                    "vergence_error_avg10_deg", "landing_error_median_px"])
+        for n in range(len(result.retinal_error)):
+            w.writerow([n + 1, f"{result.retinal_error[n]:.6f}", *(f"{v:.5f}" for v in result.output_error[n]),
+                        f"{avg_ret[n]:.6f}", *(f"{v:.5f}" for v in avg_out[n]),
+                        f"{landing[n + 1]:.3f}" if n + 1 in landing else ""])
+
+
+def summarise(result: ExperimentResult, floor_px: float | None, profile: str, learn_s: float) -> dict:
+    spec = result.spec
+    summary: dict = {"experiment": spec.name, "profile": profile, "fixations": spec.fixations,
+                     "seconds": round(learn_s, 2), "final": result.final(),
+                     "steady": result.final(over=STEADY_OVER),
+                     "landing_error_px": result.landing[-1][1] if result.landing else None,
+                     "floor_px": floor_px, "refused": result.refused}
+    if floor_px:
+        summary["landing_over_floor"] = summary["landing_error_px"] / floor_px
+    changes = []
+    for change in spec.changes:
+        entry = {"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
+                 "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at)}
+        after = [px for at, px in result.landing if at <= change.at]
+        entry["landing_before_px"] = after[-1] if after else None
+        changes.append(entry)
+    summary["changes"] = changes
+    return summary
+
+
+def format_summary(s: dict) -> str:
+    f, st = s["final"], s["steady"]
+    lines = [f"{s['experiment']} ({s['profile']} profile), {s['fixations']} fixations in {s['seconds']:.1f} s",
+             "                   last 10 (paper)  last 200    paper fig. 5 (2,000 fixations)",
+             f"  pan error        {f['pan_deg']:7.2f} deg   {st['pan_deg']:7.2f} deg   {PAPER_LEARN['pan_deg']:.2f} deg",
+             f"  tilt error       {f['tilt_deg']:7.2f} deg   {st['tilt_deg']:7.2f} deg   {PAPER_LEARN['tilt_deg']:.2f} deg",
+             f"  vergence error   {f['vergence_deg']:7.2f} deg   {st['vergence_deg']:7.2f} deg   "
+             f"{PAPER_LEARN['vergence_deg']:.2f} deg",
+             f"  retinal error    {100 * f['retinal_error']:7.2f} %     {100 * st['retinal_error']:7.2f} %     "
+             f"{100 * PAPER_LEARN['retinal_error']:.2f} %"]
+    if s["landing_error_px"] is not None:
+        line = f"  landing error    {s['landing_error_px']:7.2f} px   (median of 500 targets, one saccade)"
+        lines.append(line)
+    if s["floor_px"]:
+        lines.append(f"  floor (k-NN)     {s['floor_px']:7.2f} px   landing / floor = {s['landing_over_floor']:.2f}"
+                     " (goal <= 1.5)")
+    for c in s["changes"]:
+        rec = c["recovery_fixations"]
+        goal = c["goal_fixations"]
+        rec_text = "not within the run" if rec is None else f"{rec} fixations"
+        lines.append(f"  change at {c['at']}: retinal error back to its pre-change level after {rec_text}"
+                     + (f" (goal <= {goal})" if goal else ""))
+    if s["refused"]:
+        lines.append(f"  refused samples: {s['refused']}")
+    return "\n".join(lines)
+
+
+__all__ = ["register", "run"]
