@@ -196,6 +196,35 @@ class CameraConfig:
 _COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
 
 
+@dataclass(frozen=True)
+class StereoCamerasConfig:
+    """The `cameras:` section of a head's config: a left and a right camera, and the pair's
+    timestamp tolerance (None: half a frame period of the slower camera)."""
+
+    left: CameraConfig
+    right: CameraConfig
+    tolerance_s: float | None = None
+
+    @classmethod
+    def from_mapping(cls, data: Any, key_path: str = "cameras") -> "StereoCamerasConfig":
+        if not isinstance(data, Mapping):
+            raise CameraConfigError(f"{key_path}: got {data!r}, expected a mapping with left and right")
+        unknown = sorted(set(data) - {"left", "right", "tolerance_s"})
+        if unknown:
+            raise CameraConfigError(f"{key_path}.{unknown[0]}: unknown key (value {data[unknown[0]]!r}); "
+                                    "expected left, right, tolerance_s")
+        for side in ("left", "right"):
+            if side not in data:
+                raise CameraConfigError(f"{key_path}.{side}: missing; expected the {side} camera's settings")
+        tolerance_s = data.get("tolerance_s")
+        if tolerance_s is not None:
+            tolerance_s = _coerce(tolerance_s, float, f"{key_path}.tolerance_s")
+            if tolerance_s < 0:
+                raise CameraConfigError(f"{key_path}.tolerance_s: got {tolerance_s}, expected >= 0")
+        return cls(CameraConfig.from_mapping(data["left"], f"{key_path}.left"),
+                   CameraConfig.from_mapping(data["right"], f"{key_path}.right"), tolerance_s)
+
+
 # --- frames ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Frame:
