@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
-from dynamixel_sdk import COMM_PORT_BUSY, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
+from dynamixel_sdk import COMM_PORT_BUSY, COMM_RX_CORRUPT, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (
@@ -229,6 +229,22 @@ class _BlockingPortHandler(PortHandler):
             # Sleep until a byte arrives or the deadline passes (the SDK loops on us).
             select.select([self.ser.fileno()], [], [], remaining_s)
         return self.ser.read(length)
+
+    def drain_late_replies(self) -> int:
+        """Discard replies still arriving after a timeout; returns how many bytes.
+
+        A reply that comes after its timeout would otherwise be taken as the answer to
+        the retry (the SDK matches replies by id only), handing back stale or wrong data.
+        Waits until the line has been quiet for one reply timeout.
+        """
+        quiet_s = (2.0 * self.latency_timer_ms + self.reply_slack_ms) / 1000.0
+        discarded = 0
+        while select.select([self.ser.fileno()], [], [], quiet_s)[0]:
+            chunk = self.ser.read(4096)
+            if not chunk:
+                break
+            discarded += len(chunk)
+        return discarded
 
 
 class _SyncRead(GroupSyncRead):
@@ -446,6 +462,7 @@ class DynamixelBus(ServoBus):
                 raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure (sync read)")
             log.debug("%s: sync read attempt %d failed at id %s: %s", self.name, attempt + 1,
                       sync_read.failed_id, self._packet.getTxRxResult(result))
+            self._drain()
         else:
             self._raise_comm(self._joint_of.get(sync_read.failed_id), "sync read", result)
         states: dict[str, JointState | None] = {}
@@ -480,8 +497,13 @@ class DynamixelBus(ServoBus):
 
     def _read_bytes(self, joint: str, address: int, size: int) -> bytes:
         servo_id = self._ids[joint]
-        data, _error = self._transact(joint, f"read of address {address}",
-                                      lambda: self._packet.readTxRx(self._port, servo_id, address, size))
+        def read() -> tuple:
+            data, result, error = self._packet.readTxRx(self._port, servo_id, address, size)
+            if result == COMM_SUCCESS and len(data) != size:
+                result = COMM_RX_CORRUPT  # a stray reply of another request: try again
+            return data, result, error
+
+        data, _error = self._transact(joint, f"read of {size} byte(s) at address {address}", read)
         return bytes(data)
 
     def _write(self, joint: str, address: int, size: int, value: int) -> int:
@@ -510,6 +532,7 @@ class DynamixelBus(ServoBus):
             if result != COMM_SUCCESS:
                 log.debug("%s: %s attempt %d: %s", self.describe(joint), what, attempt + 1,
                           self._packet.getTxRxResult(result))
+                self._drain()
                 continue
             if error & ~ERRBIT_ALERT:
                 refusal = self._packet.getRxPacketError(error & ~ERRBIT_ALERT)
@@ -524,6 +547,14 @@ class DynamixelBus(ServoBus):
         if result in _COMM_TIMEOUT_RESULTS:
             raise ServoTimeoutError(message)
         raise ServoCommError(message)
+
+    def _drain(self) -> None:
+        try:
+            discarded = self._require(self._port).drain_late_replies()
+        except PORT_ERRORS as err:
+            raise BusDownError(f"{self.name}: port failed while draining late replies: {err}") from err
+        if discarded:
+            log.debug("%s: discarded %d bytes of late replies before retrying", self.name, discarded)
 
     def _require(self, thing):
         if thing is None:

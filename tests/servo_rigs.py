@@ -36,7 +36,7 @@ def config_mapping(port: str = "/dev/null", backend: str = "sim", joints: dict[s
         "port": port,
         # Generous for a Python emulator on a loaded 2-core CI machine; real adapters with
         # the udev rule answer within 1 ms.
-        "latency_timer_ms": 4,
+        "latency_timer_ms": 8,
         "retries": 2,
         "joints": {
             joint: {"id": servo_id, "min_angle": -90, "max_angle": 90, "profile_velocity": 100,

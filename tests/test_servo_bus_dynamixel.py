@@ -7,6 +7,7 @@ import errno
 import logging
 import time
 
+import dynamixel_sdk as sdk
 import pytest
 
 from drivers.dxl_emulator import DxlEmulator
@@ -82,10 +83,22 @@ def test_a_late_reply_within_the_timeout_is_accepted_and_a_later_one_times_out(r
         started = time.monotonic()
         with pytest.raises(ServoTimeoutError, match=r"joint pan \(id 1\)"):
             bus.read_state()
-        # The reply timeout follows the configured latency (4 ms here), not the SDK's 34 ms.
+        # The reply timeout follows the configured latency (8 ms here: ~20 ms), not the SDK's 34 ms.
         assert time.monotonic() - started < 0.1
         r.emulator.wait_idle()  # the late reply has gone out and is flushed by the next read
         bus.read_state()
+
+
+def test_late_replies_are_drained_before_a_retry(rig):
+    r = rig(retries=0)
+    with r.bus as bus:
+        r.emulator.delay_replies(IDS["pan"], 0.03)  # later than the ~19 ms timeout
+        model, result, _error = bus._packet.ping(bus._port, IDS["pan"])
+        assert result == sdk.COMM_RX_TIMEOUT
+        # The SDK matches replies by id only: this late reply would be taken as the
+        # answer to the next request to pan. It is discarded instead.
+        assert bus._port.drain_late_replies() == 14  # one ping status packet
+        assert bus._read("pan", XAddr.PRESENT_TEMPERATURE, 1) == 35
 
 
 def test_waiting_for_a_reply_does_not_busy_wait(rig):
