@@ -369,11 +369,12 @@ class _Faults:
 class DxlEmulator:
     """Virtual Protocol 2.0 servos on a pseudo-terminal, served from a named thread.
 
-    Use as a context manager (or `start()` / `stop(timeout)`). An exception while handling
-    a packet is logged, kept in `last_error` and passed to `on_error`; the emulator goes
-    on serving. `port` is the path to open, `link` (optional) a symlink kept pointing at it, also across `vanish()` and
-    `reappear()`. `baud`: the servos only understand a client whose port is set to this
-    rate (the pty carries the client's termios speed), so scans at other rates find nothing.
+    Use as a context manager (or `start()` / `stop(timeout)`). `port` is the path to
+    open; `link` (optional) is a symlink kept pointing at the pty, also across `vanish()`
+    and `reappear()`. `baud`: the servos only understand a client whose port is set to
+    this rate (the pty carries the client's termios speed), so scans at other rates find
+    nothing. An exception while handling a packet is logged, kept in `last_error` and
+    passed to `on_error`; the emulator goes on serving.
     """
 
     def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, model: str = "XM430-W350",
@@ -525,7 +526,8 @@ class DxlEmulator:
             try:
                 readable, _, _ = select.select(fds, [], [], 0.5)
             except OSError as err:
-                log.error("dxl emulator: select failed: %s", err)
+                log.error("dxl emulator on %s: select failed, stopping: %s", self._port, err)
+                self._report(err)
                 break
             if self._wake_r in readable:
                 os.read(self._wake_r, 64)
@@ -542,10 +544,13 @@ class DxlEmulator:
                     self._handle(packet)
             except Exception as err:  # a bug here must not kill the bus silently
                 log.exception("dxl emulator on %s: failed handling a packet", self._port)
-                self.last_error = err
-                if self.on_error is not None:
-                    self.on_error(err)
+                self._report(err)
         self._run_commands(parser)
+
+    def _report(self, err: BaseException) -> None:
+        self.last_error = err
+        if self.on_error is not None:
+            self.on_error(err)
 
     def _run_commands(self, parser: PacketParser) -> None:
         while True:
@@ -743,6 +748,7 @@ class DxlEmulator:
             return
         try:
             os.write(master, reply)
-            self.replies_sent += 1
+            with self._lock:
+                self.replies_sent += 1
         except OSError as err:
             log.debug("dxl emulator: reply of id %d not delivered: %s", servo_id, err)
