@@ -311,3 +311,21 @@ def test_emulate_servos_command_prints_the_pty_and_stops_on_sigterm(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_handler_error_reaches_the_callback_and_serving_goes_on(tmp_path):
+    errors = []
+    with DxlEmulator([1], link=str(tmp_path / "x"), on_error=errors.append) as emulator:
+        original = emulator._dispatch
+        emulator._dispatch = lambda packet, now: (_ for _ in ()).throw(RuntimeError("boom"))
+        port = sdk.PortHandler(emulator.port)
+        assert port.openPort()
+        try:
+            packet = sdk.PacketHandler(2.0)
+            assert packet.ping(port, 1)[1] == sdk.COMM_RX_TIMEOUT
+            emulator.wait_idle()
+            assert [str(e) for e in errors] == ["boom"] and emulator.last_error is errors[0]
+            emulator._dispatch = original
+            assert retried(port, packet.ping, port, 1)[0] == 1020
+        finally:
+            port.closePort()
