@@ -101,6 +101,13 @@ def list_devices(with_formats: bool = True) -> list[AravisDeviceInfo]:
     return found
 
 
+def _stream_counters(stream: "Aravis.Stream") -> dict[str, int]:
+    """The stream's counters of `_STREAM_COUNTERS` that this kind of stream keeps (a Fake
+    stream keeps fewer than a GigE Vision one; asking for a missing one makes Aravis complain)."""
+    kept = {stream.get_info_name(i) for i in range(stream.get_n_infos())}
+    return {name: stream.get_info_uint64_by_name(name) for name in _STREAM_COUNTERS if name in kept}
+
+
 class AravisCamera(Camera):
     """A GenICam camera through Aravis: config `id` or `serial` (or neither: the first found)."""
 
@@ -287,18 +294,15 @@ class AravisCamera(Camera):
         return cv2.cvtColor(raw, code)
 
     def _add_totals(self, stream: "Aravis.Stream") -> None:
-        for name in _STREAM_COUNTERS:
-            try:
-                self._totals[name] += stream.get_info_uint64_by_name(name)
-            except (GLib.Error, TypeError):
-                log.debug("%s: stream counter %s unavailable", self.name, name)
+        for name, value in _stream_counters(stream).items():
+            self._totals[name] += value
 
     def _backend_stats(self) -> dict[str, int]:
         """Aravis stream counters summed over every stream since open (lost frames, underruns)."""
         totals = dict(self._totals)
         stream = self._stream
         if stream is not None:
-            for name in _STREAM_COUNTERS:
-                totals[name] += stream.get_info_uint64_by_name(name)
+            for name, value in _stream_counters(stream).items():
+                totals[name] += value
         return {"aravis_" + name.removeprefix("n_"): value for name, value in totals.items()} | {
             "incomplete_buffers": self._incomplete}

@@ -28,6 +28,7 @@ import logging
 import math
 import threading
 import time
+import traceback
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -546,6 +547,13 @@ class Camera(Device):
     def _report(self, err: BaseException, cause: BaseException | None = None) -> None:
         if cause is not None:
             err.__cause__ = cause
+        # The error is kept (last_error, the callback's owner): drop its frames' locals so it
+        # does not keep a lost device's objects alive. Releasing those belongs on this thread
+        # (Aravis's finalizer talks to the vanished camera until a timeout), not on whichever
+        # thread a later garbage collection happens to run.
+        for chained in (err, err.__cause__, err.__context__):
+            if chained is not None and chained.__traceback__ is not None:
+                traceback.clear_frames(chained.__traceback__)
         self._error_count += 1
         self._last_error = err
         log.warning("%s: %s", self.name, err)

@@ -285,7 +285,10 @@ class EyeRenderer:
         self._lut = {name: np.zeros(256, np.float32) for name in ("su", "ou", "sv", "ov")}
         for name, table in self._lut.items():
             table[:len(scene.faces)] = getattr(scene, name)
-        self._edge_points = [self._box_edge_points(b) for b in range(len(scene.boxes))]
+        # Sample points along every box's edges, all boxes in one array (one projection a frame).
+        self._edge_points = np.concatenate(
+            [self._box_edge_points(b) for b in range(1, len(scene.boxes))] or [np.zeros((0, 3))])
+        self._points_per_box = 12 * self._EDGE_SAMPLES
 
     def _box_edge_points(self, b: int) -> np.ndarray:
         lo, hi = self.scene.lo[b].astype(float), self.scene.hi[b].astype(float)
@@ -295,21 +298,25 @@ class EyeRenderer:
                  for i in range(8) for j in range(8) if i < j and bin(i ^ j).count("1") == 1]
         return np.concatenate(edges)
 
-    def _footprint(self, b: int, rotation: np.ndarray, centre: np.ndarray) -> tuple[slice, slice] | None:
-        """Image rows/columns that box `b` can cover, None if none, everything if unsure."""
-        cam = (self._edge_points[b] - centre) @ np.asarray(rotation, float).T
-        everything = (slice(0, self.height), slice(0, self.width))
-        # Near or behind the camera, or near the lens's limit: no safe bound, test it all.
-        if np.any(cam[:, 2] < 0.05) or np.any(np.hypot(cam[:, 0], cam[:, 1]) > 5.0 * cam[:, 2]):
-            return everything
+    def _footprints(self, rotation: np.ndarray, centre: np.ndarray) -> list[tuple[slice, slice] | None]:
+        """For each box after the room: the image rows/columns it can cover, None if none
+        (everything when a box comes near the camera or the lens's limit: no safe bound)."""
+        cam = (self._edge_points - centre) @ np.asarray(rotation, float).T
         uv, _ = self.lens.project(cam)
-        lo = np.floor(uv.min(axis=0)).astype(int) - self._MARGIN_PX
-        hi = np.ceil(uv.max(axis=0)).astype(int) + self._MARGIN_PX + 1
-        c0, r0 = max(lo[0], 0), max(lo[1], 0)
-        c1, r1 = min(hi[0], self.width), min(hi[1], self.height)
-        if c0 >= c1 or r0 >= r1:
-            return None
-        return slice(r0, r1), slice(c0, c1)
+        everything = (slice(0, self.height), slice(0, self.width))
+        windows: list[tuple[slice, slice] | None] = []
+        for start in range(0, len(cam), self._points_per_box):
+            box_cam = cam[start:start + self._points_per_box]
+            if np.any(box_cam[:, 2] < 0.05) or np.any(np.hypot(box_cam[:, 0], box_cam[:, 1]) > 5.0 * box_cam[:, 2]):
+                windows.append(everything)
+                continue
+            box_uv = uv[start:start + self._points_per_box]
+            lo = np.floor(box_uv.min(axis=0)).astype(int) - self._MARGIN_PX
+            hi = np.ceil(box_uv.max(axis=0)).astype(int) + self._MARGIN_PX + 1
+            c0, r0 = max(lo[0], 0), max(lo[1], 0)
+            c1, r1 = min(hi[0], self.width), min(hi[1], self.height)
+            windows.append((slice(r0, r1), slice(c0, c1)) if c0 < c1 and r0 < r1 else None)
+        return windows
 
     def render(self, rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
         """The image (H, W) grey or (H, W, 3) BGR seen from camera-from-world `rotation` at `centre`."""
@@ -326,8 +333,7 @@ class EyeRenderer:
             nearer_z = t[2] < best
             np.minimum(best, t[2], out=best)
             face = np.where(nearer_z, 4 + (d[2] > 0), np.where(nearer_y, 2 + (d[1] > 0), d[0] > 0)).astype(np.uint8)
-            for b in range(1, len(scene.boxes)):
-                window = self._footprint(b, rotation, centre)
+            for b, window in enumerate(self._footprints(rotation, centre), start=1):
                 if window is not None:
                     self._hit_box(b, window, o, d, inv, best, face)
             point = [o[k] + best * d[k] for k in range(3)]
