@@ -144,7 +144,8 @@ class CameraConfig:
     history: int = 8
     buffers: int = 8
     seed: int = 0
-    lens: str = "foveated"
+    # The simulated head's lens; the kinds of calib_free.lens.LENS_KINDS (drivers cannot import it).
+    lens: Literal["foveated", "equidistant", "equisolid"] = "foveated"
     noise_std: float = 0.0
     grab_timeout_s: float = 1.0
     reconnect_backoff_max_s: float = 2.0
@@ -357,6 +358,7 @@ class Camera(Device):
         self._reconnect_count = 0
         self._listeners: list[Listener] = []
         self._thread: CaptureThread | None = None
+        self._stop_event: threading.Event | None = None  # the running capture thread's
 
     # -- state seen from outside ---------------------------------------------------------
     @property
@@ -581,7 +583,7 @@ class Camera(Device):
 
     def wait_stop(self, seconds: float) -> bool:
         """For backends on the capture thread: wait up to `seconds`; True when asked to stop."""
-        stop = getattr(self, "_stop_event", None)
+        stop = self._stop_event
         if stop is None:
             time.sleep(seconds)
             return False

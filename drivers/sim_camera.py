@@ -48,9 +48,16 @@ class SimulatedCamera(Camera):
     CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std"})
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
-                 on_error: ErrorCallback | None = None, head: HeadGeometry, pose_source: PoseSource,
-                 scene: Scene | None = None, paced_by_clock: bool = True) -> None:
+                 on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
+                 pose_source: PoseSource | None = None, scene: Scene | None = None,
+                 paced_by_clock: bool = True) -> None:
         super().__init__(config, name=name, clock=clock, on_error=on_error)
+        if head is None or pose_source is None:
+            # Not config: the service passes its head model (calib_free.sim.HeadModel) and
+            # the simulated servo bus's joint angles; drivers cannot build them.
+            raise CameraConfigError(f"{self.name}: a simulated camera needs head= (a head model) and "
+                                    "pose_source= (joint angles) from its creator, e.g. create_camera(config, "
+                                    "head=HeadModel.default(...), pose_source=fixed_pose())")
         if config.eye is None:
             raise CameraConfigError(f"{self.name}: a simulated camera needs eye: left or right")
         self.eye_index = 0 if config.eye == "left" else 1

@@ -151,6 +151,9 @@ class Scene:
         self.atlas = self._paint(np.random.default_rng(seed))
         for marker in markers:
             self._paint_marker(marker)
+        # What the renderer samples: OpenCV's remap has a much faster path for four
+        # channels than for three, so colour is sampled from BGRA and the alpha dropped.
+        self.sampling_atlas = cv2.cvtColor(self.atlas, cv2.COLOR_BGR2BGRA) if colour else self.atlas
         self._tables()
 
     # -- layout and painting ---------------------------------------------------------------
@@ -344,8 +347,9 @@ class EyeRenderer:
         map_x = pu * cv2.LUT(face, lut["su"]) + cv2.LUT(face, lut["ou"])
         map_y = pv * cv2.LUT(face, lut["sv"]) + cv2.LUT(face, lut["ov"])
         map_x[~self.valid] = -100.0  # outside the image circle: the border colour (black)
-        return cv2.remap(scene.atlas, map_x, map_y, cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        image = cv2.remap(scene.sampling_atlas, map_x, map_y, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR) if image.ndim == 3 else image
 
     def _hit_box(self, b: int, window: tuple[slice, slice], o: np.ndarray, d: list[np.ndarray],
                  inv: list[np.ndarray], best: np.ndarray, face: np.ndarray) -> None:

@@ -166,6 +166,10 @@ def test_config_errors_name_the_key():
         SimulatedCamera(CameraConfig(backend="sim"), name="cyclops", head=HEAD, pose_source=fixed_pose())
     with pytest.raises(CameraConfigError, match="width 320 differs"):
         SimulatedCamera(CameraConfig(backend="sim", eye="left", width=320), head=HEAD, pose_source=fixed_pose())
+    with pytest.raises(CameraConfigError, match="left: a simulated camera needs head="):
+        create_camera(CameraConfig(backend="sim", eye="left"))
+    with pytest.raises(CameraConfigError, match=r"cameras\.left\.lens: got 'fisheye', expected 'foveated' or"):
+        CameraConfig.from_mapping({"backend": "sim", "lens": "fisheye"}, "cameras.left")
     with pytest.raises(CameraConfigError, match=r"cameras\.left\.serial: not used by the 'sim' backend"):
         create_camera(CameraConfig(backend="sim", eye="left", serial="X"), key_path="cameras.left",
                       head=HEAD, pose_source=fixed_pose())
