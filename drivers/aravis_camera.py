@@ -37,6 +37,7 @@ log = logging.getLogger(__name__)
 # Aravis's device list is process-global: one caller at a time updates and reads it.
 _SYSTEM_LOCK = threading.Lock()
 _list_updated = False
+_fake_enabled = False
 _POP_STEP_S = 0.1  # longest single wait in the stream, so a lost camera or stop() is noticed
 
 # GenICam Bayer names give the first row's colours; OpenCV names the pattern from the second
@@ -66,10 +67,12 @@ class AravisDeviceInfo:
 
 def enable_fake_interface() -> None:
     """Expose Aravis's in-process Fake camera (`Fake_1`)."""
-    global _list_updated
+    global _list_updated, _fake_enabled
     with _SYSTEM_LOCK:
-        Aravis.enable_interface("Fake")
-        _list_updated = False
+        if not _fake_enabled:
+            Aravis.enable_interface("Fake")
+            _fake_enabled = True
+            _list_updated = False  # the next lookup updates the list, and finds Fake_1
 
 
 def _devices(refresh: bool) -> list[AravisDeviceInfo]:
