@@ -70,11 +70,12 @@ class GazeMapParams:
     global_memory: float = 400.0  # fixations the polynomial remembers while the head is unchanged
     global_memory_min: float = 30.0  # ... and right after it changed (the error jumped)
     surprise_threshold: float = 2.0  # E-bar over its long-run level beyond which memory shrinks
+    robust_scale: float = 3.0  # > 0: samples this many median residuals off weigh half (Cauchy)
 
     @classmethod
     def profile_values(cls, profile: str, **overrides) -> "GazeMapParams":
         if profile == "paper":
-            base = dict(profile="paper", interpolate=False, global_degree=0)
+            base = dict(profile="paper", interpolate=False, global_degree=0, robust_scale=0.0)
         elif profile == "default":
             base = dict(profile="default", interpolate=True, global_degree=3)
         else:
@@ -243,6 +244,7 @@ class GazeMap:
         self.recent_errors: deque[float] = deque(maxlen=params.error_window)
         self.long_run_error = float("nan")
         self.memory = params.global_memory  # fixations the polynomial part remembers now
+        self.residual_scale = 1.0  # running median of |m - W(r*)|, output cells (robust weighting)
         self.adaptations = 0
         self._setup_geometry()
 
@@ -274,7 +276,8 @@ class GazeMap:
         return cls(params, seed=seed)
 
     # -- positions ---------------------------------------------------------------------
-    def _check_position(self, position: Sequence[float]) -> str:
+    def check_position(self, position: Sequence[float]) -> str:
+        """'' if the map covers `position` (x, y, d), else what is wrong with it."""
         r = np.asarray(position, dtype=float)
         if r.shape != (3,) or not np.all(np.isfinite(r)):
             return f"position must be 3 finite numbers (x, y, d), got {position!r}"
@@ -300,7 +303,7 @@ class GazeMap:
 
         Raises OutOfRangeError for a position outside the image or the disparity range.
         """
-        problem = self._check_position(position)
+        problem = self.check_position(position)
         if problem:
             raise OutOfRangeError(problem)
         return self._value_at(self.to_grid(position))
@@ -394,7 +397,7 @@ class GazeMap:
         A position outside the map, a non-finite command or a confidence outside (0, 1] is
         refused (nothing learned) and the result says why.
         """
-        problem = self._check_position(position)
+        problem = self.check_position(position)
         m = np.asarray(command, dtype=float)
         if not problem and (m.shape != (3,) or not np.all(np.isfinite(m))):
             problem = f"command must be 3 finite numbers (dpan, dtilt, dverg), got {command!r}"
@@ -426,11 +429,19 @@ class GazeMap:
             # minimum, then grows by one a fixation, so the fit weighs the samples since the
             # change about equally until it remembers `global_memory` fixations again.
             surprise = mean_error / max(self.long_run_error, 1e-3)
+            residual = float(np.linalg.norm((m - value) * self._motor_scale))  # output cells
             if surprise > p.surprise_threshold:
                 self.memory = p.global_memory_min
+                self.residual_scale = max(residual, 1e-3)
             else:
                 self.memory = min(p.global_memory, self.memory + 1.0)
             memory = self.memory
+            if p.robust_scale > 0:
+                # A sample far off what the map predicts, compared with how far off samples
+                # usually are, is more likely a false correspondence (repetitive texture)
+                # than news: Cauchy weight. The usual distance is tracked as a running median.
+                c *= 1.0 / (1.0 + (residual / (p.robust_scale * self.residual_scale)) ** 2)
+                self.residual_scale *= np.exp(0.05 if residual > self.residual_scale else -0.05)
             self.polynomial.learn(phi, m, c, memory)
             # The residual grid forgets at the same pace: residuals learned against an old
             # polynomial must not outlive it. Applied in batches (one pass over the grid).
@@ -471,6 +482,7 @@ class GazeMap:
             "adaptations": np.array(self.adaptations, dtype=np.int64),
             "long_run_error": np.array(self.long_run_error, dtype=np.float64),
             "memory": np.array(self.memory, dtype=np.float64),
+            "residual_scale": np.array(self.residual_scale, dtype=np.float64),
         }
         if self.polynomial is not None:
             arrays["polynomial_coef"] = self.polynomial.coef
@@ -526,7 +538,7 @@ class GazeMap:
         fmt = str(arrays.get("format", ""))
         if fmt != FILE_FORMAT:
             raise MapFileError(f"{path}: format {fmt!r}, expected {FILE_FORMAT!r}")
-        required = {"params", "grid", "recent_errors", "adaptations", "long_run_error", "memory"}
+        required = {"params", "grid", "recent_errors", "adaptations", "long_run_error", "memory", "residual_scale"}
         missing = required - set(arrays)
         try:
             params = GazeMapParams.from_json(str(arrays["params"])) if "params" in arrays else None
@@ -551,4 +563,5 @@ class GazeMap:
         gm.adaptations = int(arrays["adaptations"])
         gm.long_run_error = float(arrays["long_run_error"])
         gm.memory = float(arrays["memory"])
+        gm.residual_scale = float(arrays["residual_scale"])
         return gm

@@ -120,10 +120,14 @@ def summarise(result: ExperimentResult, floor_px: float | None, profile: str, le
     for change in spec.changes:
         entry = {"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
                  "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at)}
-        after = [px for at, px in result.landing if at <= change.at]
-        entry["landing_before_px"] = after[-1] if after else None
+        before = [px for at, px in result.landing if at <= change.at]
+        after = [px for at, px in result.landing if change.at < at <= change.at + 700]
+        entry["landing_before_px"] = before[-1] if before else None
+        entry["landing_worst_after_px"] = max(after) if after else None
+        entry["landing_700_after_px"] = after[-1] if after else None
         changes.append(entry)
     summary["changes"] = changes
+    summary["landing_curve_px"] = result.landing
     return summary
 
 
@@ -149,6 +153,9 @@ def format_summary(s: dict) -> str:
         rec_text = "not within the run" if rec is None else f"{rec} fixations"
         lines.append(f"  change at {c['at']}: retinal error back to its pre-change level after {rec_text}"
                      + (f" (goal <= {goal})" if goal else ""))
+        if c["landing_worst_after_px"] is not None:
+            lines.append(f"    landing error {c['landing_before_px']:.1f} px before, {c['landing_worst_after_px']:.1f} px "
+                         f"at worst after, {c['landing_700_after_px']:.1f} px 700 fixations after")
     if s["refused"]:
         lines.append(f"  refused samples: {s['refused']}")
     return "\n".join(lines)

@@ -1,0 +1,122 @@
+"""The adapter thread: the gaze map learns in the background while the head keeps moving.
+
+`MapAdapter` owns a `GazeMap` and a named thread that takes training samples (r*, m, c)
+from a bounded queue and adapts the map. Readers (`command`, `snapshot`) and the thread
+share one lock, held only for the microseconds of a lookup or an adaptation, so the
+fixation loop never waits on learning. A full queue drops the oldest sample (counted):
+learning may lag, motion never blocks. An exception in the thread reaches `on_error` and
+`error`; the thread stops through an event.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from calib_free.gaze_map import AdaptResult, GazeMap
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Sample:
+    position: np.ndarray  # r* = (x*, y*, d*)
+    command: np.ndarray  # the executed relative command
+    confidence: float
+    tag: int = -1  # the caller's id for it (a fixation index)
+
+
+class MapAdapter:
+    """A GazeMap adapted on its own thread; thread-safe lookups."""
+
+    def __init__(self, gaze_map: GazeMap, queue_size: int = 64,
+                 on_adapted: Callable[[Sample, AdaptResult], None] | None = None,
+                 on_error: Callable[[BaseException], None] | None = None, name: str = "gaze-adapter") -> None:
+        self.map = gaze_map
+        self.on_adapted = on_adapted
+        self.on_error = on_error
+        self.error: BaseException | None = None
+        self.dropped = 0
+        self._queue: queue.Queue[Sample] = queue.Queue(maxsize=queue_size)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._started = False
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self) -> "MapAdapter":
+        if not self._started:
+            self._started = True
+            self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the thread (samples still queued are not learned). Safe to call twice."""
+        self._stop.set()
+        if self._started and self._thread.is_alive():
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                log.warning("%s did not stop within %.1f s", self._thread.name, timeout_s)
+
+    def __enter__(self) -> "MapAdapter":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- use ----------------------------------------------------------------------------
+    def submit(self, sample: Sample) -> None:
+        """Queue a sample; never blocks (a full queue loses its oldest sample)."""
+        while True:
+            try:
+                self._queue.put_nowait(sample)
+                return
+            except queue.Full:
+                try:
+                    self._queue.get_nowait()
+                    self._queue.task_done()
+                    self.dropped += 1
+                except queue.Empty:
+                    pass
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Block until every queued sample is learned; True if idle, False on timeout."""
+        # Queue's own condition, notified by task_done(): no polling, no helper thread.
+        with self._queue.all_tasks_done:
+            return self._queue.all_tasks_done.wait_for(lambda: self._queue.unfinished_tasks == 0, timeout_s)
+
+    def command(self, position: Sequence[float]) -> np.ndarray:
+        with self._lock:
+            return self.map.command(position)
+
+    def check_position(self, position: Sequence[float]) -> str:
+        return self.map.check_position(position)  # the map's range never changes: no lock
+
+    def with_map(self, fn: Callable[[GazeMap], object]) -> object:
+        """Run `fn(map)` under the lock (saving, evaluating) without racing the adapter."""
+        with self._lock:
+            return fn(self.map)
+
+    # -- the thread -----------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                sample = self._queue.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            try:
+                with self._lock:
+                    result = self.map.adapt(sample.position, sample.command, confidence=sample.confidence)
+                if self.on_adapted is not None:
+                    self.on_adapted(sample, result)
+            except Exception as err:  # reported, never lost; the thread keeps learning
+                self.error = err
+                log.exception("%s: adaptation failed", self._thread.name)
+                if self.on_error is not None:
+                    self.on_error(err)
+            finally:
+                self._queue.task_done()

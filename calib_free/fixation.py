@@ -1,0 +1,282 @@
+"""One gaze fixation: coarse saccade, fine vergence, correspondence, and whether it may teach.
+
+The paper's fixation strategy (section II): a saccade (pan, tilt and vergence together)
+brings the target near the foveae, then fine vergence (vergence only) until the foveal
+disparity vanishes; a saccade counts as done only once the fixation has converged, and only
+such fixations teach the map.
+
+`FixationController.fixate()` runs one fixation on a `GazeHead` -- anything that reads the
+head's pose, moves it, reports when it is at rest and delivers stereo pairs taken after a
+given time. `headctl` implements it over the real or simulated servo bus and cameras; this
+module knows no driver. Every fixation, taught or refused, returns a `FixationRecord`
+saying what happened and why.
+
+Poses are absolute (pan, tilt, vergence) in degrees; commands relative; image positions
+(x, y, d) in pixels of the left image, d = x_r - x_l.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from calib_free.correspondence import CorrespondenceParams, FixationMatch, as_grey_float, foveal_disparity, match_fixation
+from calib_free.errors import CalibFreeError, OutOfRangeError
+
+log = logging.getLogger(__name__)
+
+
+class HeadTimeoutError(CalibFreeError, TimeoutError):
+    """The head did not come to rest, or no stereo pair arrived, in time."""
+
+
+class GazeHead(Protocol):
+    """What a fixation needs of a head. Poses are (pan, tilt, vergence), degrees."""
+
+    pose_low: np.ndarray  # joint limits of (pan, tilt, vergence)
+    pose_high: np.ndarray
+
+    def read_pose(self) -> np.ndarray:
+        """The pose now, from the encoders."""
+
+    def move_to(self, pose: np.ndarray) -> np.ndarray:
+        """Command an absolute pose (clamped to the limits); returns the pose commanded."""
+
+    def wait_settled(self, timeout_s: float) -> float:
+        """Block until the head is at rest; the monotonic time from which it was."""
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The first (left, right) pair exposed entirely after `after_s`."""
+
+
+class MapReader(Protocol):
+    def command(self, position: Sequence[float]) -> np.ndarray: ...
+
+    def check_position(self, position: Sequence[float]) -> str:
+        """'' if the map covers `position`, else why not."""
+
+
+@dataclass(frozen=True)
+class FixationParams:
+    """How a fixation runs and what it takes for one to teach."""
+
+    vergence_tolerance_px: float = 1.0  # |foveal disparity| at which vergence has converged
+    max_vergence_steps: int = 5  # fine-vergence moves before giving up
+    # deg of vergence per px of foveal disparity; None: the map's own d-to-vergence slope at
+    # the fovea, `fallback_vergence_gain` while that slope is implausible (a young map)
+    vergence_gain_deg_per_px: float | None = None
+    fallback_vergence_gain: float = 0.2
+    vergence_patch_size: tuple[int, int] = (32, 20)
+    vergence_search_px: int | None = None  # how far either side of the right fovea to look (None: width/3)
+    min_vergence_ncc: float = 0.6  # foveal patches less alike than this: nothing to verge on
+    confidence_floor: float = 0.3  # the least confidence (eq. 7) that teaches
+    settle_timeout_s: float = 3.0
+    frame_timeout_s: float = 2.0
+    executed_command: str = "encoders"  # or "commanded": the planned move, as the paper's fig. 9 learns
+    # An exploratory saccade goes to a random pose within the limits and at most this far
+    # (pan, tilt, vergence) from the current one: farther, what it fixates was rarely in
+    # view before it, and such a fixation cannot teach.
+    exploration_step_deg: tuple[float, float, float] = (35.0, 25.0, 20.0)
+    correspondence: CorrespondenceParams = field(default_factory=CorrespondenceParams)
+
+    def __post_init__(self) -> None:
+        if self.vergence_tolerance_px <= 0:
+            raise ValueError(f"vergence_tolerance_px must be positive, got {self.vergence_tolerance_px}")
+        if self.max_vergence_steps < 0:
+            raise ValueError(f"max_vergence_steps must be >= 0, got {self.max_vergence_steps}")
+        if not 0.0 <= self.confidence_floor <= 1.0:
+            raise ValueError(f"confidence_floor must be in [0, 1], got {self.confidence_floor}")
+        if self.executed_command not in ("encoders", "commanded"):
+            raise ValueError(f"executed_command must be 'encoders' or 'commanded', got {self.executed_command!r}")
+
+
+# Why a fixation did not teach.
+REFUSED_TARGET_OUTSIDE = "target outside the map"
+REFUSED_NOT_SETTLED = "head did not settle"
+REFUSED_NO_FRAMES = "no stereo pair in time"
+REFUSED_NO_VERGENCE_MATCH = "foveal patches do not match"
+REFUSED_NOT_CONVERGED = "vergence did not converge"
+REFUSED_LOW_CONFIDENCE = "confidence below the floor"
+REFUSED_POSITION_OUTSIDE = "correspondence outside the map"
+TAUGHT = "taught"
+
+
+@dataclass
+class FixationRecord:
+    """Everything about one fixation, taught or refused."""
+
+    index: int
+    kind: str  # "target" (a client's image target) or "explore" (a random command)
+    target: np.ndarray | None = None  # the client's (x, y, d)
+    planned: np.ndarray | None = None  # the saccade's relative command
+    pose_before: np.ndarray | None = None
+    pose_after: np.ndarray | None = None
+    executed: np.ndarray | None = None  # the relative command the head executed
+    vergence_disparities_px: list[float] = field(default_factory=list)
+    vergence_steps: int = 0
+    converged: bool = False
+    match: FixationMatch | None = None
+    outcome: str = ""  # TAUGHT or one of the REFUSED_ reasons
+    detail: str = ""
+    duration_s: float = 0.0
+
+    @property
+    def taught(self) -> bool:
+        return self.outcome == TAUGHT
+
+    @property
+    def position(self) -> np.ndarray | None:
+        return None if self.match is None else self.match.position
+
+    @property
+    def confidence(self) -> float:
+        return float("nan") if self.match is None else self.match.confidence
+
+    def as_dict(self) -> dict[str, Any]:
+        def plain(v: Any) -> Any:
+            return v.tolist() if isinstance(v, np.ndarray) else v
+
+        out = {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "match"}
+        out["position"] = plain(self.position)
+        out["confidence"] = None if self.match is None else self.confidence
+        out["factors"] = None if self.match is None else self.match.factors()
+        return out
+
+
+class FixationController:
+    """Runs fixations on a head with a (shared, concurrently adapted) map."""
+
+    # deg of vergence per px of disparity a real head can have (negative: d < 0 converges)
+    PLAUSIBLE_GAIN = (-2.0, -0.02)
+
+    def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
+                 image_size: tuple[int, int] | None = None, seed: int | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.head = head
+        self.map = gaze_map
+        self.params = params or FixationParams()
+        self.image_size = image_size
+        self.rng = np.random.default_rng(seed)
+        self.clock = clock
+        self.count = 0
+
+    # -- the map's view of vergence ----------------------------------------------------------
+    def vergence_gain(self, width: int, height: int) -> float:
+        """Degrees of vergence per pixel of foveal disparity (negative: d < 0 needs converging).
+
+        From the map: the vergence of W at the fovea over d = +-10 px. A young, random map
+        gives nonsense, so outside `PLAUSIBLE_GAIN` the fallback gain is used.
+        """
+        p = self.params
+        if p.vergence_gain_deg_per_px is not None:
+            return -abs(p.vergence_gain_deg_per_px)
+        cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+        try:
+            slope = (self.map.command((cx, cy, 10.0))[2] - self.map.command((cx, cy, -10.0))[2]) / 20.0
+        except OutOfRangeError:
+            slope = 0.0
+        if self.PLAUSIBLE_GAIN[0] <= slope <= self.PLAUSIBLE_GAIN[1]:
+            return float(slope)
+        return -abs(p.fallback_vergence_gain)
+
+    # -- one fixation ---------------------------------------------------------------------
+    def random_command(self, pose: np.ndarray) -> np.ndarray:
+        """An exploratory command: to a uniformly random pose within the joint limits and
+        `exploration_step_deg` of the current pose."""
+        step = np.asarray(self.params.exploration_step_deg, dtype=float)
+        low = np.maximum(self.head.pose_low, pose - step)
+        high = np.minimum(self.head.pose_high, pose + step)
+        return self.rng.uniform(low, np.maximum(low, high)) - pose
+
+    def fixate(self, target: Sequence[float] | None = None) -> FixationRecord:
+        """One fixation: to a client's image target (x, y, d), or exploratory when None."""
+        started = self.clock()
+        record = FixationRecord(index=self.count, kind="explore" if target is None else "target")
+        self.count += 1
+        try:
+            self._run(record, target)
+        except HeadTimeoutError as err:
+            record.outcome = REFUSED_NO_FRAMES if "pair" in str(err) else REFUSED_NOT_SETTLED
+            record.detail = str(err)
+        record.duration_s = self.clock() - started
+        log.debug("fixation %d (%s): %s %s", record.index, record.kind, record.outcome, record.detail)
+        return record
+
+    def _run(self, record: FixationRecord, target: Sequence[float] | None) -> None:
+        p = self.params
+        head = self.head
+        # The pre-fixation pair, at rest.
+        rest_s = head.wait_settled(p.settle_timeout_s)
+        pre_left, pre_right = (as_grey_float(im) for im in head.wait_pair(rest_s, p.frame_timeout_s))
+        pose_before = head.read_pose()
+        record.pose_before = pose_before
+        height, width = pre_left.shape
+        if target is None:
+            planned = self.random_command(pose_before)
+        else:
+            record.target = np.asarray(target, dtype=float)
+            try:
+                planned = np.asarray(self.map.command(record.target), dtype=float)
+            except OutOfRangeError as err:
+                record.outcome, record.detail = REFUSED_TARGET_OUTSIDE, str(err)
+                return
+        record.planned = planned
+        # Coarse saccade: pan, tilt and vergence together.
+        goal = head.move_to(pose_before + planned)
+        rest_s = head.wait_settled(p.settle_timeout_s)
+        left, right = head.wait_pair(rest_s, p.frame_timeout_s)
+        # Fine vergence: vergence only, until the foveal disparity vanishes. The first step
+        # uses the map's gain; later ones the secant of what the last step really did.
+        gain = self.vergence_gain(width, height)
+        last_step: tuple[float, float] | None = None  # (vergence moved, disparity before it)
+        for step in range(p.max_vergence_steps + 1):
+            disparity, score = foveal_disparity(left, right, p.vergence_patch_size, p.vergence_search_px)
+            record.vergence_disparities_px.append(disparity)
+            if last_step is not None and disparity != last_step[1]:
+                # Newton on disparity(vergence): the step that would cancel what is left.
+                secant = -last_step[0] / (disparity - last_step[1])
+                if self.PLAUSIBLE_GAIN[0] <= secant <= self.PLAUSIBLE_GAIN[1]:
+                    gain = secant
+            if score < p.min_vergence_ncc:
+                record.outcome = REFUSED_NO_VERGENCE_MATCH
+                record.detail = f"NCC {score:.2f} < {p.min_vergence_ncc} between the foveae"
+                break
+            if abs(disparity) <= p.vergence_tolerance_px:
+                record.converged = True
+                break
+            if step == p.max_vergence_steps:
+                break
+            record.vergence_steps += 1
+            before = head.read_pose()
+            goal = head.move_to(before + np.array([0.0, 0.0, gain * disparity]))
+            rest_s = head.wait_settled(p.settle_timeout_s)
+            left, right = head.wait_pair(rest_s, p.frame_timeout_s)
+            last_step = (float(head.read_pose()[2] - before[2]), disparity)
+        pose_after = head.read_pose()
+        record.pose_after = pose_after
+        if p.executed_command == "encoders":
+            record.executed = pose_after - pose_before
+        else:  # what was commanded: the saccade and the vergence steps
+            record.executed = goal - pose_before
+        if not record.converged:
+            if not record.outcome:
+                record.outcome = REFUSED_NOT_CONVERGED
+                record.detail = (f"|disparity| {abs(record.vergence_disparities_px[-1]):.1f} px > "
+                                 f"{p.vergence_tolerance_px} px after {record.vergence_steps} steps")
+            return
+        # Where was what is now on the foveae? (II-B, II-C)
+        record.match = match_fixation(pre_left, pre_right, as_grey_float(left), as_grey_float(right),
+                                      p.correspondence)
+        problem = self.map.check_position(record.position)
+        if problem:
+            record.outcome, record.detail = REFUSED_POSITION_OUTSIDE, problem
+            return
+        if record.confidence < p.confidence_floor:
+            record.outcome = REFUSED_LOW_CONFIDENCE
+            record.detail = f"c = {record.confidence:.2f} < {p.confidence_floor}"
+            return
+        record.outcome = TAUGHT
