@@ -288,10 +288,11 @@ class EyeRenderer:
         self._lut = {name: np.zeros(256, np.float32) for name in ("su", "ou", "sv", "ov")}
         for name, table in self._lut.items():
             table[:len(scene.faces)] = getattr(scene, name)
+        self._lut["normal"] = np.zeros(256, np.uint8)
+        self._lut["normal"][:len(scene.faces)] = [f.axis for f in scene.faces]
         # Sample points along every box's edges, all boxes in one array (one projection a frame).
         self._edge_points = np.concatenate(
             [self._box_edge_points(b) for b in range(1, len(scene.boxes))] or [np.zeros((0, 3))])
-        self._points_per_box = 12 * self._EDGE_SAMPLES
 
     def _box_edge_points(self, b: int) -> np.ndarray:
         lo, hi = self.scene.lo[b].astype(float), self.scene.hi[b].astype(float)
@@ -304,20 +305,21 @@ class EyeRenderer:
     def _footprints(self, rotation: np.ndarray, centre: np.ndarray) -> list[tuple[slice, slice] | None]:
         """For each box after the room: the image rows/columns it can cover, None if none
         (everything when a box comes near the camera or the lens's limit: no safe bound)."""
+        n_boxes = len(self.scene.boxes) - 1
+        if n_boxes == 0:
+            return []
         cam = (self._edge_points - centre) @ np.asarray(rotation, float).T
-        uv, _ = self.lens.project(cam)
-        everything = (slice(0, self.height), slice(0, self.width))
+        uv = self.lens.project(cam)[0].reshape(n_boxes, -1, 2)
+        cam = cam.reshape(n_boxes, -1, 3)
+        unsure = ((cam[:, :, 2] < 0.05) | (np.hypot(cam[:, :, 0], cam[:, :, 1]) > 5.0 * cam[:, :, 2])).any(axis=1)
+        lo = (np.floor(uv.min(axis=1)).astype(int) - self._MARGIN_PX).clip(0, None)
+        hi = np.ceil(uv.max(axis=1)).astype(int) + self._MARGIN_PX + 1
         windows: list[tuple[slice, slice] | None] = []
-        for start in range(0, len(cam), self._points_per_box):
-            box_cam = cam[start:start + self._points_per_box]
-            if np.any(box_cam[:, 2] < 0.05) or np.any(np.hypot(box_cam[:, 0], box_cam[:, 1]) > 5.0 * box_cam[:, 2]):
-                windows.append(everything)
+        for box in range(n_boxes):
+            if unsure[box]:
+                windows.append((slice(0, self.height), slice(0, self.width)))
                 continue
-            box_uv = uv[start:start + self._points_per_box]
-            lo = np.floor(box_uv.min(axis=0)).astype(int) - self._MARGIN_PX
-            hi = np.ceil(box_uv.max(axis=0)).astype(int) + self._MARGIN_PX + 1
-            c0, r0 = max(lo[0], 0), max(lo[1], 0)
-            c1, r1 = min(hi[0], self.width), min(hi[1], self.height)
+            (c0, r0), (c1, r1) = lo[box], (min(hi[box, 0], self.width), min(hi[box, 1], self.height))
             windows.append((slice(r0, r1), slice(c0, c1)) if c0 < c1 and r0 < r1 else None)
         return windows
 
@@ -340,10 +342,10 @@ class EyeRenderer:
                 if window is not None:
                     self._hit_box(b, window, o, d, inv, best, face)
             point = [o[k] + best * d[k] for k in range(3)]
-        normal = face % 6 // 2
+        lut = self._lut
+        normal = cv2.LUT(face, lut["normal"])
         pu = np.where(normal == 0, point[1], point[0])
         pv = np.where(normal == 2, point[1], point[2])
-        lut = self._lut
         map_x = pu * cv2.LUT(face, lut["su"]) + cv2.LUT(face, lut["ou"])
         map_y = pv * cv2.LUT(face, lut["sv"]) + cv2.LUT(face, lut["ov"])
         map_x[~self.valid] = -100.0  # outside the image circle: the border colour (black)
