@@ -344,7 +344,9 @@ class Camera(Device):
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
                  on_error: ErrorCallback | None = None) -> None:
-        super().__init__(name or config.eye or str(config.device or config.id or config.serial or config.backend))
+        identity = next((v for v in (config.eye, config.device, config.id, config.serial) if v is not None),
+                        config.backend)
+        super().__init__(name or str(identity))
         self.config = config
         self.clock = clock
         self.on_error = on_error

@@ -337,7 +337,8 @@ class EyeRenderer:
             best = np.minimum(t[0], t[1])
             nearer_z = t[2] < best
             np.minimum(best, t[2], out=best)
-            face = np.where(nearer_z, 4 + (d[2] > 0), np.where(nearer_y, 2 + (d[1] > 0), d[0] > 0)).astype(np.uint8)
+            # Face ids in uint8 throughout: byte-wide temporaries, and what cv2.LUT indexes with.
+            face = np.where(nearer_z, _u8(d[2] > 0) + 4, np.where(nearer_y, _u8(d[1] > 0) + 2, _u8(d[0] > 0)))
             for b, window in enumerate(self._footprints(rotation, centre), start=1):
                 if window is not None:
                     self._hit_box(b, window, o, d, inv, best, face)
@@ -371,10 +372,16 @@ class EyeRenderer:
         if not hit.any():
             return
         # The entry face: the axis whose slab is entered last; its lo face if the ray runs +.
-        entry = np.where(t_min[2] >= near01, 4 + (d[2][window] < 0),
-                         np.where(t_min[1] >= t_min[0], 2 + (d[1][window] < 0), d[0][window] < 0))
-        best_w[hit] = t_near[hit]
-        face[window][hit] = (6 * b + entry[hit]).astype(np.uint8)
+        base = np.uint8(6 * b)
+        entry = np.where(t_min[2] >= near01, _u8(d[2][window] < 0) + (base + 4),
+                         np.where(t_min[1] >= t_min[0], _u8(d[1][window] < 0) + (base + 2), _u8(d[0][window] < 0) + base))
+        np.copyto(best_w, t_near, where=hit)
+        np.copyto(face[window], entry, where=hit)
+
+
+def _u8(mask: np.ndarray) -> np.ndarray:
+    """A boolean mask as 0/1 bytes, without a copy."""
+    return mask.view(np.uint8)
 
 
 def joints_tuple(joints: Mapping[str, float]) -> tuple[float, float, float, float]:
@@ -387,13 +394,15 @@ def joints_tuple(joints: Mapping[str, float]) -> tuple[float, float, float, floa
 
 @dataclass
 class StereoRenderer:
-    """Both eyes of a head model in one scene: `render(joints)` gives (left, right), no threads
-    of the caller's needed. With `parallel`, the two eyes render on two worker threads (numpy
-    and OpenCV release the GIL), which this object owns: close() it or use `with`."""
+    """Both eyes of a head model in one scene: `render(joints)` gives (left, right) at once, on
+    the caller's thread. With `parallel`, the right eye renders on one worker thread while
+    the caller renders the left (numpy and OpenCV release the GIL): faster on an idle
+    multi-core machine, slower on a busy one. The worker is this object's: close() it or
+    use `with`."""
 
     head: HeadGeometry
     scene: Scene
-    parallel: bool = True
+    parallel: bool = False
     eyes: tuple[EyeRenderer, EyeRenderer] = field(init=False)
 
     def __post_init__(self) -> None:

@@ -32,12 +32,12 @@ def marker_centroid(image: np.ndarray, channel: int) -> tuple[float, float] | No
     return float((xx * weight).sum() / weight.sum()), float((yy * weight).sum() / weight.sum())
 
 
-@pytest.mark.parametrize("size", [(320, 240), (640, 480)])
-def test_markers_land_where_the_model_projects_them(size):
+@pytest.mark.parametrize("size, parallel", [((320, 240), True), ((640, 480), False)])
+def test_markers_land_where_the_model_projects_them(size, parallel):
     head = HeadModel.default(*size)
     scene = Scene(seed=5, colour=True, markers=MARKERS)
     checked = 0
-    with StereoRenderer(head, scene) as renderer:
+    with StereoRenderer(head, scene, parallel=parallel) as renderer:
         for joints in POSES:
             images = renderer.render(joints)
             frames = head.eye_frames_from_joints(joints["pan"], joints["tilt"], joints["left_eye"], joints["right_eye"])
