@@ -269,7 +269,7 @@ class EyeRenderer:
     to (its silhouette is bounded by its projected edges), which keeps far objects cheap.
     """
 
-    _EDGE_SAMPLES = 8  # points per box edge when bounding its image footprint
+    _EDGE_SAMPLES = 4  # points per box edge: a projected edge bends well under the margin between them
     _MARGIN_PX = 3
 
     def __init__(self, lens: Lens, scene: Scene) -> None:
@@ -290,6 +290,8 @@ class EyeRenderer:
             table[:len(scene.faces)] = getattr(scene, name)
         self._lut["normal"] = np.zeros(256, np.uint8)
         self._lut["normal"][:len(scene.faces)] = [f.axis for f in scene.faces]
+        self._face_axes = np.array([(f.u_axis, f.v_axis) for f in scene.faces], np.intp)
+        self._invalid = ~self.valid if not self.valid.all() else None
         # Sample points along every box's edges, all boxes in one array (one projection a frame).
         self._edge_points = np.concatenate(
             [self._box_edge_points(b) for b in range(1, len(scene.boxes))] or [np.zeros((0, 3))])
@@ -342,14 +344,28 @@ class EyeRenderer:
             for b, window in enumerate(self._footprints(rotation, centre), start=1):
                 if window is not None:
                     self._hit_box(b, window, o, d, inv, best, face)
-            point = [o[k] + best * d[k] for k in range(3)]
+        # Atlas coordinates. A face's in-plane axes are (y, z), (x, z) or (x, y) by its normal, and
+        # atlas x = su * (o_u + t d_u) + ou = (su t) d_u + (su o_u + ou): the per-face constant
+        # folds the eye's position in, so per pixel it is one product and one LUT per map.
         lut = self._lut
         normal = cv2.LUT(face, lut["normal"])
-        pu = np.where(normal == 0, point[1], point[0])
-        pv = np.where(normal == 2, point[1], point[2])
-        map_x = pu * cv2.LUT(face, lut["su"]) + cv2.LUT(face, lut["ou"])
-        map_y = pv * cv2.LUT(face, lut["sv"]) + cv2.LUT(face, lut["ov"])
-        map_x[~self.valid] = -100.0  # outside the image circle: the border colour (black)
+        d_u = np.where(normal == 0, d[1], d[0])
+        d_v = np.where(normal == 2, d[1], d[2])
+        faces = self._face_axes
+        offset_x = np.zeros(256, np.float32)
+        offset_y = np.zeros(256, np.float32)
+        offset_x[:len(faces)] = lut["su"][:len(faces)] * o[faces[:, 0]] + lut["ou"][:len(faces)]
+        offset_y[:len(faces)] = lut["sv"][:len(faces)] * o[faces[:, 1]] + lut["ov"][:len(faces)]
+        best_d_u = best * d_u
+        best_d_u *= cv2.LUT(face, lut["su"])
+        map_x = best_d_u
+        map_x += cv2.LUT(face, offset_x)
+        best *= d_v
+        best *= cv2.LUT(face, lut["sv"])
+        map_y = best
+        map_y += cv2.LUT(face, offset_y)
+        if self._invalid is not None:
+            map_x[self._invalid] = -100.0  # outside the image circle: the border colour (black)
         image = cv2.remap(scene.sampling_atlas, map_x, map_y, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR) if image.ndim == 3 else image

@@ -81,3 +81,19 @@ def test_scene_has_rich_and_nearly_uniform_areas():
 def test_marker_off_every_face_is_refused():
     with pytest.raises(ValueError, match="lies on no face"):
         Scene(seed=0, markers=[Marker((1.0, 0.0, 0.0), 0.01)])
+
+
+def test_footprint_culling_never_changes_the_image():
+    """Boxes are only ray-tested inside the image rectangle their edges project to; over many
+    poses (near objects, edges of the view) that must give the image a full test gives."""
+    from drivers.sim_scene import EyeRenderer
+
+    head = HeadModel.default(160, 120)
+    scene = Scene(seed=0, colour=False)
+    culled = EyeRenderer(head.lens_left, scene)
+    everywhere = EyeRenderer(head.lens_left, scene)
+    everywhere._footprints = lambda rotation, centre: [(slice(0, 120), slice(0, 160))] * (len(scene.boxes) - 1)
+    rng = np.random.default_rng(0)
+    for pan, tilt, verg in rng.uniform([-40, -25, -10], [40, 25, 25], (60, 3)):
+        (rotation, centre), _ = head.eye_frames_from_joints(pan, tilt, verg / 2, -verg / 2)
+        assert np.array_equal(culled.render(rotation, centre), everywhere.render(rotation, centre)), (pan, tilt, verg)
