@@ -17,10 +17,12 @@ delivered at its frame rate on the camera's clock and it loops at the end. Tests
 """
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import re
 import stat
+import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -74,8 +76,54 @@ def fourcc_text(code: float) -> str:
     return "".join(chr((value >> 8 * i) & 0xFF) for i in range(4)).strip("\0") or "?"
 
 
+# V4L2 ioctls for listing formats (linux/videodev2.h): _IOWR('V', nr, struct).
+_VIDIOC_ENUM_FMT = 0xC0405602  # struct v4l2_fmtdesc, 64 bytes
+_VIDIOC_ENUM_FRAMESIZES = 0xC02C564A  # struct v4l2_frmsizeenum, 44 bytes
+_FMTDESC = struct.Struct("=III32sII3I")  # index, type, flags, description, pixelformat, mbus_code, reserved
+_FRMSIZE = struct.Struct("=III6I2I")  # index, pixel_format, type, discrete/stepwise union, reserved
+_BUF_TYPE_VIDEO_CAPTURE = 1
+_FRMSIZE_TYPE_DISCRETE = 1
+_ENUM_LIMIT = 256  # far more than any camera offers: the loops end on EINVAL long before
+
+
+def v4l2_formats(path: str, ioctl: Callable[..., Any] = fcntl.ioctl) -> list[str]:
+    """The capture formats a V4L2 device offers, each with its frame sizes ("MJPG: 640x480, ...").
+
+    Asks the driver (VIDIOC_ENUM_FMT, VIDIOC_ENUM_FRAMESIZES) without starting a stream, so
+    it also works while another process streams from the camera.
+    """
+    fd = os.open(path, os.O_RDWR | os.O_NONBLOCK)
+    try:
+        formats = []
+        for index in range(_ENUM_LIMIT):
+            desc = bytearray(_FMTDESC.pack(index, _BUF_TYPE_VIDEO_CAPTURE, 0, b"", 0, 0, 0, 0, 0))
+            try:
+                ioctl(fd, _VIDIOC_ENUM_FMT, desc)
+            except OSError:  # EINVAL: no more formats (or not a capture node)
+                break
+            _, _, _, description, pixel_format, *_ = _FMTDESC.unpack(desc)
+            sizes = []
+            for size_index in range(_ENUM_LIMIT):
+                size = bytearray(_FRMSIZE.pack(size_index, pixel_format, 0, *([0] * 8)))
+                try:
+                    ioctl(fd, _VIDIOC_ENUM_FRAMESIZES, size)
+                except OSError:
+                    break
+                _, _, kind, *union, _, _ = _FRMSIZE.unpack(size)
+                if kind == _FRMSIZE_TYPE_DISCRETE:
+                    sizes.append(f"{union[0]}x{union[1]}")
+                else:  # continuous or stepwise: one range
+                    sizes.append(f"{union[0]}x{union[3]} to {union[1]}x{union[4]}")
+                    break
+            name = description.split(b"\0", 1)[0].decode(errors="replace")
+            formats.append(f"{fourcc_text(pixel_format)} ({name}): {', '.join(sizes) or 'sizes not listed'}")
+        return formats
+    finally:
+        os.close(fd)
+
+
 def list_v4l2_devices(dev_dir: str = "/dev") -> list[dict[str, Any]]:
-    """V4L2 capture devices with their stable names and the formats the driver reports."""
+    """V4L2 devices with their stable names (/dev/v4l/by-id: vendor, model, serial) and formats."""
     found = []
     by_id = os.path.join(dev_dir, "v4l", "by-id")
     links: dict[str, list[str]] = {}
@@ -87,20 +135,15 @@ def list_v4l2_devices(dev_dir: str = "/dev") -> list[dict[str, Any]]:
             continue
         path = os.path.join(dev_dir, entry)
         info: dict[str, Any] = {"device": path, "links": links.get(path, []), "name": "", "formats": []}
-        sys_dir = f"/sys/class/video4linux/{entry}"
         try:
-            with open(os.path.join(sys_dir, "name")) as f:
+            with open(f"/sys/class/video4linux/{entry}/name") as f:
                 info["name"] = f.read().strip()
         except OSError:
             pass
-        cap = cv2.VideoCapture(int(entry[5:]), cv2.CAP_V4L2)
         try:
-            if cap.isOpened():
-                info["formats"] = [f"{fourcc_text(cap.get(cv2.CAP_PROP_FOURCC))} "
-                                   f"{int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))}x{int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))} "
-                                   f"@ {cap.get(cv2.CAP_PROP_FPS):.1f} fps (current)"]
-        finally:
-            cap.release()
+            info["formats"] = v4l2_formats(path)
+        except OSError as err:
+            info["formats"] = [f"cannot query: {err.strerror}"]
         found.append(info)
     return found
 

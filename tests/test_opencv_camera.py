@@ -159,3 +159,40 @@ def test_granted_settings_are_logged(caplog):
     text = caplog.text
     assert "left: /dev/video0: asked MJPG 1280 x 720 at 25.0 fps; granted MJPG 640 x 480 at 25.00 fps" in text
     assert "left: width 1280 asked, 640 granted by /dev/video0" in text
+
+
+def test_v4l2_formats_are_read_from_the_driver(tmp_path):
+    """`headctl cameras` lists formats with VIDIOC_ENUM_FMT / VIDIOC_ENUM_FRAMESIZES; here a
+    scripted ioctl answers as a UVC driver does (discrete YUYV sizes, a stepwise MJPG range)."""
+    import errno
+
+    from drivers import opencv_camera as oc
+
+    node = tmp_path / "video0"
+    node.write_bytes(b"")
+    table = [(b"YUYV 4:2:2", "YUYV", [(640, 480), (1280, 720)]), (b"Motion-JPEG", "MJPG", None)]
+    by_code = {cv2.VideoWriter_fourcc(*fourcc): sizes for _, fourcc, sizes in table}
+
+    def fake_ioctl(fd, request, buf):
+        if request == oc._VIDIOC_ENUM_FMT:
+            index, kind, *_ = oc._FMTDESC.unpack(buf)
+            if kind != 1 or index >= len(table):
+                raise OSError(errno.EINVAL, "Invalid argument")
+            desc, fourcc, _ = table[index]
+            buf[:] = oc._FMTDESC.pack(index, kind, 0, desc, cv2.VideoWriter_fourcc(*fourcc), 0, 0, 0, 0)
+        elif request == oc._VIDIOC_ENUM_FRAMESIZES:
+            index, code, *_ = oc._FRMSIZE.unpack(buf)
+            sizes = by_code[code]
+            if sizes is None and index == 0:
+                buf[:] = oc._FRMSIZE.pack(index, code, 3, 160, 1920, 16, 120, 1080, 8, 0, 0)
+            elif sizes is not None and index < len(sizes):
+                buf[:] = oc._FRMSIZE.pack(index, code, 1, *sizes[index], 0, 0, 0, 0, 0, 0)
+            else:
+                raise OSError(errno.EINVAL, "Invalid argument")
+        else:
+            raise AssertionError(f"unexpected ioctl 0x{request:08x}")
+
+    assert oc.v4l2_formats(str(node), ioctl=fake_ioctl) == [
+        "YUYV (YUYV 4:2:2): 640x480, 1280x720",
+        "MJPG (Motion-JPEG): 160x120 to 1920x1080",
+    ]
