@@ -55,6 +55,9 @@ class CorrespondenceParams:
     # wider than 400 px, else 0 (an exhaustive full-resolution NCC at 640 x 480 costs ~10 ms
     # an eye on a 2-core machine; at half resolution ~2 ms).
     pyramid_levels: int | None = None
+    # Consistency of the two eyes' matches (`stereo_inconsistency`): beyond the paper.
+    max_vertical_disparity_px: float = 4.0
+    stereo_tolerance_px: float = 2.0
 
     def __post_init__(self) -> None:
         if min(self.patch_size) < 3:
@@ -227,6 +230,32 @@ def match_fixation(pre_left: np.ndarray, pre_right: np.ndarray, post_left: np.nd
     return FixationMatch(match_eye(pre_left, post_left, params), match_eye(pre_right, post_right, params))
 
 
+def horizontal_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, float],
+                      patch_size: tuple[int, int], search: tuple[float, float]) -> tuple[float, float]:
+    """Where the left image's patch around `centre` is in the right image, along the same rows.
+
+    Returns (x_r - x_l in px, sub-pixel; its NCC) for offsets searched within `search`
+    (low, high). A best match on the search's edge scores 0: the true one may lie beyond.
+    """
+    h, w = left.shape
+    pw, ph = patch_size
+    x0 = int(round(centre[0] - (pw - 1) / 2.0))
+    y0 = int(round(centre[1] - (ph - 1) / 2.0))
+    if x0 < 0 or y0 < 0 or x0 + pw > w or y0 + ph > h:
+        return 0.0, 0.0
+    patch = left[y0:y0 + ph, x0:x0 + pw]
+    lo = max(0, x0 + int(np.floor(search[0])))
+    hi = min(w, x0 + pw + int(np.ceil(search[1])))
+    if hi - lo < pw + 2:
+        return 0.0, 0.0
+    scores = np.nan_to_num(cv2.matchTemplate(right[y0:y0 + ph, lo:hi], patch, cv2.TM_CCOEFF_NORMED))
+    ix = int(np.argmax(scores[0]))
+    if ix in (0, scores.shape[1] - 1):
+        return float(lo + ix - x0), 0.0
+    u, _ = _subpixel_peak(scores, 0, ix)
+    return float(lo + u - x0), float(scores[0, ix])
+
+
 def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int] = (32, 20),
                      search_px: int | None = None) -> tuple[float, float]:
     """Horizontal offset (px, sub-pixel) of the left fovea's content in the right image, and its NCC.
@@ -241,18 +270,30 @@ def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int,
     if left.shape != right.shape:
         raise CorrespondenceError(f"left image {left.shape} and right image {right.shape} differ")
     h, w = left.shape
-    pw, ph = patch_size
     search_px = w // 3 if search_px is None else search_px
-    patch = foveal_patch(left, patch_size)
-    x0, y0 = (w - pw) // 2, (h - ph) // 2
-    lo = max(0, x0 - search_px)
-    hi = min(w, x0 + pw + search_px)
-    strip = right[y0:y0 + ph, lo:hi]
-    scores = cv2.matchTemplate(strip, patch, cv2.TM_CCOEFF_NORMED)
-    scores = np.nan_to_num(scores)
-    ix = int(np.argmax(scores[0]))
-    if scores.shape[1] > 2 and ix in (0, scores.shape[1] - 1):
-        # A best match on the strip's edge is no match: the true one may lie beyond it.
-        return float(lo + ix - x0), 0.0
-    u, _ = _subpixel_peak(scores, 0, ix)
-    return float(lo + u - x0), float(scores[0, ix])
+    pw, ph = patch_size
+    centre = ((w - pw) // 2 + (pw - 1) / 2.0, (h - ph) // 2 + (ph - 1) / 2.0)
+    return horizontal_offset(left, right, centre, patch_size, (-search_px, search_px))
+
+
+def stereo_inconsistency(match: FixationMatch, pre_left: np.ndarray, pre_right: np.ndarray,
+                         params: CorrespondenceParams) -> str:
+    """Why the left and right matches of a fixation cannot both be right ('' if they agree).
+
+    Each eye's patch is found on its own (II-B), so on repetitive texture each can land on a
+    different repeat. Two checks the geometry allows without calibration: the rows agree
+    within `max_vertical_disparity_px` (the paper's lens: 3.5 px at most, II-A footnote), and
+    the pre-fixation pair's own disparity at (x*, y*) equals d* within `stereo_tolerance_px`.
+    """
+    left, right = match.left, match.right
+    vertical = abs(left.y - right.y)
+    if vertical > params.max_vertical_disparity_px:
+        return f"left and right rows differ by {vertical:.1f} px > {params.max_vertical_disparity_px} px"
+    d_star = right.x - left.x
+    margin = 3 * params.stereo_tolerance_px + 2
+    d_pre, score = horizontal_offset(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y),
+                                     params.patch_size, (d_star - margin, d_star + margin))
+    if score < params.min_correlation or abs(d_pre - d_star) > params.stereo_tolerance_px:
+        return (f"the pre-fixation pair's disparity at (x*, y*) is {d_pre:.1f} px (NCC {score:.2f}), "
+                f"d* = {d_star:.1f} px")
+    return ""

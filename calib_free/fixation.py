@@ -24,7 +24,8 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from calib_free.correspondence import CorrespondenceParams, FixationMatch, as_grey_float, foveal_disparity, match_fixation
+from calib_free.correspondence import (CorrespondenceParams, FixationMatch, as_grey_float, foveal_disparity,
+                                       match_fixation, stereo_inconsistency)
 from calib_free.errors import CalibFreeError, OutOfRangeError
 
 log = logging.getLogger(__name__)
@@ -102,6 +103,7 @@ REFUSED_NO_VERGENCE_MATCH = "foveal patches do not match"
 REFUSED_NOT_CONVERGED = "vergence did not converge"
 REFUSED_LOW_CONFIDENCE = "confidence below the floor"
 REFUSED_POSITION_OUTSIDE = "correspondence outside the map"
+REFUSED_INCONSISTENT = "left and right matches disagree"
 TAUGHT = "taught"
 
 
@@ -274,6 +276,10 @@ class FixationController:
         problem = self.map.check_position(record.position)
         if problem:
             record.outcome, record.detail = REFUSED_POSITION_OUTSIDE, problem
+            return
+        problem = stereo_inconsistency(record.match, pre_left, pre_right, p.correspondence)
+        if problem:
+            record.outcome, record.detail = REFUSED_INCONSISTENT, problem
             return
         if record.confidence < p.confidence_floor:
             record.outcome = REFUSED_LOW_CONFIDENCE

@@ -416,10 +416,14 @@ class GazeMap:
         error = self.retinal_error(position, self.inverse(m))
         self.recent_errors.append(error)
         mean_error = float(np.mean(self.recent_errors))
-        # The error's long-run level: an average over about `global_memory` fixations.
+        # For telling a changed head from a false correspondence: the median of the window
+        # (one wild sample does not move it, a change of the head moves them all) against its
+        # long-run level, an average over about `global_memory` fixations.
+        recent_median = float(np.median(self.recent_errors))
         if self.adaptations == 0:
-            self.long_run_error = error
-        self.long_run_error += (error - self.long_run_error) / min(self.adaptations + 1, self.params.global_memory)
+            self.long_run_error = recent_median
+        self.long_run_error += (recent_median - self.long_run_error) / min(self.adaptations + 1,
+                                                                            self.params.global_memory)
         sigma = self.sigma_cells(mean_error)
         target = m
         if phi is not None:
@@ -428,7 +432,7 @@ class GazeMap:
             # baseline, offset) and what was learned before is wrong: the memory drops to its
             # minimum, then grows by one a fixation, so the fit weighs the samples since the
             # change about equally until it remembers `global_memory` fixations again.
-            surprise = mean_error / max(self.long_run_error, 1e-3)
+            surprise = recent_median / max(self.long_run_error, 1e-3)
             residual = float(np.linalg.norm((m - value) * self._motor_scale))  # output cells
             if surprise > p.surprise_threshold:
                 self.memory = p.global_memory_min

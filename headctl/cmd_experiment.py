@@ -1,7 +1,9 @@
 """`headctl experiment NAME`: the paper's simulated experiments, with CSV, plot and summary.
 
 NAME is one of `calib_free.experiments.EXPERIMENTS` (learn, baseline, prism, pan-defect,
-swap). The run learns on the geometric head model with a progress bar, writes
+swap: (r, m) pairs straight from the geometric head model) or `headctl.online`'s (online,
+online-prism, online-pan-defect: the whole fixation loop on rendered images). The run
+learns with a progress bar, writes
 `<out>/<name>-<profile>.csv` (per fixation: raw and averaged errors) and `.png` (like the
 paper's figures), and prints the paper's figures beside the measured ones, the landing error
 and the representation's floor.
@@ -10,12 +12,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import logging
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from calib_free import GazeMap
@@ -24,6 +28,7 @@ from calib_free.experiments import (EXPERIMENTS, ExperimentResult, final_head, l
 from calib_free.gaze_map import PROFILES
 from calib_free.lens import LENS_KINDS
 from calib_free.sim import HeadModel
+from headctl.online import ONLINE_EXPERIMENTS, OnlineResult, SimulatedHeadRig, run_online
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "experiment", help="run one of the paper's simulated experiments (learning curves, plot, summary)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("name", choices=sorted(EXPERIMENTS), help="which experiment")
+    p.add_argument("name", choices=sorted(EXPERIMENTS) + sorted(ONLINE_EXPERIMENTS),
+                   help="which experiment (online*: on rendered images through the fixation loop)")
     p.add_argument("--profile", choices=PROFILES, default="default",
                    help="gaze map profile: 'paper' (the rule as written) or 'default' (improved)")
     p.add_argument("--fixations", type=int, default=None, help="fixations to run (default: the experiment's)")
@@ -54,25 +60,44 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    spec = EXPERIMENTS[args.name]
+    online = args.name in ONLINE_EXPERIMENTS
+    spec = ONLINE_EXPERIMENTS[args.name] if online else EXPERIMENTS[args.name]
     if args.fixations is not None:
         if args.fixations < 1:
             print(f"--fixations must be at least 1, got {args.fixations}", file=sys.stderr)
             return 2
-        spec = type(spec)(spec.name, args.fixations, tuple(c for c in spec.changes if c.at < args.fixations),
-                          spec.description, spec.paper_figure)
-    head = HeadModel.default(args.width, args.height, lens=args.lens)
-    gm = GazeMap.for_image(args.width, args.height, seed=args.seed, profile=args.profile)
-    drange = gm.params.disparity_range
+        spec = dataclasses.replace(spec, fixations=args.fixations,
+                                   changes=tuple(c for c in spec.changes if c.at < args.fixations))
     args.out.mkdir(parents=True, exist_ok=True)
     stem = args.out / f"{spec.name}-{args.profile}"
-
+    extra: dict = {}
     started = time.monotonic()
     with tqdm(total=spec.fixations, desc=f"{spec.name} ({args.profile})", unit="fix",
               disable=None, file=sys.stderr) as bar:
-        result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
-                                progress=bar.update)
+        if online:
+            if args.lens != "foveated":
+                print("--lens applies to the geometric experiments only", file=sys.stderr)
+                return 2
+            taught = 0
+
+            def progress(record) -> None:
+                nonlocal taught
+                taught += record.taught
+                bar.update(1)
+                bar.set_postfix(taught=taught, refresh=False)
+
+            online_result = run_online(spec, args.profile, seed=args.seed, width=args.width, height=args.height,
+                                       landing_every=args.landing_every, progress=progress)
+            result = online_result.as_experiment_result()
+            head = SimulatedHeadRig.geometry(args.width, args.height)
+            extra = online_summary(online_result)
+        else:
+            head = HeadModel.default(args.width, args.height, lens=args.lens)
+            gm = GazeMap.for_image(args.width, args.height, seed=args.seed, profile=args.profile)
+            result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
+                                    progress=bar.update)
     learn_s = time.monotonic() - started
+    drange = GazeMap.for_image(2, 2).params.disparity_range
 
     floor_px = None
     if args.floor_samples > 0:
@@ -86,10 +111,27 @@ def run(args: argparse.Namespace) -> int:
     plot_learning_curves(result, stem.with_suffix(".png"), floor_px,
                          title=f"{spec.name} ({args.profile} profile): {spec.description}")
     summary = summarise(result, floor_px, args.profile, learn_s)
+    summary.update(extra)
     stem.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     print(format_summary(summary))
     print(f"wrote {stem}.csv, {stem}.png, {stem}.json")
     return 0
+
+
+def online_summary(result: OnlineResult) -> dict:
+    records = result.records
+    confidences = [r.confidence for r in records if r.taught]
+    return {
+        "online": {
+            "fixations": len(records),
+            "taught": sum(r.taught for r in records),
+            "outcomes": result.outcomes(),
+            "fixations_per_s": len(records) / result.seconds if result.seconds else None,
+            "median_confidence_taught": float(np.median(confidences)) if confidences else None,
+            "vergence": result.vergence_convergence(),
+            "landing_at_fixations": result.landing_fixations,
+        }
+    }
 
 
 def write_csv(result: ExperimentResult, path: Path) -> None:
@@ -158,6 +200,16 @@ def format_summary(s: dict) -> str:
                          f"at worst after, {c['landing_700_after_px']:.1f} px 700 fixations after")
     if s["refused"]:
         lines.append(f"  refused samples: {s['refused']}")
+    if "online" in s:
+        o = s["online"]
+        lines.append(f"  fixations {o['fixations']}, taught {o['taught']} ({o['fixations_per_s']:.1f} fixations/s); "
+                     "the curves above are per taught fixation")
+        for outcome, count in sorted(o["outcomes"].items(), key=lambda kv: -kv[1]):
+            lines.append(f"    {outcome:<34} {count:6d}")
+        v = o["vergence"]
+        lines.append(f"  fine vergence: {v['converged']} of {v['matched']} converged "
+                     f"({100 * v['converged_fraction']:.1f} %), median {v['median_steps']:.0f} steps; "
+                     f"median confidence of taught fixations {o['median_confidence_taught']:.2f}")
     return "\n".join(lines)
 
 

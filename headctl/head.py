@@ -54,10 +54,19 @@ class RenderedPairSource:
     """Pairs rendered on demand at the clock's time from the joints' true positions (simulation)."""
 
     def __init__(self, render: Callable[[dict[str, float]], tuple[np.ndarray, np.ndarray]],
-                 joint_positions: Callable[[], dict[str, float]], clock: Clock) -> None:
+                 joint_positions: Callable[[], dict[str, float]], clock: Clock,
+                 noise_std: float = 0.0, seed: int = 0) -> None:
         self.render = render
         self.joint_positions = joint_positions
         self.clock = clock
+        self.noise_std = noise_std  # sensor noise, grey levels: a flat wall must not match itself
+        self._rng = np.random.default_rng(seed)
+
+    def _noisy(self, image: np.ndarray) -> np.ndarray:
+        if self.noise_std <= 0:
+            return image
+        noisy = image.astype(np.float32) + self._rng.normal(0.0, self.noise_std, image.shape).astype(np.float32)
+        return np.clip(noisy, 0, 255).astype(np.uint8)
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
         now = self.clock.monotonic()
@@ -66,7 +75,8 @@ class RenderedPairSource:
                 time.sleep(after_s - now)
             else:
                 self.clock.advance(after_s - now)
-        return self.render(self.joint_positions())
+        left, right = self.render(self.joint_positions())
+        return self._noisy(left), self._noisy(right)
 
 
 class DriverHead:

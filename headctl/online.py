@@ -13,6 +13,7 @@ is measured on the geometric model with the map as it is (`calib_free.experiment
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import threading
 from dataclasses import dataclass, field
@@ -22,8 +23,9 @@ import numpy as np
 
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
-from calib_free.experiments import Change, landing_errors_px, landing_targets, map_predictor, running_mean
-from calib_free.fixation import FixationController, FixationParams, FixationRecord
+from calib_free.experiments import (Change, ExperimentResult, ExperimentSpec, landing_errors_px, landing_targets,
+                                    map_predictor)
+from calib_free.fixation import REFUSED_NO_VERGENCE_MATCH, FixationController, FixationParams, FixationRecord
 from calib_free.gaze_map import AdaptResult
 from calib_free.sim import HeadModel, JointLimits
 from drivers.clock import ManualClock
@@ -73,7 +75,8 @@ class OnlineResult:
     spec: OnlineSpec
     records: list[FixationRecord] = field(default_factory=list)
     adaptations: list[tuple[int, AdaptResult]] = field(default_factory=list)  # (fixation index, result)
-    landing: list[tuple[int, float]] = field(default_factory=list)  # (fixations done, median px)
+    landing: list[tuple[int, float]] = field(default_factory=list)  # (adaptations done, median px)
+    landing_fixations: list[int] = field(default_factory=list)  # fixations done at each landing check
     seconds: float = 0.0
 
     @property
@@ -96,24 +99,44 @@ class OnlineResult:
         return {"pan_deg": float(m[0]), "tilt_deg": float(m[1]), "vergence_deg": float(m[2]),
                 "retinal_error": float(ret.mean())}
 
-    def averaged_curves(self) -> tuple[np.ndarray, np.ndarray]:
-        return running_mean(self.retinal_error, 10), running_mean(self.output_error, 10)
+    def as_experiment_result(self) -> ExperimentResult:
+        """The learning curves per adaptation (taught fixation), as the geometric experiments give them."""
+        accepted_tags = [tag for tag, r in self.adaptations if r.accepted]
+        changes = tuple(dataclasses.replace(c, at=int(np.searchsorted(accepted_tags, c.at))) for c in self.spec.changes)
+        spec = ExperimentSpec(self.spec.name, len(accepted_tags), changes, self.spec.description)
+        result = ExperimentResult(spec, self.retinal_error, self.output_error, list(self.landing))
+        result.refused = sum(1 for _, r in self.adaptations if not r.accepted)
+        return result
+
+    def vergence_convergence(self) -> dict[str, float]:
+        """Of the fixations whose foveae matched, how many converged, and in how many steps."""
+        matched = [r for r in self.records if r.vergence_disparities_px and r.outcome != REFUSED_NO_VERGENCE_MATCH]
+        converged = [r for r in matched if r.converged]
+        steps = [r.vergence_steps for r in converged]
+        return {"matched": len(matched), "converged": len(converged),
+                "converged_fraction": len(converged) / len(matched) if matched else float("nan"),
+                "median_steps": float(np.median(steps)) if steps else float("nan")}
 
 
 class SimulatedHeadRig:
     """The simulated head, wired as the service wires a real one; a context manager."""
 
     def __init__(self, width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
-                 fixation: FixationParams | None = None) -> None:
+                 fixation: FixationParams | None = None, noise_std: float = 2.0) -> None:
         self.clock = ManualClock()
-        # Vergence from 1 deg: the room's far walls (3 m) need 1.15 deg with a 60 mm baseline.
-        self.model = HeadModel.default(width, height, lens=lens, limits=JointLimits(vergence=(1.0, 20.0)))
+        self.model = self.geometry(width, height, lens)
         self.bus = SimulatedServoBus(ServoBusConfig.from_mapping(SIM_SERVO_CONFIG), clock=self.clock,
                                      initial_positions={"pan": 0.0, "tilt": 0.0, "left_eye": 5.0, "right_eye": -5.0})
         self.renderer = StereoRenderer(self.model, shared_scene(seed, False))
-        self.pairs = RenderedPairSource(self.renderer.render, self._true_joints, self.clock)
+        self.pairs = RenderedPairSource(self.renderer.render, self._true_joints, self.clock,
+                                        noise_std=noise_std, seed=seed)
         self.head = DriverHead(self.bus, self.pairs, clock=self.clock, vergence_range=self.model.limits.vergence)
         self.fixation = fixation or FixationParams()
+
+    @staticmethod
+    def geometry(width: int = 320, height: int = 240, lens: str = "foveated") -> HeadModel:
+        """The rig's head model: vergence from 1 deg, as the room's far walls (3 m) need with 60 mm."""
+        return HeadModel.default(width, height, lens=lens, limits=JointLimits(vergence=(1.0, 20.0)))
 
     def _true_joints(self) -> dict[str, float]:
         return {j: self.bus.true_position(j) for j in ("pan", "tilt", "left_eye", "right_eye")}
@@ -175,7 +198,9 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
             if landing_every and ((n + 1) % landing_every == 0 or n + 1 == spec.fixations):
                 adapter.wait_idle()
                 errors = adapter.with_map(lambda m: landing_errors_px(model, targets, map_predictor(m)))
-                result.landing.append((n + 1, float(np.median(errors))))
+                with lock:
+                    result.landing.append((len(result.adaptations), float(np.median(errors))))
+                result.landing_fixations.append(n + 1)
         adapter.wait_idle()
         if adapter.error is not None:
             raise adapter.error

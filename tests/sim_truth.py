@@ -1,0 +1,37 @@
+"""Ground truth for image tests on the simulated head: what is on a fovea, and where it was.
+
+The renderer knows the room only as boxes; a single ray's first surface is a slab test per
+box, done here for one ray at a time (tests only need a few hundred).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calib_free.sim import HeadModel
+from drivers.sim_scene import Scene
+
+
+def first_surface(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The first point of the scene a ray from `origin` along `direction` meets."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / direction
+        room = np.maximum((scene.lo[0] - origin) * inv, (scene.hi[0] - origin) * inv)
+        best = float(np.min(room))  # the room is seen from inside: its nearest exit plane
+        for b in range(1, len(scene.lo)):
+            a1, a2 = (scene.lo[b] - origin) * inv, (scene.hi[b] - origin) * inv
+            t_in, t_out = float(np.max(np.minimum(a1, a2))), float(np.min(np.maximum(a1, a2)))
+            if 1e-6 < t_in < t_out and t_in < best:
+                best = t_in
+    return origin + best * direction
+
+
+def foveal_point(model: HeadModel, scene: Scene, pose: np.ndarray) -> np.ndarray:
+    """The world point on the left fovea (the left optical axis' first surface) at `pose`."""
+    (rotation, centre), _ = model.eye_frames(pose)
+    return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
+
+
+def joints(pose: np.ndarray) -> dict[str, float]:
+    """Joint angles of a symmetric pose (pan, tilt, vergence)."""
+    return {"pan": float(pose[0]), "tilt": float(pose[1]), "left_eye": float(pose[2] / 2),
+            "right_eye": float(-pose[2] / 2)}
