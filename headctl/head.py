@@ -92,7 +92,9 @@ class DriverHead:
         self.tolerance_deg = tolerance_deg
         self.poll_s = poll_s
         self.image_transform: ImageTransform | None = None  # e.g. a prism: np.flipud
-        self.pan_reading_offset_deg = 0.0  # the paper's fig. 9 defect: added to the pan read
+        # The paper's fig. 9 defect: added to the pan angle read (not to the goals written), so
+        # every pan goal computed from a reading lands that much further.
+        self.pan_reading_offset_deg = 0.0
         joints = bus.config.joints
         v_low = max(2 * joints["left_eye"].min_angle, -2 * joints["right_eye"].max_angle)
         v_high = min(2 * joints["left_eye"].max_angle, -2 * joints["right_eye"].min_angle)
@@ -120,11 +122,10 @@ class DriverHead:
 
     def move_to(self, pose: np.ndarray) -> np.ndarray:
         goal = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
-        sent = goal.copy()
-        sent[0] -= self.pan_reading_offset_deg
-        # The servo bus checks each joint's limits again: no goal outside them is ever sent.
-        self.bus.write_goals(self.joints_of(sent))
-        self._goal = sent
+        # The servo bus checks each joint's limits again: no goal outside them is ever sent
+        # (with a pan reading offset the goal computed from the reading may lie beyond).
+        sent = self.bus.write_goals(self.joints_of(goal))
+        self._goal = self.pose_of(sent)
         return goal
 
     def _sleep(self, seconds: float) -> None:
