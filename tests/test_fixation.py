@@ -156,3 +156,20 @@ def test_online_experiment_command(tmp_path, capsys):
     assert summary["online"]["taught"] == summary["fixations"] > 5
     assert sum(summary["online"]["outcomes"].values()) == 40
     assert (tmp_path / "online-default.png").stat().st_size > 10_000
+
+
+def test_driver_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
+    with SimulatedHeadRig(seed=0) as rig:
+        head = rig.head
+        head.move_to(np.array([100.0, -90.0, 50.0]))  # far outside every limit
+        head.wait_settled(5.0)
+        np.testing.assert_allclose(head.read_pose(), head.pose_high * [1, 0, 1] + head.pose_low * [0, 1, 0],
+                                   atol=0.3)
+        head.move_to(np.array([0.0, 0.0, 6.0]))
+        head.wait_settled(5.0)
+        head.pan_reading_offset_deg = 10.0  # the paper's fig. 9 defect
+        before = head.read_pose()
+        assert before[0] == pytest.approx(10.0, abs=0.3)
+        head.move_to(before + np.array([5.0, 0.0, 0.0]))
+        head.wait_settled(5.0)
+        assert rig.bus.true_position("pan") == pytest.approx(15.0, abs=0.3)  # 5 commanded, 15 done
