@@ -32,7 +32,7 @@ import traceback
 import types
 import typing
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -150,6 +150,9 @@ class CameraConfig:
     grab_timeout_s: float = 1.0
     reconnect_backoff_max_s: float = 2.0
     reconnect_give_up_s: float = 600.0
+    # The keys a mapping gave (set by from_mapping): a key given at its default value is still
+    # refused by a backend that does not use it.
+    given_keys: frozenset[str] = field(default=frozenset(), init=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         checks = (
@@ -173,7 +176,9 @@ class CameraConfig:
     @classmethod
     def from_mapping(cls, data: Any, key_path: str = "camera") -> "CameraConfig":
         try:
-            return parse_dataclass(cls, data, key_path)
+            config = parse_dataclass(cls, data, key_path)
+            object.__setattr__(config, "given_keys", frozenset(data))
+            return config
         except CameraConfigError as err:
             message = str(err)
             if not message.startswith(key_path):  # a __post_init__ check names the bare key
@@ -181,8 +186,9 @@ class CameraConfig:
             raise CameraConfigError(message) from err
 
     def set_keys(self) -> set[str]:
-        """Keys whose value differs from the default (what the user asked for)."""
-        return {f.name for f in dataclasses.fields(self) if getattr(self, f.name) != f.default}
+        """Keys given in the mapping, or whose value differs from the default."""
+        return set(self.given_keys) | {f.name for f in dataclasses.fields(self)
+                                       if f.init and getattr(self, f.name) != f.default}
 
     def check_applies_to(self, backend_class: type["Camera"], key_path: str = "camera") -> None:
         """Refuse keys the backend does not use, rather than ignore them silently."""

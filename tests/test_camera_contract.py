@@ -3,6 +3,7 @@ file through OpenCV by default; a real head's left camera with `-m hardware` and
 HEADCTL_HW_CONFIG=path/to/a YAML with a cameras: section."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 import time
@@ -28,14 +29,18 @@ def _video(path: str) -> str:
     return path
 
 
-def _hardware_config(side: str) -> CameraConfig:
-    from headctl.cmd_cameras import load_cameras_config
+def _hardware_camera(side: str, image: str) -> Camera:
+    """The `side` camera of the head config HEADCTL_HW_CONFIG names (built as headctl does)."""
+    from headctl.cmd_cameras import load_cameras_config, sim_resources
 
     path = os.environ.get("HEADCTL_HW_CONFIG")
     if not path:
         pytest.fail("hardware camera tests need HEADCTL_HW_CONFIG=path/to/head.yaml (with a cameras: section)",
                     pytrace=False)
-    return getattr(load_cameras_config(path), side)
+    config = load_cameras_config(path)
+    resources = sim_resources(config, [0.0, 0.0, 0.0, 0.0]).get(side, {})
+    return create_camera(dataclasses.replace(getattr(config, side), image=image), name=side,
+                         key_path=f"cameras.{side}", **resources)
 
 
 @pytest.fixture(params=["sim", "aravis-fake", "opencv-file", pytest.param("hardware", marks=pytest.mark.hardware)])
@@ -61,7 +66,7 @@ def make_camera(request, tmp_path):
         elif kind == "opencv-file":
             camera = create_camera(CameraConfig(backend="opencv", device=video, image=image), name=side)
         else:
-            camera = create_camera(CameraConfig(**{**_hardware_config(side).__dict__, "image": image}), name=side)
+            camera = _hardware_camera(side, image)
         made.append(camera)
         return camera
 

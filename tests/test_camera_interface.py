@@ -95,6 +95,10 @@ def test_unknown_backend_and_keys_a_backend_does_not_use():
         create_camera(config, key_path="right")
     cam = create_camera(CameraConfig(backend=f"{__name__}:ScriptedCamera", device="d"))
     assert isinstance(cam, ScriptedCamera)
+    # A key given at its default value is refused too: the user wrote it, so it must mean something.
+    config = CameraConfig.from_mapping({"backend": "opencv", "device": 0, "seed": 0}, "cameras.left")
+    with pytest.raises(CameraConfigError, match=r"cameras\.left\.seed: not used by the 'opencv' backend \(value 0\)"):
+        create_camera(config, key_path="cameras.left")
 
 
 def test_lifecycle_latest_and_frames():
