@@ -367,6 +367,8 @@ class Camera(Device):
         self._listeners: list[Listener] = []
         self._thread: CaptureThread | None = None
         self._stop_event: threading.Event | None = None  # the running capture thread's
+        self._last_message = ""
+        self._repeats = 0
 
     # -- state seen from outside ---------------------------------------------------------
     @property
@@ -566,7 +568,16 @@ class Camera(Device):
                 traceback.clear_frames(chained.__traceback__)
         self._error_count += 1
         self._last_error = err
-        log.warning("%s: %s", self.name, err)
+        # A fault that repeats every frame would flood the log: the first of a run is logged,
+        # then every 100th (the callback and the counters still see each one).
+        message = str(err)
+        self._repeats = self._repeats + 1 if message == self._last_message else 0
+        self._last_message = message
+        named = message if message.startswith(f"{self.name}:") else f"{self.name}: {message}"
+        if self._repeats == 0:
+            log.warning("%s", named)
+        elif self._repeats % 100 == 0:
+            log.warning("%s (repeated %d times)", named, self._repeats)
         if self.on_error is not None:
             try:
                 self.on_error(self, err)

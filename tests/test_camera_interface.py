@@ -183,3 +183,19 @@ def test_timeout_error_is_also_a_builtin_timeout():
         with pytest.raises(TimeoutError):
             cam.wait_frame(timeout_s=0.05)
     assert issubclass(CameraTimeoutError, TimeoutError)
+
+
+def test_a_fault_repeating_every_frame_does_not_flood_the_log(caplog):
+    cam, errors = scripted()
+    with cam, caplog.at_level("WARNING", logger="drivers.camera"):
+        cam.enable()
+        for _ in range(250):
+            cam.script.put(CameraError("cam0: incomplete buffer"))
+        cam.script.put(5)
+        cam.wait_frame(after_s=4.0, timeout_s=5)
+    assert len(errors) == 250 and cam.stats()["errors"] == 250
+    assert [r.getMessage() for r in caplog.records] == [
+        "cam0: incomplete buffer",
+        "cam0: incomplete buffer (repeated 100 times)",
+        "cam0: incomplete buffer (repeated 200 times)",
+    ]
