@@ -185,10 +185,14 @@ class AravisCamera(Camera):
         if config.width is not None or config.height is not None:
             _, _, width, height = camera.get_region()
             camera.set_region(0, 0, config.width or width, config.height or height)
+        rate_control = camera.is_frame_rate_available()
         if config.fps is not None:
-            camera.set_frame_rate(config.fps)
+            if rate_control:
+                camera.set_frame_rate(config.fps)
+            else:  # free-running or triggered cameras: the rate is the camera's, not ours
+                log.warning("%s: %s has no frame rate control; fps %s ignored", self.name, self._device_id, config.fps)
         x, y, width, height = camera.get_region()
-        fps = camera.get_frame_rate()
+        fps = camera.get_frame_rate() if rate_control else 0.0
         self._period_s = 1.0 / fps if fps > 0 else 0.0
         self._exposure_s = camera.get_exposure_time() * 1e-6 if camera.is_exposure_time_available() else 0.0
         log.info("%s: aravis %s (%s %s): %s %d x %d at (%d, %d), %.2f fps (asked %s x %s, %s fps, %s)",
