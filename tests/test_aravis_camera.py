@@ -132,3 +132,16 @@ def test_gige_camera_on_loopback_disappears_and_streams_again(gv_camera):
         frame = cam.wait_frame(after_s=back_s, timeout_s=30)
         assert frame.image.shape == (192, 256), "the size was applied again on reopen"
         assert cam.health is StreamHealth.STREAMING and cam.stats()["reconnects"] == 1
+
+
+@pytest.mark.parametrize("name, red_at", [("BayerRG8", (0, 0)), ("BayerGR8", (0, 1)), ("BayerBG8", (1, 1)),
+                                          ("BayerGB8", (1, 0))])
+def test_bayer_patterns_are_demosaiced_with_the_right_colours(name, red_at):
+    """GenICam names a Bayer pattern by its first row, OpenCV by its second: a red scene
+    mosaicked the GenICam way must come out red."""
+    import cv2
+
+    code = next(code for fmt, code, _ in aravis_camera._CONVERSIONS.values() if fmt == name)
+    mosaic = np.zeros((8, 8), np.uint8)
+    mosaic[red_at[0]::2, red_at[1]::2] = 255
+    assert cv2.cvtColor(mosaic, code)[3, 3].tolist() == [0, 0, 255]
