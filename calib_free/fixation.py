@@ -47,6 +47,9 @@ class GazeHead(Protocol):
     def move_to(self, pose: np.ndarray) -> np.ndarray:
         """Command an absolute pose (clamped to the limits); returns the pose commanded."""
 
+    def verge_to(self, vergence: float) -> float:
+        """Command the eyes alone to an absolute vergence (clamped); returns the vergence commanded."""
+
     def wait_settled(self, timeout_s: float) -> float:
         """Block until the head is at rest; the monotonic time from which it was."""
 
@@ -229,6 +232,7 @@ class FixationController:
         record.planned = planned
         # Coarse saccade: pan, tilt and vergence together.
         goal = head.move_to(pose_before + planned)
+        commanded = goal - pose_before  # the relative moves commanded, summed
         rest_s = head.wait_settled(p.settle_timeout_s)
         left, right = head.wait_pair(rest_s, p.frame_timeout_s)
         # Fine vergence: vergence only, until the foveal disparity vanishes. The first step
@@ -253,17 +257,18 @@ class FixationController:
             if step == p.max_vergence_steps:
                 break
             record.vergence_steps += 1
-            before = head.read_pose()
-            goal = head.move_to(before + np.array([0.0, 0.0, gain * disparity]))
+            before = head.read_pose()[2]
+            vergence = head.verge_to(before + gain * disparity)  # the eyes only: pan and tilt stay put
+            commanded = commanded + np.array([0.0, 0.0, vergence - before])
             rest_s = head.wait_settled(p.settle_timeout_s)
             left, right = head.wait_pair(rest_s, p.frame_timeout_s)
-            last_step = (float(head.read_pose()[2] - before[2]), disparity)
+            last_step = (float(head.read_pose()[2] - before), disparity)
         pose_after = head.read_pose()
         record.pose_after = pose_after
         if p.executed_command == "encoders":
             record.executed = pose_after - pose_before
-        else:  # what was commanded: the saccade and the vergence steps
-            record.executed = goal - pose_before
+        else:  # what was commanded: the saccade and the vergence steps, relative to each reading
+            record.executed = commanded
         if not record.converged:
             if not record.outcome:
                 record.outcome = REFUSED_NOT_CONVERGED

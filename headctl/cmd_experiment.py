@@ -175,7 +175,8 @@ def summarise(result: ExperimentResult, floor_px: float | None, profile: str, le
 
 def format_summary(s: dict) -> str:
     f, st = s["final"], s["steady"]
-    lines = [f"{s['experiment']} ({s['profile']} profile), {s['fixations']} fixations in {s['seconds']:.1f} s",
+    counted = "adaptations (taught fixations)" if "online" in s else "fixations"
+    lines = [f"{s['experiment']} ({s['profile']} profile), {s['fixations']} {counted} in {s['seconds']:.1f} s",
              "                   last 10 (paper)  last 200    paper fig. 5 (2,000 fixations)",
              f"  pan error        {f['pan_deg']:7.2f} deg   {st['pan_deg']:7.2f} deg   {PAPER_LEARN['pan_deg']:.2f} deg",
              f"  tilt error       {f['tilt_deg']:7.2f} deg   {st['tilt_deg']:7.2f} deg   {PAPER_LEARN['tilt_deg']:.2f} deg",
@@ -184,7 +185,7 @@ def format_summary(s: dict) -> str:
              f"  retinal error    {100 * f['retinal_error']:7.2f} %     {100 * st['retinal_error']:7.2f} %     "
              f"{100 * PAPER_LEARN['retinal_error']:.2f} %"]
     if s["landing_error_px"] is not None:
-        line = f"  landing error    {s['landing_error_px']:7.2f} px   (median of 500 targets, one saccade)"
+        line = f"  landing error    {s['landing_error_px']:7.2f} px   (median over visible targets, one saccade)"
         lines.append(line)
     if s["floor_px"]:
         lines.append(f"  floor (k-NN)     {s['floor_px']:7.2f} px   landing / floor = {s['landing_over_floor']:.2f}"

@@ -128,6 +128,14 @@ class DriverHead:
         self._goal = self.pose_of(sent)
         return goal
 
+    def verge_to(self, vergence: float) -> float:
+        """Move the eyes alone (symmetrically) to `vergence`, clamped; pan and tilt get no goal."""
+        v = float(np.clip(vergence, self.pose_low[2], self.pose_high[2]))
+        sent = self.bus.write_goals({"left_eye": v / 2, "right_eye": -v / 2})
+        goal = self._goal if self._goal is not None else self.pose_of(self.bus.read_state().positions)
+        self._goal = np.array([goal[0], goal[1], sent["left_eye"] - sent["right_eye"]])
+        return v
+
     def _sleep(self, seconds: float) -> None:
         if isinstance(self.clock, ManualClock):
             self.clock.advance(seconds)

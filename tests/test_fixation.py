@@ -35,6 +35,9 @@ class FrozenEyesHead:
         self.moves.append(self.pose.copy())
         return self.pose.copy()
 
+    def verge_to(self, vergence):
+        return float(self.move_to(np.array([self.pose[0], self.pose[1], vergence]))[2])
+
     def wait_settled(self, timeout_s):
         return 0.0
 
