@@ -50,8 +50,9 @@ job=${1:-}
 [ $# -gt 0 ] && shift
 case "$job" in
     "") log "ready: activate with  . .venv/bin/activate" ;;
-    # Until the daemon lands (issue 6) the main job is the learning experiment on the simulated head.
-    run) exec "$venv/bin/headctl" experiment learn "$@" ;;
+    # Until the daemon lands (issue 6) the main job is the whole method on the simulated head:
+    # fixations on rendered images, learning on the adapter thread.
+    run) exec "$venv/bin/headctl" experiment online "$@" ;;
     test)
         # CI=true: no prompts, no colour; the suite itself never needs hardware.
         exec "$venv/bin/python" -m pytest -q "$@" ;;
