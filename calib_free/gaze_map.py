@@ -69,7 +69,7 @@ class GazeMapParams:
     global_degree: int = 3  # > 0: W = polynomial of this degree (RLS) + the grid as its residual
     global_memory: float = 400.0  # fixations the polynomial remembers while the head is unchanged
     global_memory_min: float = 30.0  # ... and right after it changed (the error jumped)
-    surprise_threshold: float = 2.0  # E-bar over its long-run level beyond which memory shrinks
+    surprise_threshold: float = 3.0  # median E of the window over its long-run level: the head changed
     robust_scale: float = 3.0  # > 0: samples this many median residuals off weigh half (Cauchy)
 
     @classmethod
@@ -198,12 +198,19 @@ class _PolynomialPart:
         gain = p_phi * confidence / (forget + confidence * (phi @ p_phi))
         self.coef += np.outer(gain, command - phi @ self.coef)
         self.coefficients_changed()
-        self.covariance = (self.covariance - np.outer(gain, p_phi)) / forget
+        covariance = (self.covariance - np.outer(gain, p_phi)) / forget
+        # Round-off makes P drift from symmetric and, thousands of samples on, indefinite,
+        # and then the fit diverges: keep it symmetric, and start it afresh if it broke.
+        covariance = 0.5 * (covariance + covariance.T)
+        if np.min(np.diag(covariance)) <= 0.0 or not np.all(np.isfinite(covariance)):
+            log.warning("gaze map: the least-squares covariance lost positive definiteness; reset")
+            covariance = np.eye(len(phi)) * self.prior
         # Forgetting inflates P along directions no sample excites: keep it bounded.
         limit = self.prior * len(phi)
-        trace = np.trace(self.covariance)
+        trace = np.trace(covariance)
         if trace > limit:
-            self.covariance *= limit / trace
+            covariance *= limit / trace
+        self.covariance = covariance
 
 
 class GazeMap:
@@ -428,7 +435,7 @@ class GazeMap:
         target = m
         if phi is not None:
             p = self.params
-            # When the windowed error jumps above its long-run level the head has changed (lens,
+            # When the windowed error jumps far above its long-run level the head has changed (lens,
             # baseline, offset) and what was learned before is wrong: the memory drops to its
             # minimum, then grows by one a fixation, so the fit weighs the samples since the
             # change about equally until it remembers `global_memory` fixations again.

@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     from headctl.plots import plot_learning_curves  # matplotlib only when plotting
 
     plot_learning_curves(result, stem.with_suffix(".png"), floor_px,
-                         title=f"{spec.name} ({args.profile} profile): {spec.description}")
+                         title=f"{spec.name} ({args.profile} profile): {spec.description}", online=online)
     summary = summarise(result, floor_px, args.profile, learn_s)
     summary.update(extra)
     stem.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -222,3 +222,20 @@ def test_learning_brings_targets_near_the_fovea(profile, max_px):
     after = np.median(landing_errors_px(head, targets, map_predictor(gm)))
     assert after < max_px
     assert after < before / 4
+
+
+def test_thousands_of_adaptations_stay_stable():
+    """Regression: round-off once made the least-squares covariance indefinite near 5,000
+    samples and the map diverged to thousands of degrees."""
+    head = HeadModel.default()
+    gm = GazeMap.for_image(320, 240, seed=0)
+    sampler = FixationSampler(head, seed=0)
+    for _ in range(6000):
+        s = sampler.draw()
+        st = gm.adapt(s.position, s.command)
+    assert np.all(st.output_error < 10)
+    cov = gm.polynomial.covariance
+    np.testing.assert_array_equal(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > 0
+    targets = landing_targets(head, 200, (-60, 60), seed=9)
+    assert np.median(landing_errors_px(head, targets, map_predictor(gm))) < 5.0
