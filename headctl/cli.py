@@ -16,6 +16,7 @@ COMMAND_MODULES = (
     "headctl.cmd_experiment",  # experiment: the paper's experiments on the simulated head
     "headctl.cmd_servos",      # emulate-servos, scan
     "headctl.cmd_cameras",     # cameras, snapshot
+    "headctl.cmd_service",     # run, check, status: the daemon
 )
 
 

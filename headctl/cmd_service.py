@@ -1,0 +1,203 @@
+"""Subcommands of `headctl` for the service: `run` (the daemon), `check` (a config), `status`.
+
+`run [--config F]` runs the daemon (`headctl.daemon`) until SIGTERM/SIGINT; without
+`--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a
+config and connects to the servos and cameras it names, reporting each. `status` asks a
+running daemon for its state through the socket in its state directory.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import sys
+import time
+from typing import Any
+
+from drivers.errors import BackendImportError, CameraConfigError, DriverError
+from headctl.config import HeadConfig, load_config
+from headctl.errors import ConfigError, HeadctlError
+
+log = logging.getLogger(__name__)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add this module's subcommands to `sub`."""
+    run = sub.add_parser(
+        "run", help="run the service (default: the simulated head of configs/sim.yaml)",
+        description="Run the daemon for one head until SIGTERM or SIGINT: servo loop, cameras, exploratory "
+                    "fixations, online learning with checkpoints, status socket, systemd notifications.")
+    _config_args(run)
+    run.set_defaults(func=_run)
+
+    check = sub.add_parser(
+        "check", help="validate a head's config, then connect and report each servo and camera",
+        description="Validate a config (file, key path, value and what was expected on error); unless "
+                    "--no-connect, open the servo bus and both cameras and report each.")
+    _config_args(check, state_dir=False)
+    check.add_argument("--no-connect", action="store_true", help="only validate the file")
+    check.add_argument("--timeout", type=float, default=5.0, metavar="S", help="seconds to wait for frames")
+    check.set_defaults(func=_check)
+
+    status = sub.add_parser(
+        "status", help="the running daemon's state (joints, fixations, learning, faults)",
+        description="Ask the daemon through the unix socket in its state directory.")
+    _config_args(status)
+    status.add_argument("--json", action="store_true", help="print the whole state as JSON")
+    status.set_defaults(func=_status)
+
+
+def _config_args(parser: argparse.ArgumentParser, state_dir: bool = True) -> None:
+    parser.add_argument("--config", metavar="FILE", help="the head's YAML file (default: configs/sim.yaml)")
+    if state_dir:
+        parser.add_argument("--state-dir", metavar="DIR", help="override the config's state_dir")
+
+
+def _load(args: argparse.Namespace, command: str) -> HeadConfig | None:
+    try:
+        config = load_config(args.config)
+    except ConfigError as err:
+        print(f"headctl {command}: {err}", file=sys.stderr)
+        return None
+    if getattr(args, "state_dir", None):
+        config = config.with_state_dir(args.state_dir)
+    return config
+
+
+def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
+    root = logging.getLogger()
+    if args.log_level == "INFO":  # the CLI's default: the config decides
+        root.setLevel(getattr(logging, config.logging.level))
+    if config.logging.file:
+        handler = logging.FileHandler(config.logging.file)
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
+        root.addHandler(handler)
+
+
+# --- run -------------------------------------------------------------------------------------
+def _run(args: argparse.Namespace) -> int:
+    from headctl.daemon import Daemon
+
+    config = _load(args, "run")
+    if config is None:
+        return 2
+    _apply_logging(config, args)
+    try:
+        return Daemon(config).run()
+    except (HeadctlError, DriverError, OSError) as err:
+        log.error("headctl run: %s", err)
+        print(f"headctl run: {err}", file=sys.stderr)
+        return 1
+
+
+# --- check -------------------------------------------------------------------------------------
+def _check(args: argparse.Namespace) -> int:
+    config = _load(args, "check")
+    if config is None:
+        return 2
+    params = config.map_params()
+    print(f"{config.path}: valid")
+    print(f"  servo bus: {config.servo_bus.backend} on {config.servo_bus.port} at {config.servo_bus.baud} baud")
+    for side in ("left", "right"):
+        cam = getattr(config.cameras, side)
+        where = cam.device or cam.id or cam.serial or cam.eye or "first found"
+        print(f"  camera {side}: {cam.backend} {where} {cam.width} x {cam.height} at {cam.fps or 'default'} fps")
+    print(f"  gaze map: {params.profile} profile, grid {params.grid_shape}, disparity {params.disparity_range} px; "
+          f"state in {config.state_dir}")
+    if args.no_connect:
+        return 0
+    return _connect_and_report(config, args.timeout)
+
+
+def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
+    from drivers.camera import create_camera
+    from drivers.servo_bus import JOINTS
+    from headctl.daemon import Daemon
+
+    daemon = Daemon(config)  # builds devices as `run` does (the simulated head's wiring too)
+    failures = 0
+    with contextlib.ExitStack() as stack:
+        try:
+            bus = stack.enter_context(daemon._build_bus())
+            state = bus.read_state()
+            for joint in JOINTS:
+                jc, js = config.servo_bus.joints[joint], state[joint]
+                errors = ", ".join(js.hardware_errors) or "no hardware error"
+                print(f"  {bus.describe(joint)}: {jc.model}, at {js.position:.2f} deg "
+                      f"(limits {jc.min_angle:g}..{jc.max_angle:g}), {js.temperature_c:.0f} C, "
+                      f"{js.input_voltage_v:.1f} V, {errors}")
+                failures += bool(js.hardware_error_bits)
+        except (DriverError, OSError) as err:
+            print(f"  servo bus: FAILED: {err}")
+            return 1
+        resources = daemon._camera_resources(bus)
+        for side in ("left", "right"):
+            try:
+                camera = create_camera(getattr(config.cameras, side), name=side, key_path=f"cameras.{side}",
+                                       **resources.get(side, {}))
+                stack.enter_context(camera)
+                started = time.monotonic()
+                camera.enable()
+                frame = camera.wait_frame(after_s=started, timeout_s=timeout_s)
+                h, w = frame.image.shape[:2]
+                print(f"  camera {side} ({camera.backend_name} {camera.name}): {w} x {h}, "
+                      f"first frame after {time.monotonic() - started:.2f} s, {camera.health.value}")
+            except (CameraConfigError, BackendImportError) as err:
+                print(f"  camera {side}: FAILED: {config.path}: {err}")
+                failures += 1
+            except (DriverError, OSError) as err:
+                print(f"  camera {side}: FAILED: {err}")
+                failures += 1
+    print("check: OK" if not failures else f"check: {failures} problem(s)")
+    return 0 if not failures else 1
+
+
+# --- status ------------------------------------------------------------------------------------
+def _status(args: argparse.Namespace) -> int:
+    from headctl.status import StatusError, query
+
+    config = _load(args, "status")
+    if config is None:
+        return 2
+    try:
+        status = query(config.socket_path)["status"]
+    except StatusError as err:
+        print(f"headctl status: {err}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(status, indent=2))
+        return 0
+    print(format_status(status))
+    return 0 if status["state"] == "running" else 3
+
+
+def format_status(s: dict[str, Any]) -> str:
+    """The daemon's state for people."""
+    lines = [f"{s['state']}  (pid {s['pid']}, up {s['uptime_s']:.0f} s, {s['config']})"]
+    lines += [f"  fault: {f}" for f in s["faults"]]
+    for joint, j in s["joints"].items():
+        goal = "-" if j["goal_deg"] is None else f"{j['goal_deg']:.2f}"
+        flags = ("moving " if j["moving"] else "") + ("" if j["torque_on"] else "torque off ")
+        lines.append(f"  {joint:10s} {j['position_deg']:8.2f} deg  goal {goal:>7s}  {flags}"
+                     f"{', '.join(j['hardware_errors'])}")
+    loop = s["servo_loop"] or {}
+    lines.append(f"  servo loop: {loop.get('rate_hz')} Hz, {loop.get('cycles')} cycles, period p50/p99 "
+                 f"{loop.get('period_p50_ms')}/{loop.get('period_p99_ms')} ms, overruns {loop.get('overruns')}")
+    fx = s["fixation"]
+    lines.append(f"  fixation: {fx['state']}; {fx['done']} done, {fx['taught']} taught")
+    for reason, n in sorted(fx["refused"].items(), key=lambda kv: -kv[1]):
+        lines.append(f"    refused {n:5d}: {reason}")
+    le = s["learning"]
+    if le:
+        mre = le.get("mean_retinal_error")
+        lines.append(f"  learning: {le['adaptations']} adaptations ({le['adaptations_this_run']} this run), "
+                     f"mean retinal error {'-' if mre is None else f'{mre:.3f}'}, "
+                     f"output error {le.get('output_error_deg')} deg")
+    mp = s["map"]
+    lines.append(f"  map: {mp['path']} (restored from {mp['restored_from']}), {mp['checkpoints']} checkpoints")
+    lines += [f"    problem: {p}" for p in mp["problems"]]
+    for side, c in s["cameras"].items():
+        lines.append(f"  camera {side}: {c['health']}, {c['stats'].get('frames')} frames, "
+                     f"last {c['frame_age_s']} s ago")
+    return "\n".join(lines)

@@ -1,0 +1,878 @@
+"""The service: `headctl run` builds the head from its config and keeps it learning.
+
+Threads, each with one job (DESIGN.md, "Service shape"):
+
+- `camera-left`, `camera-right`: the cameras' own capture threads (latest frame + history).
+- `servo-io` (`ServoLoop`): at a fixed rate (default 100 Hz) one `read_state()` and one
+  `write_goals()` of the latest goals; the only thread that talks to the bus while the
+  daemon runs. Goals outside the limits are clamped or refused by the bus itself. When the
+  controller falls silent for `service.input_timeout_s` the loop holds the present position;
+  while the bus is down it writes nothing and the service is "degraded".
+- `fixation` (`FixationThread`): exploratory fixations (`calib_free.fixation`) on a
+  `DriverHead` whose bus is the loop (`LoopBus`) and whose pairs come from the capture
+  threads (`StereoPairSource`); taught fixations go to the adapter.
+- `gaze-adapter` (`calib_free.adapter.MapAdapter`): learns from a bounded queue;
+  checkpoints the map atomically every `service.checkpoint_every` adaptations.
+- `status-server` (`headctl.status.StatusServer`): the daemon's state as JSON on a unix
+  socket in the state directory.
+
+The main thread handles SIGTERM/SIGINT and systemd's notifications (READY, STATUS,
+WATCHDOG, STOPPING), which are written to `$NOTIFY_SOCKET` directly (`SystemdNotifier`).
+"""
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from calib_free import GazeMap
+from calib_free.adapter import MapAdapter, Sample
+from calib_free.errors import MapFileError
+from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError
+from calib_free.gaze_map import AdaptResult
+from drivers.camera import Camera, StereoPair, create_camera
+from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, DriverError, JointLimitError,
+                            ServoHardwareError)
+from drivers.servo_bus import JOINTS, BusState, ServoBus, create_servo_bus
+from headctl.config import HeadConfig
+from headctl.errors import HeadctlError
+from headctl.head import DriverHead, StereoPairSource
+
+log = logging.getLogger(__name__)
+
+REFUSED_BUS_DOWN = "servo bus down"
+REFUSED_SERVO_FAULT = "servo fault"
+REFUSED_SHUTDOWN = "aborted at shutdown"
+
+
+class ShutdownError(HeadctlError):
+    """The daemon is stopping: the fixation in progress is aborted."""
+
+
+class StaleStateError(HeadctlError, TimeoutError):
+    """The servo loop produced no fresh state in time."""
+
+
+def _percentiles(values: Any, qs: tuple[float, ...]) -> list[float | None]:
+    arr = np.asarray(list(values), dtype=float)
+    return [float(np.percentile(arr, q)) if len(arr) else None for q in qs]
+
+
+# --- the servo I/O loop ------------------------------------------------------------------------
+class _WriteRequest:
+    def __init__(self, goals: Mapping[str, float]) -> None:
+        self.goals = dict(goals)
+        self.done = threading.Event()
+        self.sent: dict[str, float] | None = None
+        self.error: BaseException | None = None
+
+
+class ServoLoop(threading.Thread):
+    """One read and one write per cycle at a fixed rate; the bus's only user while it runs."""
+
+    def __init__(self, bus: ServoBus, rate_hz: float = 100.0, input_timeout_s: float = 0.5,
+                 history: int = 6000) -> None:
+        super().__init__(name="servo-io", daemon=True)
+        self.bus = bus
+        self.period_s = 1.0 / rate_hz
+        self.input_timeout_s = input_timeout_s
+        self._stop_event = threading.Event()
+        self._cond = threading.Condition()
+        self._state: BusState | None = None
+        self._state_seq = 0
+        self._goals: dict[str, float] = {}  # the latest-value slot: what each cycle writes
+        self._requests: list[_WriteRequest] = []
+        self._last_input_s = time.monotonic()
+        self._holding = False
+        self.down_reason: str | None = None
+        self.faults: dict[str, tuple[str, ...]] = {}
+        self.error: BaseException | None = None
+        self.cycles = 0
+        self.overruns = 0
+        self.periods_s: collections.deque[float] = collections.deque(maxlen=history)
+        self.last_cycle_s = time.monotonic()
+
+    # -- what the controller calls (through LoopBus) ----------------------------------------
+    def touch(self) -> None:
+        self._last_input_s = time.monotonic()
+
+    def fresh_state(self, timeout_s: float = 1.0) -> BusState:
+        """The first state read after this call."""
+        self.touch()
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            seq = self._state_seq
+            while self._state_seq == seq:
+                remaining = deadline - time.monotonic()
+                if self.down_reason is not None:
+                    raise BusDownError(f"{self.bus.name}: {self.down_reason}")
+                if remaining <= 0 or not self.is_alive():
+                    raise StaleStateError(f"{self.bus.name}: no servo state within {timeout_s} s")
+                self._cond.wait(min(remaining, 0.05))
+            assert self._state is not None
+            return self._state
+
+    def latest_state(self) -> BusState | None:
+        with self._cond:
+            return self._state
+
+    def request_goals(self, goals: Mapping[str, float], timeout_s: float = 1.0) -> dict[str, float]:
+        """Have the next cycle write `goals` (the bus checks the limits); what was sent, or its error."""
+        self.touch()
+        request = _WriteRequest(goals)
+        with self._cond:
+            if self.down_reason is not None:
+                raise BusDownError(f"{self.bus.name}: {self.down_reason}")
+            self._requests.append(request)
+        if not request.done.wait(timeout_s):
+            with self._cond:
+                if request in self._requests:
+                    self._requests.remove(request)
+            raise StaleStateError(f"{self.bus.name}: goals not written within {timeout_s} s")
+        if request.error is not None:
+            raise request.error
+        assert request.sent is not None
+        return request.sent
+
+    def goals(self) -> dict[str, float]:
+        with self._cond:
+            return dict(self._goals)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self._stop_event.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+            if self.is_alive():
+                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
+
+    # -- the loop ------------------------------------------------------------------------
+    def run(self) -> None:
+        next_s = time.monotonic()
+        previous_s: float | None = None
+        try:
+            while not self._stop_event.is_set():
+                started = time.monotonic()
+                if previous_s is not None:
+                    self.periods_s.append(started - previous_s)
+                previous_s = started
+                self._cycle()
+                self.cycles += 1
+                self.last_cycle_s = time.monotonic()
+                next_s += self.period_s
+                delay = next_s - time.monotonic()
+                if delay < 0:
+                    self.overruns += 1
+                    next_s = time.monotonic()  # no burst of catch-up cycles
+                    continue
+                self._stop_event.wait(delay)
+        except Exception as err:  # reported through the status, never lost
+            self.error = err
+            log.exception("%s: the servo loop failed", self.name)
+        finally:
+            with self._cond:
+                for request in self._requests:
+                    request.error = ShutdownError(f"{self.name}: the servo loop stopped")
+                    request.done.set()
+                self._requests.clear()
+                self._cond.notify_all()
+
+    def _cycle(self) -> None:
+        try:
+            state = self.bus.read_state()
+        except BusDownError as err:
+            self._went_down(str(err))
+            return
+        except DriverError as err:  # a failed read: nothing is written on a stale state
+            log.warning("%s: read failed: %s", self.name, err)
+            self._fail_requests(err)
+            return
+        if self.down_reason is not None:
+            log.warning("%s: servo bus back; motion resumes", self.name)
+            self.down_reason = None
+            with self._cond:
+                self._goals = {}  # the bus restored torque at the positions read back
+        faults = state.faults
+        with self._cond:
+            for joint in faults:
+                if joint not in self.faults:
+                    # That joint is held where it is; the fault is reported in the status.
+                    log.error("%s: %s reports %s: joint held", self.name, self.bus.describe(joint),
+                              ", ".join(faults[joint]))
+                    self._goals[joint] = state[joint].position
+            self.faults = faults
+            self._state = state
+            self._state_seq += 1
+            requests, self._requests = self._requests, []
+            self._cond.notify_all()
+        stale = time.monotonic() - self._last_input_s > self.input_timeout_s
+        if stale and not self._holding and self._goals:
+            log.info("%s: no input for %.2f s: holding the present position", self.name, self.input_timeout_s)
+            with self._cond:
+                self._goals = {j: state[j].position for j in self._goals}
+        self._holding = stale
+        self._write(state, requests)
+
+    def _write(self, state: BusState, requests: list[_WriteRequest]) -> None:
+        with self._cond:
+            for request in requests:
+                self._goals.update(request.goals)
+            goals = {j: a for j, a in self._goals.items() if state[j].torque_on}
+        if not goals:
+            for request in requests:
+                request.error = ServoHardwareError(f"{self.bus.name}: torque off on {', '.join(request.goals)}")
+                request.done.set()
+            return
+        try:
+            sent = self.bus.write_goals(goals)
+        except (JointLimitError, ServoHardwareError) as err:
+            # Refused as a whole (limit policy 'refuse', a faulted joint): drop the new goals.
+            with self._cond:
+                for request in requests:
+                    for joint in request.goals:
+                        self._goals[joint] = state[joint].position
+            self._fail_requests(err, requests)
+            return
+        except BusDownError as err:
+            self._went_down(str(err))
+            self._fail_requests(err, requests)
+            return
+        except DriverError as err:
+            log.warning("%s: write failed: %s", self.name, err)
+            self._fail_requests(err, requests)
+            return
+        with self._cond:
+            self._goals.update(sent)
+        for request in requests:
+            request.sent = {j: sent[j] for j in request.goals if j in sent}
+            if len(request.sent) != len(request.goals):
+                request.error = ServoHardwareError(
+                    f"{self.bus.name}: {', '.join(set(request.goals) - set(sent))} held (torque off)")
+            request.done.set()
+
+    def _went_down(self, reason: str) -> None:
+        if self.down_reason is None:
+            log.error("%s: servo bus down (%s): motion paused until it is back", self.name, reason)
+        self.down_reason = reason
+        self._fail_requests(BusDownError(reason))
+
+    def _fail_requests(self, err: BaseException, requests: list[_WriteRequest] | None = None) -> None:
+        if requests is None:
+            with self._cond:
+                requests, self._requests = self._requests, []
+                self._cond.notify_all()
+        for request in requests:
+            request.error = err
+            request.done.set()
+
+    def timing(self) -> dict[str, Any]:
+        periods = list(self.periods_s)
+        p50, p99 = _percentiles(periods, (50, 99))
+        jitter = [abs(p - self.period_s) for p in periods]
+        j50, j99 = _percentiles(jitter, (50, 99))
+        ms = (lambda v: None if v is None else round(v * 1e3, 3))
+        return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
+                "period_p50_ms": ms(p50), "period_p99_ms": ms(p99),
+                "jitter_p50_ms": ms(j50), "jitter_p99_ms": ms(j99)}
+
+
+class LoopBus:
+    """What `DriverHead` sees as its bus: the servo loop's states and goal slot.
+
+    `read_state()` gives the first state read after the call; `write_goals()` returns once the
+    loop has written the goals (as the bus clamped them) or raises the bus's error. Both raise
+    `ShutdownError` once the daemon stops, which aborts the fixation in progress.
+    """
+
+    def __init__(self, loop: ServoLoop, abort: threading.Event) -> None:
+        self.loop = loop
+        self.config = loop.bus.config
+        self.name = loop.bus.name
+        self.abort = abort
+
+    def _check(self) -> None:
+        if self.abort.is_set():
+            raise ShutdownError("the daemon is stopping")
+
+    def read_state(self) -> BusState:
+        self._check()
+        return self.loop.fresh_state()
+
+    def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+        self._check()
+        return self.loop.request_goals(goals)
+
+
+class AbortablePairSource(StereoPairSource):
+    """`StereoPairSource` that waits in short slices so a stopping daemon is not held up, and
+    remembers when the last pair it gave was exposed (frame-to-command latency)."""
+
+    def __init__(self, pair: StereoPair, abort: threading.Event, slice_s: float = 0.1) -> None:
+        super().__init__(pair)
+        self.abort = abort
+        self.slice_s = slice_s
+        self.last_pair_time_s: float | None = None
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self.abort.is_set():
+                raise ShutdownError("the daemon is stopping")
+            remaining = deadline - time.monotonic()
+            try:
+                frames = self.pair.wait_pair(after_s, max(0.0, min(self.slice_s, remaining)))
+            except CameraTimeoutError as err:
+                if remaining <= self.slice_s:
+                    raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+                continue
+            except CameraError as err:  # a failed stream: no pair, the fixation is refused
+                raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+            self.last_pair_time_s = max(frames.left.time_s, frames.right.time_s)
+            return frames.left.image, frames.right.image
+
+
+class ObservedHead(DriverHead):
+    """`DriverHead` that says which phase of a fixation it is in, and times vergence commands."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.phase = "idle"
+        self.vergence_latency_s: collections.deque[float] = collections.deque(maxlen=2000)
+
+    def move_to(self, pose: np.ndarray) -> np.ndarray:
+        self.phase = "saccade"
+        return super().move_to(pose)
+
+    def verge_to(self, vergence: float) -> float:
+        self.phase = "fine vergence"
+        v = super().verge_to(vergence)
+        frame_s = getattr(self.pairs, "last_pair_time_s", None)
+        if frame_s is not None:  # from the exposure of the pair it reacts to until the goal was on the bus
+            self.vergence_latency_s.append(time.monotonic() - frame_s)
+        return v
+
+    def wait_settled(self, timeout_s: float) -> float:
+        if self.phase in ("idle", "choosing target"):
+            self.phase = "at rest"
+        return super().wait_settled(timeout_s)
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        phase = self.phase
+        self.phase = f"{phase}: waiting for frames" if ":" not in phase else phase
+        try:
+            return super().wait_pair(after_s, timeout_s)
+        finally:
+            self.phase = phase
+
+
+# --- the fixation controller thread -----------------------------------------------------------
+class FixationThread(threading.Thread):
+    """Exploratory fixations, back to back or at `rate_hz`, paused while the bus is down."""
+
+    def __init__(self, controller: FixationController, head: ObservedHead, adapter: MapAdapter,
+                 loop: ServoLoop, abort: threading.Event, explore: bool = True, rate_hz: float = 0.0,
+                 on_record: Callable[[FixationRecord], None] | None = None) -> None:
+        super().__init__(name="fixation", daemon=True)
+        self.controller = controller
+        self.head = head
+        self.adapter = adapter
+        self.loop = loop
+        self.abort = abort
+        self.explore = explore
+        self.min_interval_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self.on_record = on_record
+        self.done = 0
+        self.taught = 0
+        self.refused: collections.Counter[str] = collections.Counter()
+        self.last: FixationRecord | None = None
+        self.error: BaseException | None = None
+        self._lock = threading.Lock()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self.abort.set()
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+            if self.is_alive():
+                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
+
+    def counts(self) -> dict[str, Any]:
+        with self._lock:
+            return {"done": self.done, "taught": self.taught, "refused": dict(self.refused)}
+
+    def run(self) -> None:
+        try:
+            while not self.abort.is_set():
+                if not self.explore:
+                    self.head.phase = "idle (exploration off)"
+                    self.abort.wait(0.2)
+                    continue
+                if self.loop.down_reason is not None:
+                    self.head.phase = "paused (servo bus down)"
+                    self.abort.wait(0.05)
+                    continue
+                started = time.monotonic()
+                self._one()
+                wait_s = self.min_interval_s - (time.monotonic() - started)
+                if wait_s > 0:
+                    self.head.phase = "idle"
+                    self.abort.wait(wait_s)
+        except Exception as err:  # reported through the status, never lost
+            self.error = err
+            log.exception("%s: the fixation controller failed", self.name)
+        finally:
+            self.head.phase = "stopped"
+
+    def _one(self) -> None:
+        self.head.phase = "choosing target"
+        try:
+            record = self.controller.fixate()
+        except ShutdownError:
+            self._count(REFUSED_SHUTDOWN)
+            return
+        except (BusDownError, StaleStateError) as err:
+            log.info("fixation aborted: %s", err)
+            self._count(REFUSED_BUS_DOWN)
+            return
+        except (ServoHardwareError, JointLimitError, DriverError) as err:
+            log.warning("fixation aborted: %s", err)
+            self._count(REFUSED_SERVO_FAULT)
+            self.abort.wait(0.2)
+            return
+        finally:
+            self.head.phase = "idle"
+        if record.taught:
+            self.adapter.submit(Sample(record.position, record.executed, record.confidence, tag=record.index))
+        self._count(record.outcome, record)
+
+    def _count(self, outcome: str, record: FixationRecord | None = None) -> None:
+        with self._lock:
+            self.done += 1
+            if outcome == "taught":
+                self.taught += 1
+            else:
+                self.refused[outcome] += 1
+            if record is not None:
+                self.last = record
+        if record is not None and self.on_record is not None:
+            self.on_record(record)
+
+
+# --- persistence ---------------------------------------------------------------------------------
+def restore_map(config: HeadConfig) -> tuple[GazeMap, str, list[str]]:
+    """The saved map (or its .prev, or a fresh random one); where it came from; problems found.
+
+    A corrupt or incompatible main file is moved aside to `<path>.bad` so the next checkpoint
+    does not keep it as `.prev`.
+    """
+    path = config.map_path
+    wanted = config.map_params()
+    problems: list[str] = []
+    moved_aside = False
+    for candidate in (path, Path(f"{path}.prev")):
+        if not candidate.exists():
+            continue
+        try:
+            gm = GazeMap.load(candidate)
+            if gm.params != wanted:
+                raise MapFileError(f"{candidate}: saved for other map parameters (image size {gm.params.image_size}, "
+                                   f"grid {gm.params.grid_shape}, profile {gm.params.profile}) than {config.path} sets")
+        except MapFileError as err:
+            log.error("gaze map: %s", err)
+            problems.append(str(err))
+            if candidate == path:
+                os.replace(path, f"{path}.bad")
+                moved_aside = True
+            continue
+        log.info("gaze map restored from %s (%d adaptations)", candidate, gm.adaptations)
+        if moved_aside:
+            gm.save(path, keep_previous=False)
+        return gm, str(candidate), problems
+    log.info("gaze map: none saved in %s; starting from a random map (seed %d)", config.state_dir,
+             config.gaze_map.seed)
+    return GazeMap(wanted, seed=config.gaze_map.seed), "new", problems
+
+
+class Checkpointer:
+    """Atomic map checkpoints every N adaptations (on the adapter thread) and at shutdown."""
+
+    def __init__(self, adapter: MapAdapter, path: Path, every: int) -> None:
+        self.adapter = adapter
+        self.path = path
+        self.every = every
+        self.count = 0
+        self.last_adaptations = -1
+        self.last_time_s: float | None = None
+        self.last_duration_s: float | None = None
+        self.error: str | None = None
+        self._lock = threading.Lock()
+
+    def maybe(self, adaptations: int) -> None:
+        if adaptations > 0 and adaptations % self.every == 0:
+            self.save()
+
+    def save(self) -> None:
+        with self._lock:
+            started = time.monotonic()
+            try:
+                adaptations = self.adapter.with_map(self._save_map)
+            except OSError as err:
+                self.error = f"{self.path}: checkpoint failed: {err}"
+                log.error("%s", self.error)
+                return
+            self.error = None
+            self.count += 1
+            self.last_adaptations = int(adaptations)
+            self.last_time_s = time.time()
+            self.last_duration_s = time.monotonic() - started
+            log.info("gaze map checkpoint %d: %s (%d adaptations, %.0f ms)", self.count, self.path,
+                     adaptations, self.last_duration_s * 1e3)
+
+    def _save_map(self, gm: GazeMap) -> int:
+        gm.save(self.path)
+        return gm.adaptations
+
+
+# --- systemd --------------------------------------------------------------------------------
+class SystemdNotifier:
+    """sd_notify(3) without a dependency: one datagram to `$NOTIFY_SOCKET` per call.
+
+    Written here rather than taken from the `sdnotify` package: the protocol is one `sendto`
+    (abstract socket names start with '@'), and the watchdog interval comes from
+    `$WATCHDOG_USEC`, which that package does not read.
+    """
+
+    def __init__(self, environ: Mapping[str, str] | None = None) -> None:
+        env = os.environ if environ is None else environ
+        address = env.get("NOTIFY_SOCKET", "")
+        self.address = "\0" + address[1:] if address.startswith("@") else address
+        usec = env.get("WATCHDOG_USEC", "")
+        pid = env.get("WATCHDOG_PID", "")
+        self.watchdog_s = int(usec) / 1e6 if usec.isdigit() and (not pid or pid == str(os.getpid())) else None
+        self._sock: socket.socket | None = None
+        if self.address:
+            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+
+    @property
+    def enabled(self) -> bool:
+        return self._sock is not None
+
+    def notify(self, **fields: Any) -> None:
+        if self._sock is None:
+            return
+        message = "\n".join(f"{k.upper()}={v}" for k, v in fields.items())
+        try:
+            self._sock.sendto(message.encode(), self.address)
+        except OSError as err:
+            log.warning("sd_notify to %s failed: %s", self.address.lstrip("\0"), err)
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+# --- the daemon -------------------------------------------------------------------------------
+class Daemon:
+    """The service for one head; `run()` blocks until SIGTERM/SIGINT (or `request_stop()`)."""
+
+    def __init__(self, config: HeadConfig) -> None:
+        self.config = config
+        self.stop_event = threading.Event()
+        self.abort = threading.Event()
+        self.started_s = time.monotonic()
+        self.phase = "starting"
+        self.bus: ServoBus | None = None
+        self.cameras: dict[str, Camera] = {}
+        self.pair: StereoPair | None = None
+        self.loop: ServoLoop | None = None
+        self.adapter: MapAdapter | None = None
+        self.fixation: FixationThread | None = None
+        self.head: ObservedHead | None = None
+        self.checkpointer: Checkpointer | None = None
+        self.map_source = ""
+        self.map_problems: list[str] = []
+        self.adaptations_run = 0
+        self.recent_output_errors: collections.deque[np.ndarray] = collections.deque(maxlen=10)
+        self.camera_stalled: set[str] = set()  # simulated cameras stalled by fault injection
+        self.notifier = SystemdNotifier()
+        self.status_server: Any = None
+
+    # -- building ------------------------------------------------------------------------
+    def _build_bus(self) -> ServoBus:
+        if self.config.simulated:
+            from drivers.sim_servo import SimulatedServoBus
+            # The simulated head starts with the eyes slightly converged, as the experiments' rig.
+            return SimulatedServoBus(self.config.servo_bus, initial_positions={
+                "pan": 0.0, "tilt": 0.0, "left_eye": 5.0, "right_eye": -5.0})
+        return create_servo_bus(self.config.servo_bus)
+
+    def _camera_resources(self, bus: ServoBus) -> dict[str, dict[str, Any]]:
+        cams = self.config.cameras
+        if cams.left.backend != "sim":
+            return {}
+        from headctl.online import SimulatedHeadRig
+
+        head = SimulatedHeadRig.geometry(int(cams.left.width), int(cams.left.height), cams.left.lens)
+
+        def pose_source(side: str) -> Callable[[], dict[str, float]]:
+            def pose() -> dict[str, float]:
+                if side in self.camera_stalled:
+                    raise CameraError(f"camera {side}: stalled (injected fault)")
+                return {j: bus.true_position(j) for j in JOINTS}  # type: ignore[attr-defined]
+            return pose
+
+        return {side: {"head": head, "pose_source": pose_source(side)} for side in ("left", "right")}
+
+    def _on_adapted(self, sample: Sample, result: AdaptResult) -> None:
+        if result.accepted:
+            self.adaptations_run += 1
+            self.recent_output_errors.append(np.asarray(result.output_error, dtype=float))
+        if self.checkpointer is not None and self.adapter is not None:
+            self.checkpointer.maybe(self.adapter.map.adaptations)
+
+    # -- state for `headctl status` ----------------------------------------------------------
+    def faults(self) -> list[str]:
+        out: list[str] = []
+        loop = self.loop
+        if loop is not None:
+            if loop.down_reason is not None:
+                out.append(f"servo bus down: {loop.down_reason}")
+            for joint, meanings in loop.faults.items():
+                out.append(f"{loop.bus.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)")
+            if loop.error is not None:
+                out.append(f"servo loop failed: {loop.error!r}")
+            if loop.is_alive() and time.monotonic() - loop.last_cycle_s > 1.0:
+                out.append(f"servo loop stalled for {time.monotonic() - loop.last_cycle_s:.1f} s")
+        now = time.monotonic()
+        for side, camera in self.cameras.items():
+            latest = camera.latest()
+            if camera.health.value != "streaming":
+                out.append(f"camera {side}: {camera.health.value} ({camera.last_error})")
+            elif self.phase == "running" and (latest is None or now - latest.time_s > 1.0):
+                age = "no frame yet" if latest is None else f"no frame for {now - latest.time_s:.1f} s"
+                out.append(f"camera {side}: stalled, {age} ({camera.last_error})")
+        if self.fixation is not None and self.fixation.error is not None:
+            out.append(f"fixation controller failed: {self.fixation.error!r}")
+        if self.adapter is not None and self.adapter.error is not None:
+            out.append(f"adapter: {self.adapter.error!r}")
+        if self.checkpointer is not None and self.checkpointer.error:
+            out.append(self.checkpointer.error)
+        return out
+
+    def state(self) -> str:
+        if self.phase != "running":
+            return self.phase
+        return "degraded" if self.faults() else "running"
+
+    def status(self) -> dict[str, Any]:
+        loop = self.loop
+        joints: dict[str, Any] = {}
+        state = loop.latest_state() if loop is not None else None
+        goals = loop.goals() if loop is not None else {}
+        if state is not None:
+            for joint, js in state.joints.items():
+                joints[joint] = {"position_deg": round(js.position, 4), "velocity_dps": round(js.velocity, 3),
+                                 "moving": js.moving, "torque_on": js.torque_on, "goal_deg": goals.get(joint),
+                                 "hardware_errors": list(js.hardware_errors),
+                                 "temperature_c": js.temperature_c, "input_voltage_v": js.input_voltage_v}
+        fix = self.fixation
+        counts = fix.counts() if fix is not None else {"done": 0, "taught": 0, "refused": {}}
+        last = fix.last if fix is not None else None
+        learning: dict[str, Any] = {}
+        if self.adapter is not None:
+            def figures(gm: GazeMap) -> dict[str, Any]:
+                recent = list(gm.recent_errors)
+                return {"adaptations": gm.adaptations,
+                        "mean_retinal_error": float(np.mean(recent)) if recent else None,
+                        "recent_retinal_errors": recent}
+            learning = self.adapter.with_map(figures)  # type: ignore[assignment]
+            outs = list(self.recent_output_errors)
+            learning["output_error_deg"] = (np.mean(outs, axis=0).round(4).tolist() if outs else None)
+            learning["adaptations_this_run"] = self.adaptations_run
+            learning["queue_dropped"] = self.adapter.dropped
+        cp = self.checkpointer
+        cameras = {}
+        for side, camera in self.cameras.items():
+            latest = camera.latest()
+            cameras[side] = {"name": camera.name, "health": camera.health.value, "stats": camera.stats(),
+                             "frame_age_s": None if latest is None else round(time.monotonic() - latest.time_s, 3),
+                             "last_error": None if camera.last_error is None else str(camera.last_error)}
+        latency = list(self.head.vergence_latency_s) if self.head is not None else []
+        l50, l99 = _percentiles(latency, (50, 99))
+        return {
+            "state": self.state(),
+            "pid": os.getpid(),
+            "config": str(self.config.path),
+            "uptime_s": round(time.monotonic() - self.started_s, 3),
+            "faults": self.faults(),
+            "joints": joints,
+            "servo_loop": loop.timing() if loop is not None else None,
+            "fixation": {"state": self.head.phase if self.head is not None else self.phase,
+                         "explore": self.config.fixation.explore, **counts,
+                         "last": None if last is None else {"index": last.index, "outcome": last.outcome,
+                                                           "detail": last.detail,
+                                                           "duration_s": round(last.duration_s, 3)},
+                         "vergence_latency_ms": {"count": len(latency),
+                                                 "p50": None if l50 is None else round(l50 * 1e3, 3),
+                                                 "p99": None if l99 is None else round(l99 * 1e3, 3)}},
+            "learning": learning,
+            "map": {"path": str(self.config.map_path), "restored_from": self.map_source,
+                    "problems": self.map_problems,
+                    "checkpoints": cp.count if cp else 0,
+                    "last_checkpoint_adaptations": cp.last_adaptations if cp else None,
+                    "last_checkpoint_ms": (None if not cp or cp.last_duration_s is None
+                                           else round(cp.last_duration_s * 1e3, 1))},
+            "cameras": cameras,
+        }
+
+    # -- fault injection (simulated head only, for tests and demonstrations) ----------------------
+    def inject(self, fault: str, joint: str | None = None, camera: str | None = None,
+               bits: int = 0) -> str:
+        from drivers.sim_servo import SimulatedServoBus
+
+        bus = self.bus
+        if not isinstance(bus, SimulatedServoBus):
+            raise HeadctlError("fault injection needs the simulated head (servo_bus.backend: sim)")
+        if fault == "bus_down":
+            bus.inject_bus_down()
+        elif fault == "restore_bus":
+            bus.restore_bus()
+        elif fault == "hardware_error":
+            if joint not in JOINTS:
+                raise HeadctlError(f"hardware_error needs joint: one of {', '.join(JOINTS)}, got {joint!r}")
+            bus.inject_hardware_error(joint, bits or 0b0010_0000)
+        elif fault in ("camera_stall", "camera_resume"):
+            if camera not in ("left", "right"):
+                raise HeadctlError(f"{fault} needs camera: left or right, got {camera!r}")
+            (self.camera_stalled.add if fault == "camera_stall" else self.camera_stalled.discard)(camera)
+        else:
+            raise HeadctlError(f"unknown fault {fault!r}: expected bus_down, restore_bus, hardware_error, "
+                               "camera_stall, camera_resume")
+        log.warning("injected fault: %s %s", fault, joint or camera or "")
+        return fault
+
+    # -- running -----------------------------------------------------------------------------------
+    def request_stop(self, signum: int | None = None, frame: Any = None) -> None:
+        if signum is not None:
+            log.info("signal %s: stopping", signal.Signals(signum).name)
+        self.stop_event.set()
+
+    def run(self, install_signals: bool = True, on_ready: Callable[["Daemon"], None] | None = None) -> int:
+        from headctl.status import StatusServer
+
+        cfg = self.config
+        if install_signals:
+            signal.signal(signal.SIGTERM, self.request_stop)
+            signal.signal(signal.SIGINT, self.request_stop)
+        cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        with contextlib.ExitStack() as stack:
+            stack.callback(self.notifier.close)
+            self.status_server = stack.enter_context(StatusServer(cfg.socket_path, self))
+            self.notifier.notify(status="starting: restoring the gaze map")
+            gm, self.map_source, self.map_problems = restore_map(cfg)
+            bus = self.bus = self._build_bus()
+            stack.callback(self._close_bus)
+            bus.open()
+            bus.enable()
+            resources = self._camera_resources(bus)
+            for side in ("left", "right"):
+                camera = create_camera(getattr(cfg.cameras, side), name=side, key_path=f"cameras.{side}",
+                                       **resources.get(side, {}))
+                self.cameras[side] = stack.enter_context(camera)
+            self.pair = stack.enter_context(StereoPair(self.cameras["left"], self.cameras["right"],
+                                                       cfg.cameras.tolerance_s))
+            for camera in self.cameras.values():
+                camera.enable()
+            self.loop = ServoLoop(bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s)
+            self.loop.start()
+            stack.callback(self.loop.stop)
+            self.adapter = MapAdapter(gm, on_adapted=self._on_adapted)
+            self.checkpointer = Checkpointer(self.adapter, cfg.map_path, cfg.service.checkpoint_every)
+            self.adapter.start()
+            stack.callback(self.adapter.stop)
+            self.head = ObservedHead(LoopBus(self.loop, self.abort), AbortablePairSource(self.pair, self.abort),
+                                     clock=bus.clock, vergence_range=cfg.fixation.vergence_range)
+            controller = FixationController(self.head, self.adapter, cfg.fixation.params,
+                                            seed=None if not cfg.simulated else cfg.gaze_map.seed)
+            self.fixation = FixationThread(controller, self.head, self.adapter, self.loop, self.abort,
+                                           cfg.fixation.explore, cfg.fixation.rate_hz)
+            self.fixation.start()
+            stack.callback(self.fixation.stop)
+            self.phase = "running"
+            log.info("headctl running: %s, state in %s, status socket %s", cfg.path, cfg.state_dir,
+                     cfg.socket_path)
+            self.notifier.notify(ready=1, status=self._status_line())
+            if on_ready is not None:
+                on_ready(self)
+            self._supervise()
+            self._shutdown()
+        log.info("headctl stopped")
+        return 0
+
+    def _status_line(self) -> str:
+        fix = self.fixation.counts() if self.fixation is not None else {"done": 0, "taught": 0}
+        faults = self.faults()
+        adaptations = self.adapter.map.adaptations if self.adapter is not None else 0
+        line = f"{self.state()}: {fix['done']} fixations, {fix['taught']} taught, {adaptations} adaptations"
+        return line + (f"; {faults[0]}" if faults else "")
+
+    def _supervise(self) -> None:
+        """The main thread: systemd STATUS and WATCHDOG until asked to stop."""
+        watchdog_s = self.notifier.watchdog_s
+        interval_s = min(1.0, watchdog_s / 3) if watchdog_s else 1.0
+        last_line = ""
+        while not self.stop_event.wait(interval_s):
+            line = self._status_line()
+            fields: dict[str, Any] = {}
+            if line != last_line:
+                fields["status"] = line
+                last_line = line
+            loop = self.loop
+            # Only a live servo loop keeps systemd from restarting the service.
+            if watchdog_s and loop is not None and loop.is_alive() and time.monotonic() - loop.last_cycle_s < 1.0:
+                fields["watchdog"] = 1
+            if fields:
+                self.notifier.notify(**fields)
+
+    def _shutdown(self) -> None:
+        started = time.monotonic()
+        self.phase = "stopping"
+        self.notifier.notify(stopping=1, status="stopping: finishing the fixation, saving the gaze map")
+        budget = self.config.service.shutdown_timeout_s
+        if self.fixation is not None:
+            self.fixation.stop(timeout_s=min(2.0, budget / 2))
+        if self.adapter is not None:
+            self.adapter.wait_idle(timeout_s=0.5)
+            self.adapter.stop(timeout_s=0.5)
+        if self.checkpointer is not None:
+            self.checkpointer.save()
+        self._safe_state()
+        log.info("shutdown took %.2f s", time.monotonic() - started)
+
+    def _safe_state(self) -> None:
+        loop, bus = self.loop, self.bus
+        if loop is not None:
+            state = loop.latest_state()
+            if state is not None and loop.down_reason is None and loop.is_alive():
+                try:
+                    loop.request_goals({j: state[j].position for j in JOINTS if state[j].torque_on}, timeout_s=0.5)
+                except (DriverError, HeadctlError) as err:
+                    log.warning("could not hold the present position at shutdown: %s", err)
+            loop.stop()
+        if bus is not None and self.config.service.safe_state == "torque_off":
+            try:
+                bus.disable()
+            except DriverError as err:
+                log.warning("could not turn torque off at shutdown: %s", err)
+
+    def _close_bus(self) -> None:
+        if self.bus is not None:
+            self.bus.close()

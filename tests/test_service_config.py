@@ -1,0 +1,138 @@
+"""The head's YAML config (headctl.config) and `headctl check`."""
+from __future__ import annotations
+
+import pathlib
+
+import pytest
+import yaml
+
+from calib_free.fixation import FixationParams
+from headctl.cli import main
+from headctl.config import DEFAULT_CONFIG, load_config
+from headctl.errors import ConfigError
+
+CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
+EXAMPLES = ["sim.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]
+
+
+def _write(tmp_path, data, name="head.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _sim():
+    return yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_every_example_config_parses_into_typed_objects(name):
+    config = load_config(CONFIGS / name)
+    assert set(config.servo_bus.joints) == {"pan", "tilt", "left_eye", "right_eye"}
+    assert isinstance(config.fixation.params, FixationParams)
+    assert config.map_params().image_size == config.image_size
+    assert config.service.servo_rate_hz == 100.0
+    assert config.state_dir.is_absolute()
+
+
+def test_the_default_config_is_the_simulated_head():
+    config = load_config()
+    assert config.path == DEFAULT_CONFIG and config.simulated
+    assert config.cameras.left.backend == config.cameras.right.backend == "sim"
+    assert config.fixation.explore and config.fixation.vergence_range == (1.0, 20.0)
+
+
+def test_fixation_and_map_keys_reach_their_parameters(tmp_path):
+    data = _sim()
+    data["fixation"].update(vergence_tolerance_px=0.5, exploration_step_deg=[10, 5, 4], rate_hz=2,
+                            correspondence={"patch_size": [16, 16]}, explore=False)
+    data["gaze_map"].update(profile="paper", grid_shape=[50, 40, 11], adaptation_rate=0.4,
+                            command_range=[[-40, 40], [-30, 30], [-15, 15]])
+    data["service"].update(checkpoint_every=7, safe_state="torque_off")
+    config = load_config(_write(tmp_path, data))
+    assert config.fixation.params.vergence_tolerance_px == 0.5
+    assert config.fixation.params.exploration_step_deg == (10.0, 5.0, 4.0)
+    assert config.fixation.params.correspondence.patch_size == (16, 16)
+    assert (config.fixation.explore, config.fixation.rate_hz) == (False, 2.0)
+    params = config.map_params()
+    assert (params.profile, params.grid_shape, params.adaptation_rate) == ("paper", (50, 40, 11), 0.4)
+    assert params.command_range == ((-40.0, 40.0), (-30.0, 30.0), (-15.0, 15.0))
+    assert not params.interpolate  # the paper profile's values, then the overrides
+    assert (config.service.checkpoint_every, config.service.safe_state) == (7, "torque_off")
+
+
+def test_a_relative_state_dir_is_relative_to_the_config_file(tmp_path):
+    data = _sim()
+    data["state_dir"] = "state"
+    assert load_config(_write(tmp_path, data)).state_dir == tmp_path.resolve() / "state"
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(colour=True), "(top level).colour: got True, expected no such key"),
+    (lambda d: d["fixation"].update(rate=3), "fixation.rate: got 3, expected no such key"),
+    (lambda d: d["fixation"].update(rate_hz="fast"), "fixation.rate_hz: got 'fast', expected a number"),
+    (lambda d: d["fixation"].update(exploration_step_deg=[1, 2]),
+     "fixation.exploration_step_deg: got [1, 2], expected a list of 3 (a number, a number, a number)"),
+    (lambda d: d["fixation"].update(confidence_floor=2.0), "fixation: got {'confidence_floor': 2.0}"),
+    (lambda d: d["fixation"]["correspondence"] if False else d["fixation"].update(correspondence={"patch": 3}),
+     "fixation.correspondence.patch: got 3, expected no such key"),
+    (lambda d: d["gaze_map"].update(profile="fast"), "gaze_map.profile: got 'fast', expected default or paper"),
+    (lambda d: d["gaze_map"].update(grid_shape=[10, 10]), "gaze_map.grid_shape: got [10, 10], expected a list of 3"),
+    (lambda d: d["gaze_map"].update(image_size=[10, 10]), "gaze_map.image_size: got [10, 10], expected no such key"),
+    (lambda d: d["service"].update(servo_rate_hz=5000), "service: got"),
+    (lambda d: d["service"].update(safe_state="limp"), "safe_state: got 'limp', expected hold or torque_off"),
+    (lambda d: d["logging"].update(level="LOUD"), "logging.level: got 'LOUD', expected DEBUG or INFO"),
+    (lambda d: d["servo_bus"]["joints"]["pan"].update(idd=3), "servo_bus.joints.pan.idd: unknown key"),
+    (lambda d: d["servo_bus"].update(baud=12), "servo_bus.baud: got 12, expected one of"),
+    (lambda d: d["cameras"]["left"].update(fps="fast"), "cameras.left.fps: got 'fast', expected a number"),
+    (lambda d: d["cameras"]["left"].pop("width"), "cameras.left.width: got None, expected the image size"),
+    (lambda d: d["cameras"]["right"].update(seed=3), "cameras.right.seed: got 3, expected 0 like cameras.left"),
+    (lambda d: d["servo_bus"].update(backend="dynamixel"),
+     "cameras.left.backend: got 'sim', expected a real camera backend"),
+    (lambda d: d.pop("cameras"), "cameras: got None, expected a cameras: section"),
+    (lambda d: d.update(state_dir=3), "state_dir: got 3, expected a string"),
+])
+def test_errors_name_the_file_the_key_path_the_value_and_what_was_expected(tmp_path, edit, message):
+    data = _sim()
+    edit(data)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value).startswith(f"{path}: ")
+    assert message in str(err.value)
+
+
+def test_unreadable_and_invalid_yaml_name_the_file(tmp_path):
+    with pytest.raises(ConfigError, match="missing.yaml: cannot read"):
+        load_config(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("servo_bus: [\n")
+    with pytest.raises(ConfigError, match="bad.yaml: not valid YAML"):
+        load_config(bad)
+
+
+def test_check_validates_connects_and_reports_each_servo_and_camera(capsys):
+    assert main(["check"]) == 0
+    out = capsys.readouterr().out
+    assert "configs/sim.yaml: valid" in out
+    for joint, servo_id in (("pan", 1), ("tilt", 2), ("left_eye", 3), ("right_eye", 4)):
+        assert f"joint {joint} (id {servo_id})" in out
+    assert "camera left (sim left): 320 x 240" in out and "camera right (sim right): 320 x 240" in out
+    assert out.rstrip().endswith("check: OK")
+
+
+def test_check_reports_a_missing_servo_adapter(tmp_path, capsys):
+    path = CONFIGS / "usb-webcams.yaml"
+    data = yaml.safe_load(path.read_text())
+    data["servo_bus"]["port"] = str(tmp_path / "no-such-adapter")
+    assert main(["check", "--config", str(_write(tmp_path, data))]) == 1
+    out = capsys.readouterr().out
+    assert "servo bus: FAILED" in out and "no-such-adapter" in out
+
+
+def test_check_refuses_an_invalid_file_with_exit_2(tmp_path, capsys):
+    data = _sim()
+    data["fixation"]["rate_hz"] = -1
+    path = _write(tmp_path, data)
+    assert main(["check", "--config", str(path), "--no-connect"]) == 2
+    assert f"{path}: fixation.rate_hz: got -1.0, expected a rate >= 0" in capsys.readouterr().err
