@@ -38,11 +38,9 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class OnlineSpec:
-    name: str
-    fixations: int
-    changes: tuple[Change, ...] = ()
-    description: str = ""
+class OnlineSpec(ExperimentSpec):
+    """An experiment on images; `executed_command` as in `FixationParams`."""
+
     executed_command: str = "encoders"
 
 
