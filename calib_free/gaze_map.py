@@ -8,12 +8,14 @@ Gaussian neighbourhood whose widths follow the windowed mean retinal error (eqs.
 
 Two profiles:
   - `paper`: the paper's rule as written, with Table I's values: nearest-node readout and
-    inverse lookup, fixed adaptation rate alpha, target m for every node in the
+    inverse lookup, a fixed adaptation rate alpha, target m for every node in the
     neighbourhood.
-  - `default`: the same map and the same eqs. 8-9 schedule, with what holds the paper's rule
-    back removed (README, "The learning core"): trilinear readout, sub-node inverse lookup,
-    a first-order (local linear) target so a broad neighbourhood does not smear the map, and
-    per-node rates that average rather than overwrite once a node has seen enough samples.
+  - `default`: the same grid, eqs. 8-11 and schedule, with what holds the paper's rule back
+    removed (README, "Two profiles"): W = P + R, P a cubic polynomial in (x, y, d) fitted by
+    confidence-weighted recursive least squares, R the grid learning P's residual by eqs.
+    10-11; a memory that shrinks when the error jumps (the head changed) and regrows; a
+    Cauchy weight against confident false correspondences; trilinear readout and a sub-node
+    inverse lookup.
 
 Indices: grid coordinates are continuous node indices (i, j, k) along (x, y, d); pixel and
 disparity positions map onto them linearly, node 0 at the range's start and the last node
