@@ -465,6 +465,26 @@ class FixationThread(threading.Thread):
             self.on_record(record)
 
 
+class EventLog(logging.Handler):
+    """The last warnings and errors of every module (bus down, hardware errors, reboots, camera
+    faults), kept for `headctl status`: what the drivers recover from by themselves is still
+    reported."""
+
+    def __init__(self, size: int = 50) -> None:
+        super().__init__(level=logging.WARNING)
+        self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=size)
+        self.counts: collections.Counter[str] = collections.Counter()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            message = record.getMessage()
+        except Exception:  # a bad format string must not break logging
+            message = str(record.msg)
+        self.counts[record.levelname] += 1
+        self.events.append({"time": record.created, "level": record.levelname, "logger": record.name,
+                            "message": message})
+
+
 # --- persistence ---------------------------------------------------------------------------------
 def restore_map(config: HeadConfig) -> tuple[GazeMap, str, list[str]]:
     """The saved map (or its .prev, or a fresh random one); where it came from; problems found.
@@ -604,6 +624,7 @@ class Daemon:
         self.camera_stalled: set[str] = set()  # simulated cameras stalled by fault injection
         self.notifier = SystemdNotifier()
         self.status_server: Any = None
+        self.events = EventLog()
 
     # -- building ------------------------------------------------------------------------
     def _build_bus(self) -> ServoBus:
@@ -731,6 +752,8 @@ class Daemon:
                     "last_checkpoint_ms": (None if not cp or cp.last_duration_s is None
                                            else round(cp.last_duration_s * 1e3, 1))},
             "cameras": cameras,
+            "events": list(self.events.events),
+            "event_counts": dict(self.events.counts),
         }
 
     # -- fault injection (simulated head only, for tests and demonstrations) ----------------------
@@ -775,6 +798,8 @@ class Daemon:
         cfg.state_dir.mkdir(parents=True, exist_ok=True)
         with contextlib.ExitStack() as stack:
             stack.callback(self.notifier.close)
+            logging.getLogger().addHandler(self.events)
+            stack.callback(logging.getLogger().removeHandler, self.events)
             self.status_server = stack.enter_context(StatusServer(cfg.socket_path, self))
             self.notifier.notify(status="starting: restoring the gaze map")
             gm, self.map_source, self.map_problems = restore_map(cfg)

@@ -1,0 +1,183 @@
+"""End to end: `headctl run` on the simulated head (configs/sim.yaml) in a subprocess.
+
+Each test drives the daemon through its status socket (polling with deadlines, never a bare
+sleep): it learns, survives injected faults, stops on SIGTERM within 5 s with the map saved,
+continues from that map after a restart, and a kill -9 during a checkpoint leaves a loadable map.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from calib_free import GazeMap
+from headctl.status import StatusError, query
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SIM = ROOT / "configs" / "sim.yaml"
+
+pytestmark = pytest.mark.timeout(180)
+
+
+class Daemon:
+    """`headctl run` in a subprocess, with a state directory of its own."""
+
+    def __init__(self, state_dir: pathlib.Path, config: pathlib.Path = SIM) -> None:
+        self.state_dir = state_dir
+        self.socket = state_dir / "status.sock"
+        self.log = open(state_dir.parent / f"{state_dir.name}-daemon.log", "ab")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env.pop("NOTIFY_SOCKET", None)
+        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "run", "--config", str(config),
+                                      "--state-dir", str(state_dir)], cwd=ROOT, env=env,
+                                     stdout=self.log, stderr=subprocess.STDOUT)
+
+    def status(self) -> dict:
+        return query(self.socket, timeout_s=5.0)["status"]
+
+    def inject(self, fault: str, **args) -> None:
+        query(self.socket, {"cmd": "inject", "fault": fault, **args})
+
+    def wait(self, predicate, timeout_s: float, what: str) -> dict:
+        """Poll the status until `predicate(status)`; fail with the last status after the deadline."""
+        deadline = time.monotonic() + timeout_s
+        status: dict = {}
+        while time.monotonic() < deadline:
+            assert self.proc.poll() is None, f"the daemon exited with {self.proc.returncode} waiting for {what}"
+            try:
+                status = self.status()
+            except StatusError:
+                status = {}
+            if status and predicate(status):
+                return status
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; last status {status}")
+
+    def terminate(self, timeout_s: float = 5.0) -> tuple[int, float]:
+        started = time.monotonic()
+        self.proc.send_signal(signal.SIGTERM)
+        code = self.proc.wait(timeout_s + 2.0)
+        return code, time.monotonic() - started
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5)
+        self.log.close()
+
+
+@pytest.fixture
+def daemons():
+    started: list[Daemon] = []
+    yield started
+    for d in started:
+        d.kill()
+
+
+def _taught(n):
+    return lambda s: s["state"] in ("running", "degraded") and s["fixation"]["taught"] >= n
+
+
+def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path, daemons):
+    state = tmp_path / "state"
+    d = Daemon(state)
+    daemons.append(d)
+    s = d.wait(_taught(2), 60, "two taught fixations")
+    assert s["state"] == "running" and s["map"]["restored_from"] == "new"
+    assert set(s["joints"]) == {"pan", "tilt", "left_eye", "right_eye"}
+    assert s["servo_loop"]["rate_hz"] == 100.0 and s["servo_loop"]["cycles"] > 50
+    assert s["learning"]["adaptations"] >= 1
+
+    # The servo bus goes down: degraded with the reason, motion paused; back: it resumes.
+    d.inject("bus_down")
+    s = d.wait(lambda s: s["state"] == "degraded" and any("servo bus down" in f for f in s["faults"]),
+               10, "degraded: servo bus down")
+    d.wait(lambda s: s["fixation"]["state"] == "paused (servo bus down)", 10, "fixations paused")
+    d.inject("restore_bus")
+    done = d.wait(lambda s: s["state"] == "running", 15, "running again")["fixation"]["done"]
+    d.wait(lambda s: s["fixation"]["done"] >= done + 2, 30, "fixations after the bus came back")
+
+    # A servo hardware error (overload cuts torque): reported, the servo rebooted as configured.
+    d.inject("hardware_error", joint="tilt", bits=0x20)
+    s = d.wait(lambda s: any("tilt" in e["message"] and "hardware error" in e["message"] for e in s["events"]),
+               10, "the hardware error reported")
+    s = d.wait(lambda s: s["joints"]["tilt"]["torque_on"] and not s["joints"]["tilt"]["hardware_errors"],
+               10, "tilt rebooted, torque back")
+    assert any("tilt" in e["message"] and "rebooting" in e["message"] for e in s["events"])
+
+    # A camera stalls: no fixation completes on stale frames; frames back: it learns again.
+    d.inject("camera_stall", camera="left")
+    s = d.wait(lambda s: any("camera left: stalled" in f for f in s["faults"]), 10, "camera left stalled")
+    taught_at_stall = s["fixation"]["taught"]
+    s = d.wait(lambda s: s["fixation"]["refused"].get("no stereo pair in time", 0) >= 1, 15,
+               "a fixation refused for want of frames")
+    assert s["fixation"]["taught"] <= taught_at_stall + 1  # at most the one that had its frames already
+    d.inject("camera_resume", camera="left")
+    d.wait(lambda s: s["state"] == "running" and s["fixation"]["taught"] >= taught_at_stall + 2, 60,
+           "learning again after the camera came back")
+
+    before = d.status()["learning"]
+    code, seconds = d.terminate()
+    assert code == 0 and seconds < 5.0
+    saved = GazeMap.load(state / "gaze_map.npz")
+    assert saved.adaptations >= before["adaptations"]
+    assert not (state / "status.sock").exists()
+
+    again = Daemon(state)
+    daemons.append(again)
+    s = again.wait(lambda s: s["state"] == "running", 30, "restarted")
+    assert s["map"]["restored_from"] == str(state / "gaze_map.npz")
+    assert s["learning"]["adaptations"] >= saved.adaptations
+    if s["learning"]["adaptations"] == saved.adaptations:  # no new adaptation yet: the same figures
+        assert s["learning"]["recent_retinal_errors"] == pytest.approx(list(saved.recent_errors))
+    again.wait(_taught(1), 60, "learning goes on after the restart")
+    code, seconds = again.terminate()
+    assert code == 0 and seconds < 5.0
+    assert GazeMap.load(state / "gaze_map.npz").adaptations > saved.adaptations
+
+
+def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, daemons):
+    config = yaml.safe_load(SIM.read_text())
+    config["service"]["checkpoint_every"] = 1  # a checkpoint after every adaptation
+    path = tmp_path / "sim-every.yaml"
+    path.write_text(yaml.safe_dump(config))
+    state = tmp_path / "state"
+    d = Daemon(state, path)
+    daemons.append(d)
+    d.wait(lambda s: s["map"]["checkpoints"] >= 1, 60, "a first checkpoint")
+    # Kill the moment a checkpoint's temporary file exists (mid-write), watching the directory.
+    deadline = time.monotonic() + 60
+    while not any(p.name.endswith(".tmp") for p in state.iterdir()):
+        assert time.monotonic() < deadline, "no checkpoint in progress seen within 60 s"
+        assert d.proc.poll() is None
+    d.proc.send_signal(signal.SIGKILL)
+    d.proc.wait(5)
+    gm = GazeMap.load(state / "gaze_map.npz")
+    assert gm.adaptations >= 1
+    again = Daemon(state, path)
+    daemons.append(again)
+    s = again.wait(lambda s: s["state"] == "running", 30, "restarted after kill -9")
+    assert s["map"]["restored_from"] == str(state / "gaze_map.npz") and not s["map"]["problems"]
+    assert again.terminate()[0] == 0
+
+
+def test_status_command_prints_the_state_and_fails_without_a_daemon(tmp_path, daemons, capsys):
+    from headctl.cli import main
+
+    assert main(["status", "--state-dir", str(tmp_path / "none")]) == 1
+    assert "no status socket" in capsys.readouterr().err
+    state = tmp_path / "state"
+    d = Daemon(state)
+    daemons.append(d)
+    d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 1, 30, "a fixation")
+    assert main(["status", "--state-dir", str(state)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("running") and "servo loop: 100.0 Hz" in out and "fixation:" in out
+    assert "camera left: streaming" in out
+    assert d.terminate()[0] == 0
