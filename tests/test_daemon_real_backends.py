@@ -1,0 +1,76 @@
+"""The same daemon on the real backends' paths: the Dynamixel backend through dynamixel-sdk
+against the servo emulator on a pty (another process, real time), a GenICam camera through
+Aravis (its in-process Fake camera) and a V4L2-style OpenCV camera (a video file)."""
+from __future__ import annotations
+
+import pathlib
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from test_daemon_e2e import ROOT, Daemon
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    link = tmp_path / "head-servos"
+    proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "emulate-servos", "--ids", "1,2,3,4",
+                             "--baud", "1000000", "--link", str(link)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    assert proc.stdout is not None
+    proc.stdout.readline()  # the pty path: the emulator is serving
+    deadline = time.monotonic() + 10
+    while not link.exists():
+        assert time.monotonic() < deadline and proc.poll() is None, "the emulator did not start"
+        time.sleep(0.01)
+    yield link
+    proc.terminate()
+    proc.wait(5)
+
+
+@pytest.fixture
+def video(tmp_path):
+    path = tmp_path / "right.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (320, 240))
+    assert writer.isOpened()
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        writer.write(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video):
+    config = yaml.safe_load((ROOT / "configs" / "xm430-u2d2-aravis.yaml").read_text())
+    config["servo_bus"].update(port=str(emulator), latency_timer_ms=8, watchdog_ms=0)
+    config["cameras"] = {
+        "left": {"backend": "aravis", "id": "Fake_1", "width": 320, "height": 240, "fps": 30},
+        "right": {"backend": "opencv", "device": str(video), "width": 320, "height": 240, "fps": 30},
+        "tolerance_s": 0.02,
+    }
+    config["fixation"].update(rate_hz=0, settle_timeout_s=2.0, frame_timeout_s=1.0)
+    config["service"]["safe_state"] = "torque_off"
+    path = tmp_path / "emulated.yaml"
+    path.write_text(yaml.safe_dump(config))
+
+    d = Daemon(tmp_path / "state", path)
+    try:
+        s = d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 2, 60, "two fixations")
+        assert s["servo_loop"]["cycles"] > 50
+        assert s["cameras"]["left"]["health"] == s["cameras"]["right"]["health"] == "streaming"
+        # These cameras do not see the head's scene: the fixations run and are refused, never taught.
+        assert s["fixation"]["taught"] == 0 and sum(s["fixation"]["refused"].values()) == s["fixation"]["done"]
+        positions = [s["joints"]["pan"]["position_deg"]]
+        s = d.wait(lambda s: abs(s["joints"]["pan"]["position_deg"] - positions[0]) > 0.5, 30, "the head moving")
+        assert all(j["torque_on"] for j in s["joints"].values())
+        code, seconds = d.terminate()
+        assert code == 0 and seconds < 5.0
+    finally:
+        d.kill()
