@@ -50,9 +50,9 @@ job=${1:-}
 [ $# -gt 0 ] && shift
 case "$job" in
     "") log "ready: activate with  . .venv/bin/activate" ;;
-    # Until the daemon lands (issue 6) the main job is the whole method on the simulated head:
-    # fixations on rendered images, learning on the adapter thread.
-    run) exec "$venv/bin/headctl" experiment online "$@" ;;
+    # The service: the daemon on the simulated head (configs/sim.yaml unless --config is given),
+    # learning online until SIGTERM/Ctrl-C; `headctl status` in another shell shows its state.
+    run) exec "$venv/bin/headctl" run "$@" ;;
     test)
         # CI=true: no prompts, no colour; the suite itself never needs hardware.
         exec "$venv/bin/python" -m pytest -q "$@" ;;
