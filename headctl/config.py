@@ -152,13 +152,17 @@ class ServiceConfig:
     checkpoint_every: int = 50  # adaptations between atomic map checkpoints
     safe_state: str = "hold"  # at shutdown: hold (goal = present; torque as servo_bus.torque_on_close) or torque_off
     shutdown_timeout_s: float = 4.0  # SIGTERM to exit; systemd's stop timeout is larger
+    switch_interval_ms: float = 0.2  # the interpreter's GIL switch interval (CPython's default: 5 ms)
+    realtime_priority: int = 0  # > 0: SCHED_FIFO priority of the servo loop thread, when allowed
 
     def __post_init__(self) -> None:
         checks = (("servo_rate_hz", 1.0 <= self.servo_rate_hz <= 1000.0, "a rate in [1, 1000] Hz"),
                   ("input_timeout_s", self.input_timeout_s > 0, "a positive time"),
                   ("checkpoint_every", self.checkpoint_every >= 1, "at least 1"),
                   ("safe_state", self.safe_state in SAFE_STATES, " or ".join(SAFE_STATES)),
-                  ("shutdown_timeout_s", 0 < self.shutdown_timeout_s <= 30, "a time in (0, 30] s"))
+                  ("shutdown_timeout_s", 0 < self.shutdown_timeout_s <= 30, "a time in (0, 30] s"),
+                  ("realtime_priority", 0 <= self.realtime_priority <= 99, "0 (off) to 99"),
+                  ("switch_interval_ms", 0.05 <= self.switch_interval_ms <= 10, "a time in [0.05, 10] ms"))
         for key, ok, expected in checks:
             if not ok:
                 raise ValueError(f"{key}: got {getattr(self, key)!r}, expected {expected}")

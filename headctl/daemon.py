@@ -27,6 +27,7 @@ import logging
 import os
 import signal
 import socket
+import sys
 import threading
 import time
 from pathlib import Path
@@ -80,9 +81,10 @@ class ServoLoop(threading.Thread):
     """One read and one write per cycle at a fixed rate; the bus's only user while it runs."""
 
     def __init__(self, bus: ServoBus, rate_hz: float = 100.0, input_timeout_s: float = 0.5,
-                 history: int = 6000) -> None:
+                 history: int = 6000, realtime_priority: int = 0) -> None:
         super().__init__(name="servo-io", daemon=True)
         self.bus = bus
+        self.realtime_priority = realtime_priority
         self.period_s = 1.0 / rate_hz
         self.input_timeout_s = input_timeout_s
         self._stop_event = threading.Event()
@@ -155,7 +157,21 @@ class ServoLoop(threading.Thread):
                 log.warning("%s did not stop within %.1f s", self.name, timeout_s)
 
     # -- the loop ------------------------------------------------------------------------
+    def _set_priority(self) -> None:
+        """SCHED_FIFO for this thread alone (Linux applies it to the calling thread), when allowed:
+        root, CAP_SYS_NICE, or an RLIMIT_RTPRIO as high (the unit's LimitRTPRIO=)."""
+        if self.realtime_priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+        except (OSError, AttributeError) as err:
+            log.warning("%s: realtime priority %d not granted (%s); running at normal priority "
+                        "(LimitRTPRIO= in the unit allows it)", self.name, self.realtime_priority, err)
+        else:
+            log.info("%s: SCHED_FIFO priority %d", self.name, self.realtime_priority)
+
     def run(self) -> None:
+        self._set_priority()
         next_s = time.monotonic()
         previous_s: float | None = None
         try:
@@ -172,8 +188,9 @@ class ServoLoop(threading.Thread):
                 if delay < 0:
                     self.overruns += 1
                     next_s = time.monotonic()  # no burst of catch-up cycles
-                    continue
-                self._stop_event.wait(delay)
+                # Always yield a little: at realtime priority a loop that never waits would
+                # starve every other thread of its CPU.
+                self._stop_event.wait(max(delay, 0.1 * self.period_s))
         except Exception as err:  # reported through the status, never lost
             self.error = err
             log.exception("%s: the servo loop failed", self.name)
@@ -792,6 +809,9 @@ class Daemon:
         from headctl.status import StatusServer
 
         cfg = self.config
+        # A thread waiting for the GIL gets it after this long (CPython's default is 5 ms): the
+        # servo loop's timer would otherwise wait behind Python-level work of the other threads.
+        sys.setswitchinterval(cfg.service.switch_interval_ms / 1000.0)
         if install_signals:
             signal.signal(signal.SIGTERM, self.request_stop)
             signal.signal(signal.SIGINT, self.request_stop)
@@ -816,7 +836,8 @@ class Daemon:
                                                        cfg.cameras.tolerance_s))
             for camera in self.cameras.values():
                 camera.enable()
-            self.loop = ServoLoop(bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s)
+            self.loop = ServoLoop(bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s,
+                                  realtime_priority=cfg.service.realtime_priority)
             self.loop.start()
             stack.callback(self.loop.stop)
             self.adapter = MapAdapter(gm, on_adapted=self._on_adapted)
