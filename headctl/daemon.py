@@ -636,6 +636,7 @@ class Daemon:
         self.checkpointer: Checkpointer | None = None
         self.map_source = ""
         self.map_problems: list[str] = []
+        self.map_restored: dict[str, Any] = {}  # the restored map's learning figures
         self.adaptations_run = 0
         self.recent_output_errors: collections.deque[np.ndarray] = collections.deque(maxlen=10)
         self.camera_stalled: set[str] = set()  # simulated cameras stalled by fault injection
@@ -763,7 +764,7 @@ class Daemon:
                                                  "p99": None if l99 is None else round(l99 * 1e3, 3)}},
             "learning": learning,
             "map": {"path": str(self.config.map_path), "restored_from": self.map_source,
-                    "problems": self.map_problems,
+                    "restored": self.map_restored, "problems": self.map_problems,
                     "checkpoints": cp.count if cp else 0,
                     "last_checkpoint_adaptations": cp.last_adaptations if cp else None,
                     "last_checkpoint_ms": (None if not cp or cp.last_duration_s is None
@@ -823,6 +824,7 @@ class Daemon:
             self.status_server = stack.enter_context(StatusServer(cfg.socket_path, self))
             self.notifier.notify(status="starting: restoring the gaze map")
             gm, self.map_source, self.map_problems = restore_map(cfg)
+            self.map_restored = {"adaptations": gm.adaptations, "recent_retinal_errors": list(gm.recent_errors)}
             bus = self.bus = self._build_bus()
             stack.callback(self._close_bus)
             bus.open()

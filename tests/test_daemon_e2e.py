@@ -134,8 +134,11 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     s = again.wait(lambda s: s["state"] == "running", 30, "restarted")
     assert s["map"]["restored_from"] == str(state / "gaze_map.npz")
     assert s["learning"]["adaptations"] >= saved.adaptations
-    if s["learning"]["adaptations"] == saved.adaptations:  # no new adaptation yet: the same figures
-        assert s["learning"]["recent_retinal_errors"] == pytest.approx(list(saved.recent_errors))
+    restored = s["map"]["restored"]  # the learning figures it started from: those it saved
+    assert restored["adaptations"] == saved.adaptations
+    assert restored["recent_retinal_errors"] == pytest.approx(list(saved.recent_errors))
+    assert restored["recent_retinal_errors"] == pytest.approx(before["recent_retinal_errors"][-len(
+        restored["recent_retinal_errors"]):]) or saved.adaptations > before["adaptations"]
     again.wait(_taught(1), 60, "learning goes on after the restart")
     code, seconds = again.terminate()
     assert code == 0 and seconds < 5.0
