@@ -47,7 +47,8 @@ def video(tmp_path):
     return path
 
 
-def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video):
+def emulated_config(tmp_path, emulator, video) -> pathlib.Path:
+    """configs/xm430-u2d2-aravis.yaml on the emulator's pty, Aravis's Fake camera and a video file."""
     config = yaml.safe_load((ROOT / "configs" / "xm430-u2d2-aravis.yaml").read_text())
     config["servo_bus"].update(port=str(emulator), latency_timer_ms=8, watchdog_ms=0)
     config["cameras"] = {
@@ -59,7 +60,23 @@ def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator,
     config["service"]["safe_state"] = "torque_off"
     path = tmp_path / "emulated.yaml"
     path.write_text(yaml.safe_dump(config))
+    return path
 
+
+def test_check_connects_and_reports_each_servo_and_camera(tmp_path, emulator, video):
+    path = emulated_config(tmp_path, emulator, video)
+    out = subprocess.run([sys.executable, "-m", "headctl.cli", "check", "--config", str(path)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    for joint, servo_id in (("pan", 1), ("tilt", 2), ("left_eye", 3), ("right_eye", 4)):
+        assert f"joint {joint} (id {servo_id}) on {emulator}: XM430-W350, at " in out.stdout
+    assert "camera left (aravis left): 320 x 240" in out.stdout
+    assert "camera right (opencv right): 320 x 240" in out.stdout
+    assert out.stdout.rstrip().endswith("check: OK")
+
+
+def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video):
+    path = emulated_config(tmp_path, emulator, video)
     d = Daemon(tmp_path / "state", path)
     try:
         s = d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 2, 60, "two fixations")
