@@ -98,6 +98,9 @@ class ServoLoop(threading.Thread):
         self.down_reason: str | None = None
         self.faults: dict[str, tuple[str, ...]] = {}
         self.error: BaseException | None = None
+        self.read_errors = 0
+        self.last_read_error = ""
+        self.last_read_s = time.monotonic()
         self.cycles = 0
         self.overruns = 0
         self.periods_s: collections.deque[float] = collections.deque(maxlen=history)
@@ -209,9 +212,13 @@ class ServoLoop(threading.Thread):
             self._went_down(str(err))
             return
         except DriverError as err:  # a failed read: nothing is written on a stale state
-            log.warning("%s: read failed: %s", self.name, err)
+            self.read_errors += 1
+            self.last_read_error = str(err)
+            if self.read_errors % 100 == 1:  # at 100 Hz a persistent fault would drown the log
+                log.warning("%s: read failed (%d so far): %s", self.name, self.read_errors, err)
             self._fail_requests(err)
             return
+        self.last_read_s = time.monotonic()
         if self.down_reason is not None:
             log.warning("%s: servo bus back; motion resumes", self.name)
             self.down_reason = None
@@ -297,6 +304,7 @@ class ServoLoop(threading.Thread):
         j50, j99 = _percentiles(jitter, (50, 99))
         ms = (lambda v: None if v is None else round(v * 1e3, 3))
         return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
+                "read_errors": self.read_errors,
                 "period_p50_ms": ms(p50), "period_p99_ms": ms(p99),
                 "jitter_p50_ms": ms(j50), "jitter_p99_ms": ms(j99)}
 
@@ -686,6 +694,9 @@ class Daemon:
                 out.append(f"servo bus down: {loop.down_reason}")
             for joint, meanings in loop.faults.items():
                 out.append(f"{loop.bus.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)")
+            if loop.down_reason is None and time.monotonic() - loop.last_read_s > 0.5:
+                out.append(f"servo reads failing for {time.monotonic() - loop.last_read_s:.1f} s: "
+                           f"{loop.last_read_error}")
             if loop.error is not None:
                 out.append(f"servo loop failed: {loop.error!r}")
             if loop.is_alive() and time.monotonic() - loop.last_cycle_s > 1.0:
@@ -806,7 +817,7 @@ class Daemon:
             log.info("signal %s: stopping", signal.Signals(signum).name)
         self.stop_event.set()
 
-    def run(self, install_signals: bool = True, on_ready: Callable[["Daemon"], None] | None = None) -> int:
+    def run(self, install_signals: bool = True) -> int:
         from headctl.status import StatusServer
 
         cfg = self.config
@@ -858,8 +869,6 @@ class Daemon:
             log.info("headctl running: %s, state in %s, status socket %s", cfg.path, cfg.state_dir,
                      cfg.socket_path)
             self.notifier.notify(ready=1, status=self._status_line())
-            if on_ready is not None:
-                on_ready(self)
             self._supervise()
             self._shutdown()
         log.info("headctl stopped")
