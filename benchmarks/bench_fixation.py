@@ -19,7 +19,7 @@ from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.correspondence import CorrespondenceParams, match_fixation
 from calib_free.fixation import FixationController
-from calib_free.sim import HeadModel
+from calib_free.sim import HeadModel, joints_of
 from drivers.sim_scene import StereoRenderer, shared_scene
 from headctl.online import SimulatedHeadRig
 
@@ -32,8 +32,7 @@ def rendered_pairs(width: int, height: int, count: int, seed: int = 0) -> list[t
         for _ in range(count):
             pre = rng.uniform(model.limits.low, model.limits.high)
             post = model.limits.clamp(pre + np.r_[rng.uniform(-15, 15, 2), 0.0])
-            j = [{"pan": p[0], "tilt": p[1], "left_eye": p[2] / 2, "right_eye": -p[2] / 2} for p in (pre, post)]
-            pairs.append(renderer.render(j[0]) + renderer.render(j[1]))
+            pairs.append(renderer.render(joints_of(pre)) + renderer.render(joints_of(post)))
     return pairs
 
 

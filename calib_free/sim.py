@@ -33,6 +33,17 @@ _CAM_FROM_EYE = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 AXES = ("pan", "tilt", "vergence")
 
 
+def joints_of(pose: np.ndarray) -> dict[str, float]:
+    """Joint angles {pan, tilt, left_eye, right_eye} of a pose (pan, tilt, vergence), eyes symmetric."""
+    return {"pan": float(pose[0]), "tilt": float(pose[1]),
+            "left_eye": float(pose[2] / 2), "right_eye": float(-pose[2] / 2)}
+
+
+def pose_of(joints: dict[str, float]) -> np.ndarray:
+    """The pose (pan, tilt, vergence = left_eye - right_eye) of joint angles."""
+    return np.array([joints["pan"], joints["tilt"], joints["left_eye"] - joints["right_eye"]])
+
+
 def _rot_z(angle_rad: float) -> np.ndarray:
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

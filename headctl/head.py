@@ -22,6 +22,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from calib_free.fixation import HeadTimeoutError
+from calib_free.sim import joints_of, pose_of
 from drivers.camera import StereoPair
 from drivers.clock import Clock, ManualClock
 from drivers.errors import CameraTimeoutError
@@ -106,17 +107,9 @@ class DriverHead:
         self.pose_high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle, v_high])
         self._goal: np.ndarray | None = None
 
-    @staticmethod
-    def pose_of(positions: dict[str, float]) -> np.ndarray:
-        return np.array([positions["pan"], positions["tilt"], positions["left_eye"] - positions["right_eye"]])
-
-    @staticmethod
-    def joints_of(pose: np.ndarray) -> dict[str, float]:
-        return {"pan": float(pose[0]), "tilt": float(pose[1]),
-                "left_eye": float(pose[2] / 2), "right_eye": float(-pose[2] / 2)}
 
     def read_pose(self) -> np.ndarray:
-        pose = self.pose_of(self.bus.read_state().positions)
+        pose = pose_of(self.bus.read_state().positions)
         pose[0] += self.pan_reading_offset_deg
         return pose
 
@@ -124,15 +117,15 @@ class DriverHead:
         goal = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
         # (with a pan reading offset the goal computed from the reading may lie beyond).
-        sent = self.bus.write_goals(self.joints_of(goal))
-        self._goal = self.pose_of(sent)
+        sent = self.bus.write_goals(joints_of(goal))
+        self._goal = pose_of(sent)
         return goal
 
     def verge_to(self, vergence: float) -> float:
         """Move the eyes alone (symmetrically) to `vergence`, clamped; pan and tilt get no goal."""
         v = float(np.clip(vergence, self.pose_low[2], self.pose_high[2]))
         sent = self.bus.write_goals({"left_eye": v / 2, "right_eye": -v / 2})
-        goal = self._goal if self._goal is not None else self.pose_of(self.bus.read_state().positions)
+        goal = self._goal if self._goal is not None else pose_of(self.bus.read_state().positions)
         self._goal = np.array([goal[0], goal[1], sent["left_eye"] - sent["right_eye"]])
         return v
 
@@ -149,7 +142,7 @@ class DriverHead:
         while True:
             state = self.bus.read_state()
             at_goal = self._goal is None or bool(np.all(
-                np.abs(self.pose_of(state.positions) - self._goal) <= self.tolerance_deg))
+                np.abs(pose_of(state.positions) - self._goal) <= self.tolerance_deg))
             if not state.moving and at_goal:
                 rest_since = state.time_s if rest_since is None else rest_since
                 if state.time_s - rest_since >= self.settle_s:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_free.sim import HeadModel
+from calib_free.sim import HeadModel, joints_of as joints  # noqa: F401 (re-exported for the tests)
 from drivers.sim_scene import Scene
 
 
@@ -31,7 +31,3 @@ def foveal_point(model: HeadModel, scene: Scene, pose: np.ndarray) -> np.ndarray
     return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
 
 
-def joints(pose: np.ndarray) -> dict[str, float]:
-    """Joint angles of a symmetric pose (pan, tilt, vergence)."""
-    return {"pan": float(pose[0]), "tilt": float(pose[1]), "left_eye": float(pose[2] / 2),
-            "right_eye": float(-pose[2] / 2)}
