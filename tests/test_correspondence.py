@@ -146,14 +146,14 @@ def rendered_cases():
 
 
 def test_rendered_correspondence_is_within_a_pixel_on_rich_texture(rendered_cases):
+    """Without the centre-weighted relocation this is 92-94 %: the periphery's compression
+    skews the foveal patch and pulls the plain NCC peak by a pixel or so."""
     errors = [np.hypot(*(np.array([m.x, m.y]) - truth))
               for pre, post, truth, kind in rendered_cases if kind == "rich"
               for m in [match_eye(pre, post, CorrespondenceParams())]]
     assert len(errors) > 80
     within = np.mean(np.array(errors) <= 1.0)
-    # Issue 5 asks for 95 %; on this lens we measure 92-94 %: the misses are 1-2 px off
-    # where the periphery's compression skews the foveal patch (README, "Correspondence").
-    assert within >= 0.90, f"{within:.1%} of rich-texture patches within 1 px"
+    assert within >= 0.95, f"{within:.1%} of rich-texture patches within 1 px"  # issue 5's figure
 
 
 def test_nearly_uniform_patches_get_far_less_confidence_than_textured(rendered_cases):
@@ -166,3 +166,12 @@ def test_nearly_uniform_patches_get_far_less_confidence_than_textured(rendered_c
     assert len(conf["uniform"]) >= 10
     assert np.median(conf["rich"]) > 0.85
     assert np.median(conf["uniform"]) < 0.5
+
+
+def test_centre_weighting_is_what_brings_the_matches_within_a_pixel(rendered_cases):
+    def rate(params: CorrespondenceParams) -> float:
+        errors = [np.hypot(m.x - truth[0], m.y - truth[1]) for pre, post, truth, kind in rendered_cases
+                  if kind == "rich" for m in [match_eye(pre, post, params)]]
+        return float(np.mean(np.array(errors) <= 1.0))
+
+    assert rate(CorrespondenceParams()) > rate(CorrespondenceParams(refine_sigma_fraction=0.0))
