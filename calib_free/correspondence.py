@@ -230,10 +230,11 @@ def _centre_weighted_peak(pre: np.ndarray, patch: np.ndarray, x: float, y: float
     b0 = int(round(y - (ph - 1) / 2.0)) - radius_px
     if a0 < 0 or b0 < 0 or a0 + pw + 2 * radius_px > pre.shape[1] or b0 + ph + 2 * radius_px > pre.shape[0]:
         return x, y  # too near the border to search around: keep the plain peak
-    gx = cv2.getGaussianKernel(pw, sigma_px, cv2.CV_32F)
-    gy = cv2.getGaussianKernel(ph, sigma_px, cv2.CV_32F)
+    weight = cv2.getGaussianKernel(ph, sigma_px, cv2.CV_32F) @ cv2.getGaussianKernel(pw, sigma_px, cv2.CV_32F).T
     window = pre[b0:b0 + ph + 2 * radius_px, a0:a0 + pw + 2 * radius_px]
-    scores = np.nan_to_num(cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED, mask=gy @ gx.T))
+    scores = cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED, mask=weight)
+    # A flat window makes the masked normalisation 0/0 or x/0: no evidence there.
+    scores = np.nan_to_num(scores, nan=0.0, posinf=0.0, neginf=0.0)
     _, _, _, (lx, ly) = cv2.minMaxLoc(scores)
     u, v = _subpixel_peak(scores, ly, lx)
     return a0 + u + (pw - 1) / 2.0, b0 + v + (ph - 1) / 2.0
