@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import math
 import os
 import signal
 import socket
@@ -40,10 +41,11 @@ from calib_free.adapter import MapAdapter, Sample
 from calib_free.errors import MapFileError
 from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError
 from calib_free.gaze_map import AdaptResult
+from calib_free.sim import pose_of
 from drivers.camera import Camera, StereoPair, create_camera
 from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, DriverError, JointLimitError,
                             ServoHardwareError)
-from drivers.servo_bus import JOINTS, BusState, ServoBus, create_servo_bus
+from drivers.servo_bus import AUTO_REBOOT_HOLDOFF_S, JOINTS, BusState, ServoBus, create_servo_bus
 from headctl.config import HeadConfig
 from headctl.errors import HeadctlError
 from headctl.head import DriverHead, StereoPairSource
@@ -80,6 +82,8 @@ class _WriteRequest:
 class ServoLoop(threading.Thread):
     """One read and one write per cycle at a fixed rate; the bus's only user while it runs."""
 
+    REBOOT_AFTER_S = 1.0  # a hardware error that leaves torque on persists this long: reboot
+
     def __init__(self, bus: ServoBus, rate_hz: float = 100.0, input_timeout_s: float = 0.5,
                  history: int = 6000, realtime_priority: int = 0) -> None:
         super().__init__(name="servo-io", daemon=True)
@@ -98,6 +102,8 @@ class ServoLoop(threading.Thread):
         self.down_reason: str | None = None
         self.faults: dict[str, tuple[str, ...]] = {}
         self.error: BaseException | None = None
+        self._fault_since: dict[str, float] = {}  # faulted joints held, since when
+        self._last_reboot_s: dict[str, float] = {}
         self.read_errors = 0
         self.last_read_error = ""
         self.last_read_s = time.monotonic()
@@ -225,13 +231,19 @@ class ServoLoop(threading.Thread):
             with self._cond:
                 self._goals = {}  # the bus restored torque at the positions read back
         faults = state.faults
+        now = time.monotonic()
         with self._cond:
             for joint in faults:
                 if joint not in self.faults:
-                    # That joint is held where it is; the fault is reported in the status.
+                    # That joint is held where it is until the error clears; the fault is
+                    # reported in the status.
                     log.error("%s: %s reports %s: joint held", self.name, self.bus.describe(joint),
                               ", ".join(faults[joint]))
                     self._goals[joint] = state[joint].position
+                    self._fault_since[joint] = now
+            for joint in set(self._fault_since) - set(faults):
+                log.warning("%s: %s: hardware error cleared; joint free again", self.name, self.bus.describe(joint))
+                del self._fault_since[joint]
             self.faults = faults
             self._state = state
             self._state_seq += 1
@@ -244,11 +256,36 @@ class ServoLoop(threading.Thread):
                 self._goals = {j: state[j].position for j in self._goals}
         self._holding = stale
         self._write(state, requests)
+        self._recover_faults(state, now)
+
+    def _recover_faults(self, state: BusState, now: float) -> None:
+        """With `reboot_on_hardware_error`, reboot a servo whose error persists with its torque on
+        (the bus itself reboots those whose error cut the torque), at most once per holdoff."""
+        if not self.bus.config.reboot_on_hardware_error:
+            return
+        for joint, since in list(self._fault_since.items()):
+            if not state[joint].torque_on or now - since < self.REBOOT_AFTER_S:
+                continue
+            if now - self._last_reboot_s.get(joint, -math.inf) < AUTO_REBOOT_HOLDOFF_S:
+                continue
+            self._last_reboot_s[joint] = now
+            try:
+                self.bus.reboot(joint)  # one cycle takes longer: counted as an overrun
+            except DriverError as err:
+                log.error("%s: reboot of %s failed: %s", self.name, self.bus.describe(joint), err)
 
     def _write(self, state: BusState, requests: list[_WriteRequest]) -> None:
         with self._cond:
             for request in requests:
+                held = [j for j in request.goals if j in self.faults]
+                if held:  # a faulted joint keeps its hold; the command fails as a whole
+                    request.error = ServoHardwareError(
+                        f"{self.bus.name}: {', '.join(self.bus.describe(j) for j in held)} held after a hardware "
+                        f"error ({'; '.join(', '.join(self.faults[j]) for j in held)}); nothing sent")
+                    request.done.set()
+                    continue
                 self._goals.update(request.goals)
+            requests = [r for r in requests if not r.done.is_set()]
             goals = {j: a for j, a in self._goals.items() if state[j].torque_on}
         if not goals:
             for request in requests:
@@ -387,6 +424,13 @@ class ObservedHead(DriverHead):
     def wait_settled(self, timeout_s: float) -> float:
         if self.phase in ("idle", "choosing target"):
             self.phase = "at rest"
+        # "At goal" means at the goals the loop really writes: it may have replaced the ones
+        # this head sent (a joint held after a hardware error, a hold on stale input, goals
+        # dropped while the bus was down), and a goal no servo is driven to is never reached.
+        loop = getattr(self.bus, "loop", None)
+        if loop is not None:
+            goals = loop.goals()
+            self._goal = pose_of(goals) if all(j in goals for j in JOINTS) else None
         return super().wait_settled(timeout_s)
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -110,6 +110,14 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     s = d.wait(lambda s: s["joints"]["tilt"]["torque_on"] and not s["joints"]["tilt"]["hardware_errors"],
                10, "tilt rebooted, torque back")
     assert any("tilt" in e["message"] and "rebooting" in e["message"] for e in s["events"])
+    # An error that leaves torque on (input voltage): the joint held and reported until the
+    # daemon's reboot clears it (reboot_on_hardware_error), then free again.
+    d.inject("hardware_error", joint="pan", bits=0x01)
+    d.wait(lambda s: any("pan" in f and "input voltage out of range (joint held)" in f for f in s["faults"]),
+           10, "pan held and reported")
+    s = d.wait(lambda s: s["state"] == "running" and not s["joints"]["pan"]["hardware_errors"], 15,
+               "pan rebooted, free again")
+    assert any("pan" in e["message"] and "hardware error cleared" in e["message"] for e in s["events"])
 
     # A camera stalls: no fixation completes on stale frames; frames back: it learns again.
     d.inject("camera_stall", camera="left")

@@ -11,7 +11,7 @@ import pytest
 
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
-from drivers.errors import BusDownError
+from drivers.errors import BusDownError, ServoHardwareError
 from drivers.servo_bus import JOINTS, ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 from headctl.config import load_config
@@ -90,19 +90,25 @@ def test_bus_down_pauses_motion_and_the_loop_resumes_after_reopening(loop, sim_b
     wait_until(lambda: abs(sim_bus.true_position("pan") - 3.0) < 0.01, what="motion resumed")
 
 
-def test_a_servo_hardware_error_is_reported_and_the_joint_held(sim_bus):
-    sim_bus.config  # reboot_on_hardware_error is true: the bus reboots a servo whose torque went off
+def test_a_servo_hardware_error_holds_the_joint_until_a_reboot_clears_it(sim_bus):
     loop = ServoLoop(sim_bus, rate_hz=100.0)
+    loop.REBOOT_AFTER_S = 0.3
     loop.start()
     try:
         bus = LoopBus(loop, threading.Event())
-        sim_bus.inject_hardware_error("tilt", 0x01)  # input voltage: torque stays, the joint is held
+        sim_bus.inject_hardware_error("tilt", 0x01)  # input voltage: the torque stays on
         wait_until(lambda: "tilt" in loop.faults, what="fault seen")
-        assert loop.faults["tilt"] == ("input voltage error",) or loop.faults["tilt"]
+        assert loop.faults["tilt"] == ("input voltage out of range",)
         before = sim_bus.true_position("tilt")
-        bus.write_goals({"pan": 2.0})
-        wait_until(lambda: abs(sim_bus.true_position("pan") - 2.0) < 0.01, what="other joints still move")
+        with pytest.raises(ServoHardwareError, match=r"joint tilt \(id 2\) .* held after a hardware error"):
+            bus.write_goals({"pan": 2.0, "tilt": 5.0})
+        assert bus.write_goals({"pan": 2.0}) == {"pan": 2.0}  # the other joints still move
+        wait_until(lambda: abs(sim_bus.true_position("pan") - 2.0) < 0.01, what="pan moved")
         assert abs(sim_bus.true_position("tilt") - before) < 0.01
+        # reboot_on_hardware_error: the loop reboots the servo, the error clears, the joint is free.
+        wait_until(lambda: "tilt" not in loop.faults, timeout_s=3.0, what="tilt rebooted")
+        assert bus.write_goals({"tilt": 5.0}) == {"tilt": 5.0}
+        wait_until(lambda: abs(sim_bus.true_position("tilt") - 5.0) < 0.01, what="tilt moved")
     finally:
         loop.stop()
 
