@@ -151,6 +151,7 @@ class ServiceConfig:
     checkpoint_every: int = 50  # adaptations between atomic map checkpoints
     safe_state: str = "hold"  # at shutdown: hold (goal = present; torque as servo_bus.torque_on_close) or torque_off
     shutdown_timeout_s: float = 4.0  # SIGTERM to exit; systemd's stop timeout is larger
+    camera_stall_s: float = 5.0  # a camera failed or silent this long: its stream is restarted
     switch_interval_ms: float = 0.2  # the interpreter's GIL switch interval (CPython's default: 5 ms)
     realtime_priority: int = 0  # > 0: SCHED_FIFO priority of the servo loop thread, when allowed
 
@@ -161,6 +162,7 @@ class ServiceConfig:
                   ("safe_state", self.safe_state in SAFE_STATES, " or ".join(SAFE_STATES)),
                   ("shutdown_timeout_s", 0 < self.shutdown_timeout_s <= 30, "a time in (0, 30] s"),
                   ("realtime_priority", 0 <= self.realtime_priority <= 99, "0 (off) to 99"),
+                  ("camera_stall_s", self.camera_stall_s > 0, "a positive time"),
                   ("switch_interval_ms", 0.05 <= self.switch_interval_ms <= 10, "a time in [0.05, 10] ms"))
         for key, ok, expected in checks:
             if not ok:

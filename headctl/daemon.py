@@ -42,9 +42,9 @@ from calib_free.errors import MapFileError
 from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError
 from calib_free.gaze_map import AdaptResult
 from calib_free.sim import pose_of
-from drivers.camera import Camera, StereoPair, create_camera
-from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, DriverError, JointLimitError,
-                            ServoHardwareError)
+from drivers.camera import Camera, StereoPair, StreamHealth, create_camera
+from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, DeviceStateError, DriverError,
+                            JointLimitError, ServoHardwareError)
 from drivers.servo_bus import AUTO_REBOOT_HOLDOFF_S, JOINTS, BusState, ServoBus, create_servo_bus
 from headctl.config import HeadConfig
 from headctl.errors import HeadctlError
@@ -395,7 +395,7 @@ class AbortablePairSource(StereoPairSource):
                 if remaining <= self.slice_s:
                     raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
                 continue
-            except CameraError as err:  # a failed stream: no pair, the fixation is refused
+            except (CameraError, DeviceStateError) as err:  # failed, or being restarted: no pair
                 raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
             self.last_pair_time_s = max(frames.left.time_s, frames.right.time_s)
             return frames.left.image, frames.right.image
@@ -692,6 +692,8 @@ class Daemon:
         self.adaptations_run = 0
         self.recent_output_errors: collections.deque[np.ndarray] = collections.deque(maxlen=10)
         self.camera_stalled: set[str] = set()  # simulated cameras stalled by fault injection
+        self.camera_restarts: collections.Counter[str] = collections.Counter()
+        self._camera_restart_s: dict[str, float] = {}
         self.notifier = SystemdNotifier()
         self.status_server: Any = None
         self.events = EventLog()
@@ -797,6 +799,7 @@ class Daemon:
         for side, camera in self.cameras.items():
             latest = camera.latest()
             cameras[side] = {"name": camera.name, "health": camera.health.value, "stats": camera.stats(),
+                             "restarts": self.camera_restarts[side],
                              "frame_age_s": None if latest is None else round(time.monotonic() - latest.time_s, 3),
                              "last_error": None if camera.last_error is None else str(camera.last_error)}
         latency = list(self.head.vergence_latency_s) if self.head is not None else []
@@ -942,6 +945,29 @@ class Daemon:
                 fields["watchdog"] = 1
             if fields:
                 self.notifier.notify(**fields)
+            self._watch_cameras()
+
+    def _watch_cameras(self) -> None:
+        """Restart the stream of a camera that failed or has sent nothing for `camera_stall_s`
+        (the backends reopen a lost device themselves; this covers a silent stall and a stream
+        that gave up), at most once per `camera_stall_s` per camera."""
+        stall_s = self.config.service.camera_stall_s
+        now = time.monotonic()
+        for side, camera in self.cameras.items():
+            latest = camera.latest()
+            age = now - (latest.time_s if latest is not None else self.started_s)
+            failed = camera.health is StreamHealth.FAILED
+            if not (failed or age > stall_s) or now - self._camera_restart_s.get(side, -math.inf) < stall_s:
+                continue
+            self._camera_restart_s[side] = now
+            self.camera_restarts[side] += 1
+            log.warning("camera %s: %s; restarting its stream (restart %d)", side,
+                        "the stream failed" if failed else f"no frame for {age:.1f} s", self.camera_restarts[side])
+            try:
+                camera.disable()
+                camera.enable()
+            except (DriverError, OSError) as err:
+                log.error("camera %s: restart failed: %s", side, err)
 
     def _shutdown(self) -> None:
         started = time.monotonic()

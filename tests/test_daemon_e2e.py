@@ -126,6 +126,10 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     s = d.wait(lambda s: s["fixation"]["refused"].get("no stereo pair in time", 0) >= 1, 15,
                "a fixation refused for want of frames")
     assert s["fixation"]["taught"] <= taught_at_stall + 1  # at most the one that had its frames already
+    # Silent for camera_stall_s (5 s): the daemon restarts the camera's stream.
+    s = d.wait(lambda s: s["cameras"]["left"]["restarts"] >= 1, 15, "the stalled camera's stream restarted")
+    assert any("camera left: no frame for" in e["message"] and "restarting" in e["message"] for e in s["events"])
+    assert s["cameras"]["right"]["restarts"] == 0
     d.inject("camera_resume", camera="left")
     d.wait(lambda s: s["state"] == "running" and s["fixation"]["taught"] >= taught_at_stall + 2, 60,
            "learning again after the camera came back")
