@@ -57,15 +57,15 @@ Listener = Callable[["Frame | None"], None]
 
 
 # --- config ------------------------------------------------------------------------------
-def _type_name(tp: Any) -> str:
+def config_type_name(tp: Any) -> str:
     if typing.get_origin(tp) is Literal:
         return " or ".join(repr(a) for a in typing.get_args(tp))
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
+        return " or ".join(config_type_name(a) for a in typing.get_args(tp) if a is not type(None))
     return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(tp, str(tp))
 
 
-def _coerce(value: Any, tp: Any, key_path: str) -> Any:
+def coerce_config_value(value: Any, tp: Any, key_path: str) -> Any:
     """`value` as type `tp` (int, float, str, bool, Literal, unions with None), or raise."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
@@ -76,7 +76,7 @@ def _coerce(value: Any, tp: Any, key_path: str) -> Any:
             if option is type(None):
                 continue
             try:
-                return _coerce(value, option, key_path)
+                return coerce_config_value(value, option, key_path)
             except CameraConfigError:
                 continue
     elif origin is Literal:
@@ -94,7 +94,7 @@ def _coerce(value: Any, tp: Any, key_path: str) -> Any:
     elif tp is str:
         if isinstance(value, str) and value:
             return value
-    raise CameraConfigError(f"{key_path}: got {value!r}, expected {_type_name(tp)}")
+    raise CameraConfigError(f"{key_path}: got {value!r}, expected {config_type_name(tp)}")
 
 
 def parse_dataclass(cls: type, data: Any, key_path: str) -> Any:
@@ -114,7 +114,7 @@ def parse_dataclass(cls: type, data: Any, key_path: str) -> Any:
             f"{key_path}.{unknown[0]}: unknown key (value {data[unknown[0]]!r}); "
             f"expected one of {', '.join(sorted(fields))}"
         )
-    values = {name: _coerce(value, hints[name], f"{key_path}.{name}") for name, value in data.items()}
+    values = {name: coerce_config_value(value, hints[name], f"{key_path}.{name}") for name, value in data.items()}
     return cls(**values)
 
 
@@ -226,7 +226,7 @@ class StereoCamerasConfig:
                 raise CameraConfigError(f"{key_path}.{side}: missing; expected the {side} camera's settings")
         tolerance_s = data.get("tolerance_s")
         if tolerance_s is not None:
-            tolerance_s = _coerce(tolerance_s, float, f"{key_path}.tolerance_s")
+            tolerance_s = coerce_config_value(tolerance_s, float, f"{key_path}.tolerance_s")
             if tolerance_s < 0:
                 raise CameraConfigError(f"{key_path}.tolerance_s: got {tolerance_s}, expected >= 0")
         return cls(CameraConfig.from_mapping(data["left"], f"{key_path}.left"),

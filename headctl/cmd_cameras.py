@@ -85,15 +85,9 @@ def _list_cameras(args: argparse.Namespace) -> int:
 # --- snapshot ----------------------------------------------------------------------------
 def load_cameras_config(path: str) -> StereoCamerasConfig:
     """The `cameras:` section of a YAML file, typed; any other top-level key is refused."""
-    import yaml
+    from headctl.config import read_yaml
 
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read: {err.strerror}") from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: not valid YAML: {err}") from err
+    data = read_yaml(path)
     if not isinstance(data, dict) or "cameras" not in data:
         raise ConfigError(f"{path}: expected a mapping with a cameras: section (cameras: {{left: ..., right: ...}})")
     unknown = sorted(set(data) - {"cameras"})

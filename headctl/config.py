@@ -18,11 +18,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
+
 from calib_free.fixation import FixationParams
 from calib_free.gaze_map import PROFILES, GazeMapParams
 from drivers.camera import StereoCamerasConfig
-from drivers.camera import _coerce as coerce_camera_value  # the scalar rules, kept in one place
-from drivers.camera import _type_name as camera_type_name
+from drivers.camera import coerce_config_value as coerce_camera_value  # the scalar rules, kept in one place
+from drivers.camera import config_type_name as camera_type_name
 from drivers.errors import CameraConfigError, ServoConfigError
 from drivers.servo_bus import ServoBusConfig
 from headctl.errors import ConfigError
@@ -215,18 +217,21 @@ class HeadConfig:
         return dataclasses.replace(self, state_dir=Path(state_dir).expanduser().resolve())
 
 
-def load_config(path: str | os.PathLike | None = None) -> HeadConfig:
-    """Read and validate a head's YAML file (default: configs/sim.yaml, the simulated head)."""
-    import yaml
-
-    path = Path(path) if path is not None else DEFAULT_CONFIG
+def read_yaml(path: str | Path) -> Any:
+    """A YAML file's document; ConfigError naming the file if it cannot be read or parsed."""
     try:
         with open(path, encoding="utf-8") as f:
-            data = yaml.safe_load(f)
+            return yaml.safe_load(f)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read: {err.strerror}") from err
     except yaml.YAMLError as err:
         raise ConfigError(f"{path}: not valid YAML: {err}") from err
+
+
+def load_config(path: str | os.PathLike | None = None) -> HeadConfig:
+    """Read and validate a head's YAML file (default: configs/sim.yaml, the simulated head)."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    data = read_yaml(path)
     try:
         return parse_config(data, path)
     except (_Invalid, ServoConfigError, CameraConfigError) as err:
