@@ -28,6 +28,8 @@ Everything runs on OpenCV (matchTemplate, box filters); no Python loop touches a
 """
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -256,7 +258,25 @@ def match_fixation(pre_left: np.ndarray, pre_right: np.ndarray, post_left: np.nd
                    params: CorrespondenceParams | None = None) -> FixationMatch:
     """r* = (x*, y*, d*) of a fixation and its confidence, from the pre- and post-fixation pairs."""
     params = params or CorrespondenceParams()
-    return FixationMatch(match_eye(pre_left, post_left, params), match_eye(pre_right, post_right, params))
+    # The two eyes are independent and OpenCV releases the GIL: the right eye is matched on a
+    # second thread while this one does the left (at 640 x 480 on this 2-core machine, over
+    # repeated runs: 5.2-6.4 ms a pair sequentially, 3.5-4.9 ms this way).
+    right = _eye_pool().submit(match_eye, pre_right, post_right, params)
+    left = match_eye(pre_left, post_left, params)
+    return FixationMatch(left, right.result())
+
+
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _eye_pool() -> ThreadPoolExecutor:
+    """One worker thread, made on first use and kept for the process: matching the right eye."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="correspondence-right-eye")
+        return _POOL
 
 
 def horizontal_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, float],
