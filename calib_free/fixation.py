@@ -32,7 +32,11 @@ log = logging.getLogger(__name__)
 
 
 class HeadTimeoutError(CalibFreeError, TimeoutError):
-    """The head did not come to rest, or no stereo pair arrived, in time."""
+    """The head did not come to rest in time."""
+
+
+class PairTimeoutError(HeadTimeoutError):
+    """No stereo pair exposed after the given time arrived in time."""
 
 
 class GazeHead(Protocol):
@@ -54,7 +58,7 @@ class GazeHead(Protocol):
         """Block until the head is at rest; the monotonic time from which it was."""
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """The first (left, right) pair exposed entirely after `after_s`."""
+        """The first (left, right) pair exposed entirely after `after_s`; PairTimeoutError if none."""
 
 
 class MapReader(Protocol):
@@ -205,7 +209,7 @@ class FixationController:
         try:
             self._run(record, target)
         except HeadTimeoutError as err:
-            record.outcome = REFUSED_NO_FRAMES if "pair" in str(err) else REFUSED_NOT_SETTLED
+            record.outcome = REFUSED_NO_FRAMES if isinstance(err, PairTimeoutError) else REFUSED_NOT_SETTLED
             record.detail = str(err)
         record.duration_s = self.clock() - started
         log.debug("fixation %d (%s): %s %s", record.index, record.kind, record.outcome, record.detail)

@@ -39,7 +39,7 @@ import numpy as np
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.errors import MapFileError
-from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError
+from calib_free.fixation import FixationController, FixationRecord, PairTimeoutError
 from calib_free.gaze_map import AdaptResult
 from calib_free.sim import pose_of
 from drivers.camera import Camera, StereoPair, StreamHealth, create_camera
@@ -393,10 +393,10 @@ class AbortablePairSource(StereoPairSource):
                 frames = self.pair.wait_pair(after_s, max(0.0, min(self.slice_s, remaining)))
             except CameraTimeoutError as err:
                 if remaining <= self.slice_s:
-                    raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+                    raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
                 continue
             except (CameraError, DeviceStateError) as err:  # failed, or being restarted: no pair
-                raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+                raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
             self.last_pair_time_s = max(frames.left.time_s, frames.right.time_s)
             return frames.left.image, frames.right.image
 

@@ -21,7 +21,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from calib_free.fixation import HeadTimeoutError
+from calib_free.fixation import HeadTimeoutError, PairTimeoutError
 from calib_free.sim import joints_of, pose_of
 from drivers.camera import StereoPair
 from drivers.clock import Clock, ManualClock
@@ -47,7 +47,7 @@ class StereoPairSource:
         try:
             frames = self.pair.wait_pair(after_s, timeout_s)
         except CameraTimeoutError as err:
-            raise HeadTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+            raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
         return frames.left.image, frames.right.image
 
 

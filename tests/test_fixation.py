@@ -176,3 +176,14 @@ def test_driver_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
         head.move_to(before + np.array([5.0, 0.0, 0.0]))
         head.wait_settled(5.0)
         assert rig.bus.true_position("pan") == pytest.approx(15.0, abs=0.3)  # 5 commanded, 15 done
+
+
+def test_a_missing_stereo_pair_is_told_apart_from_a_head_that_does_not_settle():
+    from calib_free.fixation import PairTimeoutError
+
+    class Blind(FrozenEyesHead):
+        def wait_pair(self, after_s, timeout_s):
+            raise PairTimeoutError("no stereo pair exposed after t=1.000 s")
+
+    record = FixationController(Blind(), GazeMap.for_image(320, 240, seed=0)).fixate()
+    assert record.outcome == "no stereo pair in time"
