@@ -16,6 +16,7 @@ import collections
 import dataclasses
 import logging
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -164,8 +165,6 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
                landing_every: int = 100, landing_count: int = 300,
                progress: Callable[[FixationRecord], None] | None = None) -> OnlineResult:
     """Run `spec` on the simulated head from a random map; returns records and curves."""
-    import time
-
     result = OnlineResult(spec)
     lock = threading.Lock()
     fixation = FixationParams(executed_command=spec.executed_command)
