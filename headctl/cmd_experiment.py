@@ -25,7 +25,7 @@ from tqdm import tqdm
 from calib_free import GazeMap
 from calib_free.experiments import (EXPERIMENTS, ExperimentResult, final_head, landing_targets,
                                     representation_floor, run_experiment)
-from calib_free.gaze_map import PROFILES
+from calib_free.gaze_map import PROFILES, GazeMapParams
 from calib_free.lens import LENS_KINDS
 from calib_free.sim import HeadModel
 from headctl.online import ONLINE_EXPERIMENTS, OnlineResult, SimulatedHeadRig, run_online
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
             result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
                                     progress=bar.update)
     learn_s = time.monotonic() - started
-    drange = GazeMap.for_image(2, 2).params.disparity_range
+    drange = GazeMapParams().disparity_range  # both kinds of run use the default range
 
     floor_px = None
     if args.floor_samples > 0:
