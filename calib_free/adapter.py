@@ -101,6 +101,20 @@ class MapAdapter:
         with self._lock:
             return fn(self.map)
 
+    def replace_map(self, gaze_map: GazeMap) -> GazeMap:
+        """Learn on `gaze_map` from now on (a loaded or reset map); samples still queued were
+        measured for the old one and are dropped. Returns the old map."""
+        with self._lock:
+            old, self.map = self.map, gaze_map
+            while True:
+                try:
+                    self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                self._queue.task_done()
+        log.info("%s: map replaced (%d adaptations)", self._thread.name, gaze_map.adaptations)
+        return old
+
     # -- the thread -----------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.is_set():

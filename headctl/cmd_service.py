@@ -2,8 +2,8 @@
 
 `run [--config F]` runs the daemon (`headctl.daemon`) until SIGTERM/SIGINT; without
 `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a
-config and connects to the servos and cameras it names, reporting each. `status` asks a
-running daemon for its state through the socket in its state directory.
+config and connects to the servos and cameras it names, reporting each. `status` and `look`
+are clients of the running daemon's HTTP API (`headctl.client`).
 """
 from __future__ import annotations
 
@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run the daemon for one head until SIGTERM or SIGINT: servo loop, cameras, exploratory "
                     "fixations, online learning with checkpoints, status socket, systemd notifications.")
     _config_args(run)
+    run.add_argument("--api-port", type=int, metavar="PORT",
+                     help="override api.port (0: an ephemeral port, written to <state_dir>/api.url)")
     run.set_defaults(func=_run)
 
     check = sub.add_parser(
@@ -42,16 +44,50 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     status = sub.add_parser(
         "status", help="the running daemon's state (joints, fixations, learning, faults)",
-        description="Ask the daemon through the unix socket in its state directory.")
-    _config_args(status)
+        description="Ask the running daemon through its HTTP API (GET /api/v1/state).")
+    _client_args(status)
     status.add_argument("--json", action="store_true", help="print the whole state as JSON")
     status.set_defaults(func=_status)
+
+    look = sub.add_parser(
+        "look", help="look at an image target X Y D (px), or at joint angles with --angles P T V (deg)",
+        description="Send a look to the running daemon and wait for it: an image target (x, y px in the left "
+                    "image, disparity d px) is fixated by a saccade and fine vergence; --angles moves to pan, "
+                    "tilt, vergence (deg), --relative to the present pose.")
+    _client_args(look)
+    look.add_argument("values", nargs=3, type=float, metavar=("X|P", "Y|T", "D|V"))
+    look.add_argument("--angles", action="store_true", help="the values are pan, tilt, vergence in degrees")
+    look.add_argument("--relative", action="store_true", help="with --angles: relative to the present pose")
+    look.add_argument("--wait", type=float, default=20.0, metavar="S",
+                      help="seconds to wait for the look to finish (0: queue it and print its id)")
+    look.add_argument("--replace", action="store_true", help="cancel the looks still queued first")
+    look.add_argument("--json", action="store_true", help="print the look as JSON")
+    look.set_defaults(func=_look)
 
 
 def _config_args(parser: argparse.ArgumentParser, state_dir: bool = True) -> None:
     parser.add_argument("--config", metavar="FILE", help="the head's YAML file (default: configs/sim.yaml)")
     if state_dir:
         parser.add_argument("--state-dir", metavar="DIR", help="override the config's state_dir")
+
+
+def _client_args(parser: argparse.ArgumentParser) -> None:
+    _config_args(parser)
+    parser.add_argument("--url", help="the daemon's API (default: from the state directory or the config)")
+    parser.add_argument("--token", help="the API token (default: $HEADCTL_TOKEN, or the config's api.token)")
+
+
+def _client(args: argparse.Namespace, command: str) -> Any:
+    from headctl.client import ApiClient, ApiError
+
+    config = _load(args, command)
+    if config is None:
+        return None
+    try:
+        return ApiClient.for_config(config, url=args.url, token=args.token)
+    except ApiError as err:
+        print(f"headctl {command}: {err}", file=sys.stderr)
+        return None
 
 
 def _load(args: argparse.Namespace, command: str) -> HeadConfig | None:
@@ -82,6 +118,12 @@ def _run(args: argparse.Namespace) -> int:
     config = _load(args, "run")
     if config is None:
         return 2
+    if args.api_port is not None:
+        if not 0 <= args.api_port <= 65535:
+            print(f"headctl run: --api-port {args.api_port}: expected a TCP port, 0 for an ephemeral one",
+                  file=sys.stderr)
+            return 2
+        config = config.with_api(port=args.api_port)
     _apply_logging(config, args)
     try:
         return Daemon(config).run()
@@ -155,14 +197,14 @@ def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
 
 # --- status ------------------------------------------------------------------------------------
 def _status(args: argparse.Namespace) -> int:
-    from headctl.status import StatusError, query
+    from headctl.client import ApiError
 
-    config = _load(args, "status")
-    if config is None:
+    client = _client(args, "status")
+    if client is None:
         return 2
     try:
-        status = query(config.socket_path)["status"]
-    except StatusError as err:
+        status = client.state()
+    except ApiError as err:
         print(f"headctl status: {err}", file=sys.stderr)
         return 1
     if args.json:
@@ -200,4 +242,54 @@ def format_status(s: dict[str, Any]) -> str:
     for side, c in s["cameras"].items():
         lines.append(f"  camera {side}: {c['health']}, {c['stats'].get('frames')} frames, "
                      f"last {c['frame_age_s']} s ago")
+    return "\n".join(lines)
+
+
+# --- look ----------------------------------------------------------------------------------------
+def _look(args: argparse.Namespace) -> int:
+    """0: done; 1: the look failed or the daemon refused it; 4: still running after --wait."""
+    from headctl.client import ApiError
+
+    if args.relative and not args.angles:
+        print("headctl look: --relative needs --angles (an image target is always relative to the view)",
+              file=sys.stderr)
+        return 2
+    client = _client(args, "look")
+    if client is None:
+        return 2
+    a, b, c = args.values
+    try:
+        if args.angles:
+            job = client.look_angles(a, b, c, relative=args.relative, wait_s=args.wait, replace=args.replace)
+        else:
+            job = client.look_target(a, b, c, wait_s=args.wait, replace=args.replace)
+    except ApiError as err:
+        print(f"headctl look: {err}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(job, indent=2))
+    else:
+        print(format_look(job))
+    return {"done": 0, "failed": 1, "cancelled": 1}.get(job["state"], 4)
+
+
+def format_look(job: dict[str, Any]) -> str:
+    request, result = job["request"], job["result"]
+    what = (f"target x {request['x']:g}, y {request['y']:g}, d {request['d']:g} px" if request["kind"] == "target"
+            else f"{'relative ' if request.get('relative') else ''}angles pan {request['pan']:g}, "
+                 f"tilt {request['tilt']:g}, vergence {request['vergence']:g} deg")
+    line = f"look {job['id']} ({what}): {job['state']}"
+    if job["outcome"]:
+        line += f", {job['outcome']}"
+    if job["detail"]:
+        line += f" ({job['detail']})"
+    lines = [line]
+    if job["state"] in ("queued", "running"):
+        lines.append(f"  still {job['state']}: GET /api/v1/looks/{job['id']}?wait_s=10 to wait for it")
+    pose = result.get("pose_after")
+    if pose is not None:
+        lines.append(f"  pose now: pan {pose[0]:.2f}, tilt {pose[1]:.2f}, vergence {pose[2]:.2f} deg")
+    if result.get("landing_error_px") is not None:
+        lines.append(f"  landed {result['landing_error_px']:.1f} px from the target; confidence "
+                     f"{result['confidence']:.2f}; {result['vergence_steps']} vergence steps")
     return "\n".join(lines)

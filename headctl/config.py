@@ -3,13 +3,15 @@
 Sections (README, "The service"): `servo_bus` and `cameras` (parsed by the drivers' own
 `from_mapping`), `gaze_map` (grid, ranges, Table I parameters, profile), `fixation`
 (`calib_free.fixation.FixationParams` fields plus exploration on/off and rate), `service`
-(servo loop rate, stale-input timeout, checkpoints, safe state), `state_dir` and `logging`.
+(servo loop rate, stale-input timeout, checkpoints, safe state), `api` (the HTTP control
+API's address, token, streams), `state_dir` and `logging`.
 Unknown keys, wrong types and out-of-range values are `ConfigError`s naming the file, the
 key path, the value and what was expected.
 """
 from __future__ import annotations
 
 import dataclasses
+import ipaddress
 import logging
 import os
 import types
@@ -33,7 +35,8 @@ log = logging.getLogger(__name__)
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sim.yaml"
 MAP_FILE = "gaze_map.npz"
-STATUS_SOCKET = "status.sock"
+API_URL_FILE = "api.url"  # the API's URL, written once it listens (port 0: the one the kernel chose)
+LOCK_FILE = "headctl.lock"  # one daemon per state directory
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 SAFE_STATES = ("hold", "torque_off")
 
@@ -171,6 +174,44 @@ class ServiceConfig:
                 raise ValueError(f"{key}: got {getattr(self, key)!r}, expected {expected}")
 
 
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass(frozen=True)
+class ApiConfig:
+    """The `api:` section: the HTTP control API and dashboard (`headctl.api`)."""
+
+    enabled: bool = True
+    host: str = "127.0.0.1"  # any other address needs a token
+    port: int = 8765  # 0: an ephemeral port, written to <state_dir>/api.url
+    token: str | None = field(default=None, repr=False)  # 'Authorization: Bearer <token>' (or ?token=)
+    token_file: str | None = None  # a file holding the token (mode 0600); relative to the config file
+    max_queued_looks: int = 16
+    stream_fps: float = 10.0  # MJPEG frames a second per client
+    jpeg_quality: int = 80
+
+    def __post_init__(self) -> None:
+        checks = (("port", 0 <= self.port <= 65535, "a TCP port, 0 for an ephemeral one"),
+                  ("max_queued_looks", 1 <= self.max_queued_looks <= 1000, "1 to 1000"),
+                  ("stream_fps", 0.1 <= self.stream_fps <= 60, "0.1 to 60 frames a second"),
+                  ("jpeg_quality", 10 <= self.jpeg_quality <= 100, "10 to 100"),
+                  ("token", self.token is None or len(self.token) >= 16, "at least 16 characters"))
+        for key, ok, expected in checks:
+            if not ok:
+                raise ValueError(f"{key}: got {getattr(self, key)!r}, expected {expected}")
+
+    @property
+    def url(self) -> str:
+        host = "127.0.0.1" if self.host in ("0.0.0.0", "") else ("[::1]" if self.host == "::" else self.host)
+        return f"http://{host}:{self.port}"
+
+
 @dataclass(frozen=True)
 class LoggingConfig:
     level: str = "INFO"
@@ -189,9 +230,10 @@ class HeadConfig:
     service: ServiceConfig
     state_dir: Path
     logging: LoggingConfig
+    api: ApiConfig = field(default_factory=ApiConfig)
 
     TOP_KEYS: typing.ClassVar[tuple[str, ...]] = (
-        "servo_bus", "cameras", "gaze_map", "fixation", "service", "state_dir", "logging")
+        "servo_bus", "cameras", "gaze_map", "fixation", "service", "api", "state_dir", "logging")
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -210,8 +252,15 @@ class HeadConfig:
         return self.state_dir / MAP_FILE
 
     @property
-    def socket_path(self) -> Path:
-        return self.state_dir / STATUS_SOCKET
+    def api_url_path(self) -> Path:
+        return self.state_dir / API_URL_FILE
+
+    @property
+    def lock_path(self) -> Path:
+        return self.state_dir / LOCK_FILE
+
+    def with_api(self, **changes: Any) -> "HeadConfig":
+        return dataclasses.replace(self, api=dataclasses.replace(self.api, **changes))
 
     def with_state_dir(self, state_dir: str | os.PathLike) -> "HeadConfig":
         return dataclasses.replace(self, state_dir=Path(state_dir).expanduser().resolve())
@@ -301,10 +350,33 @@ def parse_config(data: Any, path: Path) -> HeadConfig:
     if log_cfg.level not in LOG_LEVELS:
         raise _Invalid("logging.level", log_cfg.level, " or ".join(LOG_LEVELS))
 
+    api = _parse_api(top.get("api"), Path(path))
+
     raw_state = top.get("state_dir", "~/.local/state/headctl")
     state_str = _coerce(raw_state, str, "state_dir")
     state_dir = Path(os.path.expandvars(state_str)).expanduser()
     if not state_dir.is_absolute():
         state_dir = Path(path).resolve().parent / state_dir
     return HeadConfig(path=Path(path), servo_bus=servo_bus, cameras=cameras, gaze_map=gaze_map, fixation=fixation,
-                      service=service, state_dir=state_dir, logging=log_cfg)
+                      service=service, state_dir=state_dir, logging=log_cfg, api=api)
+
+
+def _parse_api(data: Any, path: Path) -> ApiConfig:
+    api = _parse_dataclass(ApiConfig, data, "api")
+    if api.token is not None and api.token_file is not None:
+        raise _Invalid("api.token_file", api.token_file, "either api.token or api.token_file, not both")
+    if api.token_file is not None:
+        token_path = Path(os.path.expandvars(api.token_file)).expanduser()
+        if not token_path.is_absolute():
+            token_path = path.resolve().parent / token_path
+        try:
+            token = token_path.read_text(encoding="utf-8").strip()
+        except OSError as err:
+            raise _Invalid("api.token_file", api.token_file, f"a readable file holding the token ({err.strerror})")
+        if len(token) < 16:
+            raise _Invalid("api.token_file", api.token_file, "a file holding a token of at least 16 characters")
+        api = dataclasses.replace(api, token=token, token_file=str(token_path))
+    if api.enabled and not is_loopback(api.host) and api.token is None:
+        raise _Invalid("api.token", None, f"a token (api.token or api.token_file): api.host {api.host!r} is not "
+                       "a loopback address, and the API moves the head")
+    return api

@@ -13,8 +13,9 @@ Threads, each with one job (DESIGN.md, "Service shape"):
   threads (`StereoPairSource`); taught fixations go to the adapter.
 - `gaze-adapter` (`calib_free.adapter.MapAdapter`): learns from a bounded queue;
   checkpoints the map atomically every `service.checkpoint_every` adaptations.
-- `status-server` (`headctl.status.StatusServer`): the daemon's state as JSON on a unix
-  socket in the state directory.
+- `api-server` (`headctl.api.ApiServer`): the HTTP control API, event stream, metrics,
+  eye streams and dashboard; clients' looks go to the fixation thread through a queue
+  (`headctl.control.LookQueue`), events come from the threads through `EventHub`.
 
 The main thread handles SIGTERM/SIGINT and systemd's notifications (READY, STATUS,
 WATCHDOG, STOPPING), which are written to `$NOTIFY_SOCKET` directly (`SystemdNotifier`).
@@ -23,9 +24,11 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import fcntl
 import logging
 import math
 import os
+import re
 import signal
 import socket
 import sys
@@ -39,7 +42,7 @@ import numpy as np
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.errors import MapFileError
-from calib_free.fixation import FixationController, FixationRecord, PairTimeoutError
+from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError, PairTimeoutError
 from calib_free.gaze_map import AdaptResult
 from calib_free.sim import pose_of
 from drivers.camera import Camera, StereoPair, StreamHealth, create_camera
@@ -47,6 +50,8 @@ from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, Devic
                             JointLimitError, ServoHardwareError)
 from drivers.servo_bus import AUTO_REBOOT_HOLDOFF_S, JOINTS, BusState, ServoBus, create_servo_bus
 from headctl.config import HeadConfig
+from headctl.control import (DONE, FAILED, ControlError, EventHub, InvalidRequestError, LookJob, LookQueue,
+                             LookRequest, NotFoundError, UnavailableError, plain)
 from headctl.errors import HeadctlError
 from headctl.head import DriverHead, StereoPairSource
 
@@ -55,6 +60,7 @@ log = logging.getLogger(__name__)
 REFUSED_BUS_DOWN = "servo bus down"
 REFUSED_SERVO_FAULT = "servo fault"
 REFUSED_SHUTDOWN = "aborted at shutdown"
+MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
 
 
 class ShutdownError(HeadctlError):
@@ -76,6 +82,16 @@ class _WriteRequest:
         self.goals = dict(goals)
         self.done = threading.Event()
         self.sent: dict[str, float] | None = None
+        self.error: BaseException | None = None
+
+
+class _LoopAction:
+    """A call to run on the loop thread between two cycles (the bus has one user)."""
+
+    def __init__(self, fn: Callable[[ServoBus], Any]) -> None:
+        self.fn = fn
+        self.done = threading.Event()
+        self.result: Any = None
         self.error: BaseException | None = None
 
 
@@ -105,7 +121,11 @@ class ServoLoop(threading.Thread):
         self._fault_since: dict[str, float] = {}  # faulted joints held, since when
         self._last_reboot_s: dict[str, float] = {}
         self.read_errors = 0
+        self.write_errors = 0
+        self.bus_down_count = 0
         self.last_read_error = ""
+        self.torque_enabled = True  # as the daemon enabled the bus; `set_torque` changes it
+        self._actions: list[_LoopAction] = []
         self.last_read_s = time.monotonic()
         self.cycles = 0
         self.overruns = 0
@@ -158,6 +178,30 @@ class ServoLoop(threading.Thread):
         with self._cond:
             return dict(self._goals)
 
+    def call(self, fn: Callable[[ServoBus], Any], timeout_s: float = 2.0) -> Any:
+        """Run `fn(bus)` on the loop thread before its next cycle; its result, or its error."""
+        action = _LoopAction(fn)
+        with self._cond:
+            if not self.is_alive():
+                raise ShutdownError(f"{self.name}: the servo loop is not running")
+            self._actions.append(action)
+        if not action.done.wait(timeout_s):
+            raise StaleStateError(f"{self.bus.name}: the servo loop did not get to it within {timeout_s} s")
+        if action.error is not None:
+            raise action.error
+        return action.result
+
+    def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
+        """Torque on (each goal set to the present position first: no jump) or off, all joints.
+        The goal slot is emptied either way, so no goal from before is written afterwards."""
+        def switch(bus: ServoBus) -> None:
+            bus.enable() if on else bus.disable()
+            with self._cond:
+                self._goals = {}
+            self.torque_enabled = on
+        self.call(switch, timeout_s)
+        log.warning("%s: torque %s on all joints (requested)", self.name, "on" if on else "off")
+
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop_event.set()
         if self.is_alive() and threading.current_thread() is not self:
@@ -189,6 +233,7 @@ class ServoLoop(threading.Thread):
                 if previous_s is not None:
                     self.periods_s.append(started - previous_s)
                 previous_s = started
+                self._run_actions()
                 self._cycle()
                 self.cycles += 1
                 self.last_cycle_s = time.monotonic()
@@ -205,11 +250,23 @@ class ServoLoop(threading.Thread):
             log.exception("%s: the servo loop failed", self.name)
         finally:
             with self._cond:
-                for request in self._requests:
-                    request.error = ShutdownError(f"{self.name}: the servo loop stopped")
-                    request.done.set()
+                stopped = ShutdownError(f"{self.name}: the servo loop stopped")
+                for pending in (*self._requests, *self._actions):
+                    pending.error = stopped
+                    pending.done.set()
                 self._requests.clear()
+                self._actions.clear()
                 self._cond.notify_all()
+
+    def _run_actions(self) -> None:
+        with self._cond:
+            actions, self._actions = self._actions, []
+        for action in actions:
+            try:
+                action.result = action.fn(self.bus)
+            except Exception as err:  # the caller gets it
+                action.error = err
+            action.done.set()
 
     def _cycle(self) -> None:
         try:
@@ -307,6 +364,7 @@ class ServoLoop(threading.Thread):
             self._fail_requests(err, requests)
             return
         except DriverError as err:
+            self.write_errors += 1
             log.warning("%s: write failed: %s", self.name, err)
             self._fail_requests(err, requests)
             return
@@ -321,6 +379,7 @@ class ServoLoop(threading.Thread):
 
     def _went_down(self, reason: str) -> None:
         if self.down_reason is None:
+            self.bus_down_count += 1
             log.error("%s: servo bus down (%s): motion paused until it is back", self.name, reason)
         self.down_reason = reason
         self._fail_requests(BusDownError(reason))
@@ -341,7 +400,8 @@ class ServoLoop(threading.Thread):
         j50, j99 = _percentiles(jitter, (50, 99))
         ms = (lambda v: None if v is None else round(v * 1e3, 3))
         return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
-                "read_errors": self.read_errors,
+                "read_errors": self.read_errors, "write_errors": self.write_errors,
+                "bus_down_count": self.bus_down_count,
                 "period_p50_ms": ms(p50), "period_p99_ms": ms(p99),
                 "jitter_p50_ms": ms(j50), "jitter_p99_ms": ms(j99)}
 
@@ -402,16 +462,30 @@ class AbortablePairSource(StereoPairSource):
 
 
 class ObservedHead(DriverHead):
-    """`DriverHead` that says which phase of a fixation it is in, and times vergence commands."""
+    """`DriverHead` that says which phase of a fixation it is in, times vergence commands, and
+    publishes saccade onset (the goals are on the bus) and saccade done (the head at rest)."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, events: EventHub | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.phase = "idle"
+        self.events = events or EventHub()
         self.vergence_latency_s: collections.deque[float] = collections.deque(maxlen=2000)
+        self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
+
+    def pose_now(self, loop: ServoLoop) -> np.ndarray:
+        """The pose of the loop's latest state, without waiting for a fresh one (API checks)."""
+        state = loop.latest_state()
+        if state is None:
+            raise UnavailableError("no servo state read yet")
+        return self.pose_from(state.positions)
 
     def move_to(self, pose: np.ndarray) -> np.ndarray:
         self.phase = "saccade"
-        return super().move_to(pose)
+        before = self.read_pose()
+        goal = super().move_to(pose)
+        self._saccade = (time.monotonic(), goal)
+        self.events.publish("saccade_onset", pose_before=before, goal=goal)
+        return goal
 
     def verge_to(self, vergence: float) -> float:
         self.phase = "fine vergence"
@@ -431,7 +505,13 @@ class ObservedHead(DriverHead):
         if loop is not None:
             goals = loop.goals()
             self._goal = pose_of(goals) if all(j in goals for j in JOINTS) else None
-        return super().wait_settled(timeout_s)
+        rest_s = super().wait_settled(timeout_s)
+        if self._saccade is not None:
+            onset_s, goal = self._saccade
+            self._saccade = None
+            self.events.publish("saccade_done", pose=self.read_pose(), goal=goal,
+                                duration_s=rest_s - onset_s)
+        return rest_s
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
         phase = self.phase
@@ -444,11 +524,13 @@ class ObservedHead(DriverHead):
 
 # --- the fixation controller thread -----------------------------------------------------------
 class FixationThread(threading.Thread):
-    """Exploratory fixations, back to back or at `rate_hz`, paused while the bus is down."""
+    """Clients' looks first, else exploratory fixations (back to back or at `rate_hz`) while
+    exploration is on; paused while the bus is down or torque is off."""
 
     def __init__(self, controller: FixationController, head: ObservedHead, adapter: MapAdapter,
                  loop: ServoLoop, abort: threading.Event, explore: bool = True, rate_hz: float = 0.0,
-                 on_record: Callable[[FixationRecord], None] | None = None) -> None:
+                 on_record: Callable[[FixationRecord], None] | None = None, looks: LookQueue | None = None,
+                 events: EventHub | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
@@ -458,6 +540,8 @@ class FixationThread(threading.Thread):
         self.explore = explore
         self.min_interval_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
         self.on_record = on_record
+        self.looks = looks or LookQueue()
+        self.events = events or head.events
         self.done = 0
         self.taught = 0
         self.refused: collections.Counter[str] = collections.Counter()
@@ -476,61 +560,130 @@ class FixationThread(threading.Thread):
         with self._lock:
             return {"done": self.done, "taught": self.taught, "refused": dict(self.refused)}
 
+    def paused_reason(self) -> str | None:
+        if self.loop.down_reason is not None:
+            return "servo bus down"
+        if not self.loop.torque_enabled:
+            return "torque off"
+        return None
+
     def run(self) -> None:
+        next_explore_s = 0.0
         try:
             while not self.abort.is_set():
-                if not self.explore:
-                    self.head.phase = "idle (exploration off)"
-                    self.abort.wait(0.2)
+                job = self.looks.take()
+                if job is not None:
+                    self._look(job)
                     continue
-                if self.loop.down_reason is not None:
-                    self.head.phase = "paused (servo bus down)"
-                    self.abort.wait(0.05)
+                paused = self.paused_reason()
+                if paused is not None or not self.explore or time.monotonic() < next_explore_s:
+                    self.head.phase = (f"paused ({paused})" if paused else
+                                       "idle" if self.explore else "idle (exploration off)")
+                    wait_s = 0.05 if paused or self.explore else 0.2
+                    if self.explore and not paused:
+                        wait_s = min(wait_s, next_explore_s - time.monotonic())
+                    self.looks.wait_for_work(max(wait_s, 0.001))  # a look wakes it at once
                     continue
                 started = time.monotonic()
-                self._one()
-                wait_s = self.min_interval_s - (time.monotonic() - started)
-                if wait_s > 0:
-                    self.head.phase = "idle"
-                    self.abort.wait(wait_s)
+                self._fixate(None)
+                next_explore_s = started + self.min_interval_s
         except Exception as err:  # reported through the status, never lost
             self.error = err
             log.exception("%s: the fixation controller failed", self.name)
         finally:
             self.head.phase = "stopped"
+            self.looks.cancel_all("the fixation controller stopped")
 
-    def _one(self) -> None:
+    def _fixate(self, target: np.ndarray | None) -> FixationRecord:
+        """One fixation, taught or refused; one aborted because the head failed under it is
+        refused with that reason."""
         self.head.phase = "choosing target"
         try:
-            record = self.controller.fixate()
-        except ShutdownError:
-            self._count(REFUSED_SHUTDOWN)
-            return
-        except (BusDownError, StaleStateError) as err:
-            log.info("fixation aborted: %s", err)
-            self._count(REFUSED_BUS_DOWN)
-            return
-        except (ServoHardwareError, JointLimitError, DriverError) as err:
-            log.warning("fixation aborted: %s", err)
-            self._count(REFUSED_SERVO_FAULT)
-            self.abort.wait(0.2)
-            return
+            record = self.controller.fixate(target)
+        except (HeadctlError, DriverError) as err:
+            if isinstance(err, ShutdownError):
+                reason = REFUSED_SHUTDOWN
+            elif isinstance(err, (BusDownError, StaleStateError)):
+                reason = REFUSED_BUS_DOWN
+                log.info("fixation aborted: %s", err)
+            else:  # a hardware error, a limit refused, torque off
+                reason = REFUSED_SERVO_FAULT
+                log.warning("fixation aborted: %s", err)
+                self.abort.wait(0.2)
+            record = FixationRecord(index=self.controller.count - 1, kind="explore" if target is None else "target",
+                                    target=target, outcome=reason, detail=str(err))
         finally:
             self.head.phase = "idle"
         if record.taught:
             self.adapter.submit(Sample(record.position, record.executed, record.confidence, tag=record.index))
-        self._count(record.outcome, record)
+        self._count(record)
+        return record
 
-    def _count(self, outcome: str, record: FixationRecord | None = None) -> None:
+    def _look(self, job: LookJob) -> None:
+        request = job.request
+        self.events.publish("look_started", id=job.id, **request.as_dict())
+        paused = self.paused_reason()
+        if paused is not None:
+            self.looks.finish(job, FAILED, paused, f"cannot look: {paused}")
+        elif request.kind == "target":
+            self._look_at_target(job)
+        else:
+            self._look_at_angles(job)
+        self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
+
+    def _look_at_target(self, job: LookJob) -> None:
+        target = np.asarray(job.request.values, dtype=float)
+        record = self._fixate(target)
+        result: dict[str, Any] = {"converged": record.converged, "taught": record.taught,
+                                  "vergence_steps": record.vergence_steps, "duration_s": record.duration_s,
+                                  "pose_before": record.pose_before, "pose_after": record.pose_after,
+                                  "planned": record.planned}
+        if record.match is not None:
+            result.update(position=record.position, confidence=record.confidence,
+                          landing_error_px=float(np.hypot(*(record.position[:2] - target[:2]))))
+        self.looks.finish(job, DONE if record.converged else FAILED, record.outcome, record.detail, plain(result))
+
+    def _look_at_angles(self, job: LookJob) -> None:
+        request = job.request
+        self.head.phase = "look at angles"
+        try:
+            before = self.head.read_pose()
+            goal = before + request.values if request.relative else np.asarray(request.values, dtype=float)
+            outside = [f"{name} {value:.2f} outside [{lo:g}, {hi:g}]" for name, value, lo, hi in
+                       zip(("pan", "tilt", "vergence"), goal, self.head.pose_low, self.head.pose_high)
+                       if not lo - 1e-9 <= value <= hi + 1e-9]
+            if outside:  # never clamped silently: the client asked for somewhere the head cannot go
+                self.looks.finish(job, FAILED, "outside the joint limits", "; ".join(outside))
+                return
+            self.head.move_to(goal)
+            self.head.wait_settled(self.controller.params.settle_timeout_s)
+            after = self.head.read_pose()
+        except (HeadctlError, DriverError, HeadTimeoutError) as err:
+            self.looks.finish(job, FAILED, type(err).__name__, str(err))
+            return
+        finally:
+            self.head.phase = "idle"
+        self.looks.finish(job, DONE, "reached", "", plain({"pose_before": before, "pose_after": after,
+                                                             "goal": goal}))
+
+    def _count(self, record: FixationRecord) -> None:
         with self._lock:
             self.done += 1
-            if outcome == "taught":
+            if record.taught:
                 self.taught += 1
             else:
-                self.refused[outcome] += 1
-            if record is not None:
-                self.last = record
-        if record is not None and self.on_record is not None:
+                self.refused[record.outcome] += 1
+            self.last = record
+        # One event a fixation: converged (taught, or refused after converging: the outcome
+        # says why), or refused before converging.
+        if record.converged:
+            self.events.publish("fixation_converged", index=record.index, kind=record.kind, taught=record.taught,
+                                outcome=record.outcome, detail=record.detail, confidence=record.confidence,
+                                position=record.position)
+        else:
+            self.events.publish("fixation_refused", index=record.index, kind=record.kind, reason=record.outcome,
+                                detail=record.detail)
+        if self.on_record is not None:
             self.on_record(record)
 
 
@@ -552,6 +705,16 @@ class EventLog(logging.Handler):
         self.counts[record.levelname] += 1
         self.events.append({"time": record.created, "level": record.levelname, "logger": record.name,
                             "message": message})
+
+
+def _last_fixation(record: FixationRecord) -> dict[str, Any]:
+    match = record.match
+    return plain({"index": record.index, "kind": record.kind, "outcome": record.outcome, "detail": record.detail,
+                  "duration_s": record.duration_s, "converged": record.converged,
+                  "confidence": None if match is None else record.confidence,
+                  "position": None if match is None else record.position,
+                  "left": None if match is None else [match.left.x, match.left.y],
+                  "right": None if match is None else [match.right.x, match.right.y]})
 
 
 # --- persistence ---------------------------------------------------------------------------------
@@ -629,6 +792,43 @@ class Checkpointer:
         return gm.adaptations
 
 
+def write_atomically(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+class StateDirLock:
+    """One daemon per state directory: an exclusive flock(2) on `headctl.lock`, released by the
+    kernel however the process ends (a kill -9 leaves no stale lock)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._fd: int | None = None
+
+    def __enter__(self) -> "StateDirLock":
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise HeadctlError(f"{self.path.parent}: another headctl daemon (pid {holder}) is running with "
+                               "this state directory") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
 # --- systemd --------------------------------------------------------------------------------
 class SystemdNotifier:
     """sd_notify(3) without a dependency: one datagram to `$NOTIFY_SOCKET` per call.
@@ -695,8 +895,17 @@ class Daemon:
         self.camera_restarts: collections.Counter[str] = collections.Counter()
         self._camera_restart_s: dict[str, float] = {}
         self.notifier = SystemdNotifier()
-        self.status_server: Any = None
+        self.api_server: Any = None
+        self.api_url: str | None = None
         self.events = EventLog()
+        self.hub = EventHub()  # what clients stream: saccades, fixations, looks, faults
+        self.looks = LookQueue(config.api.max_queued_looks)
+        # The learning curves (one point an adaptation) and the target looks' landing errors.
+        self.learning_points: collections.deque[dict[str, Any]] = collections.deque(maxlen=5000)
+        self.landing_errors_px: collections.deque[float] = collections.deque(maxlen=200)
+        self._points_lock = threading.Lock()
+        self._point_seq = 0  # the learning points' index: grows through a map reset or load
+        self._faults_seen: set[str] = set()
 
     # -- building ------------------------------------------------------------------------
     def _build_bus(self) -> ServoBus:
@@ -725,43 +934,74 @@ class Daemon:
         return {side: {"head": head, "pose_source": pose_source(side)} for side in ("left", "right")}
 
     def _on_adapted(self, sample: Sample, result: AdaptResult) -> None:
+        adaptations = self.adapter.map.adaptations if self.adapter is not None else 0
         if result.accepted:
             self.adaptations_run += 1
             self.recent_output_errors.append(np.asarray(result.output_error, dtype=float))
-        if self.checkpointer is not None and self.adapter is not None:
-            self.checkpointer.maybe(self.adapter.map.adaptations)
+            with self._points_lock:
+                self._point_seq += 1
+                self.learning_points.append(plain({
+                    "n": self._point_seq, "adaptations": adaptations, "t": time.time(),
+                    "retinal_error": result.retinal_error,
+                    "output_error_deg": result.output_error, "confidence": sample.confidence}))
+        if self.checkpointer is not None:
+            self.checkpointer.maybe(adaptations)
+
+    def _on_record(self, record: FixationRecord) -> None:
+        if record.kind == "target" and record.match is not None and record.target is not None:
+            self.landing_errors_px.append(float(np.hypot(*(record.position[:2] - record.target[:2]))))
+
+    def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]:
+        """The learning-curve points after point `since` (at most `limit`, the newest) and the
+        `since` to ask with next time."""
+        with self._points_lock:
+            points = [p for p in self.learning_points if p["n"] > since]
+            newest = self._point_seq
+        return {"next": newest, "points": points[-limit:] if limit > 0 else []}
 
     # -- state for `headctl status` ----------------------------------------------------------
     def faults(self) -> list[str]:
-        out: list[str] = []
+        return list(self.fault_items().values())
+
+    def fault_items(self) -> dict[str, str]:
+        """What is wrong now, by a key that stays the same while the fault lasts."""
+        out: dict[str, str] = {}
         loop = self.loop
+        now = time.monotonic()
         if loop is not None:
             if loop.down_reason is not None:
-                out.append(f"servo bus down: {loop.down_reason}")
+                out["servo_bus"] = f"servo bus down: {loop.down_reason}"
             for joint, meanings in loop.faults.items():
-                out.append(f"{loop.bus.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)")
-            if loop.down_reason is None and time.monotonic() - loop.last_read_s > 0.5:
-                out.append(f"servo reads failing for {time.monotonic() - loop.last_read_s:.1f} s: "
-                           f"{loop.last_read_error}")
+                out[f"servo:{joint}"] = f"{loop.bus.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)"
+            if loop.down_reason is None and now - loop.last_read_s > 0.5:
+                out["servo_reads"] = f"servo reads failing for {now - loop.last_read_s:.1f} s: {loop.last_read_error}"
             if loop.error is not None:
-                out.append(f"servo loop failed: {loop.error!r}")
-            if loop.is_alive() and time.monotonic() - loop.last_cycle_s > 1.0:
-                out.append(f"servo loop stalled for {time.monotonic() - loop.last_cycle_s:.1f} s")
-        now = time.monotonic()
+                out["servo_loop"] = f"servo loop failed: {loop.error!r}"
+            if loop.is_alive() and now - loop.last_cycle_s > 1.0:
+                out["servo_loop_stall"] = f"servo loop stalled for {now - loop.last_cycle_s:.1f} s"
         for side, camera in self.cameras.items():
             latest = camera.latest()
             if camera.health.value != "streaming":
-                out.append(f"camera {side}: {camera.health.value} ({camera.last_error})")
+                out[f"camera:{side}"] = f"camera {side}: {camera.health.value} ({camera.last_error})"
             elif self.phase == "running" and (latest is None or now - latest.time_s > 1.0):
                 age = "no frame yet" if latest is None else f"no frame for {now - latest.time_s:.1f} s"
-                out.append(f"camera {side}: stalled, {age} ({camera.last_error})")
+                out[f"camera:{side}"] = f"camera {side}: stalled, {age} ({camera.last_error})"
         if self.fixation is not None and self.fixation.error is not None:
-            out.append(f"fixation controller failed: {self.fixation.error!r}")
+            out["fixation"] = f"fixation controller failed: {self.fixation.error!r}"
         if self.adapter is not None and self.adapter.error is not None:
-            out.append(f"adapter: {self.adapter.error!r}")
+            out["adapter"] = f"adapter: {self.adapter.error!r}"
         if self.checkpointer is not None and self.checkpointer.error:
-            out.append(self.checkpointer.error)
+            out["checkpoint"] = self.checkpointer.error
         return out
+
+    def _watch_faults(self) -> None:
+        """A `fault` event when a fault appears, `fault_cleared` when it is gone."""
+        items = self.fault_items()
+        for key in items.keys() - self._faults_seen:
+            self.hub.publish("fault", key=key, message=items[key])
+        for key in self._faults_seen - items.keys():
+            self.hub.publish("fault_cleared", key=key)
+        self._faults_seen = set(items)
 
     def state(self) -> str:
         if self.phase != "running":
@@ -782,6 +1022,9 @@ class Daemon:
         fix = self.fixation
         counts = fix.counts() if fix is not None else {"done": 0, "taught": 0, "refused": {}}
         last = fix.last if fix is not None else None
+        pose = None
+        if state is not None and self.head is not None:
+            pose = dict(zip(("pan", "tilt", "vergence"), self.head.pose_from(state.positions).round(4).tolist()))
         learning: dict[str, Any] = {}
         if self.adapter is not None:
             def figures(gm: GazeMap) -> dict[str, Any]:
@@ -810,13 +1053,16 @@ class Daemon:
             "config": str(self.config.path),
             "uptime_s": round(time.monotonic() - self.started_s, 3),
             "faults": self.faults(),
+            "api": self.api_url,
+            "image_size": list(self.config.image_size),
             "joints": joints,
+            "pose": pose,
+            "torque": loop.torque_enabled if loop is not None else None,
             "servo_loop": loop.timing() if loop is not None else None,
             "fixation": {"state": self.head.phase if self.head is not None else self.phase,
-                         "explore": self.config.fixation.explore, **counts,
-                         "last": None if last is None else {"index": last.index, "outcome": last.outcome,
-                                                           "detail": last.detail,
-                                                           "duration_s": round(last.duration_s, 3)},
+                         "explore": fix.explore if fix is not None else self.config.fixation.explore, **counts,
+                         "looks_queued": self.looks.pending(),
+                         "last": None if last is None else _last_fixation(last),
                          "vergence_latency_ms": {"count": len(latency),
                                                  "p50": None if l50 is None else round(l50 * 1e3, 3),
                                                  "p99": None if l99 is None else round(l99 * 1e3, 3)}},
@@ -858,6 +1104,113 @@ class Daemon:
         log.warning("injected fault: %s %s", fault, joint or camera or "")
         return fault
 
+    # -- control: what the API asks (thread-safe; ControlError names the field at fault) ----------
+    def _running_parts(self) -> tuple[ServoLoop, FixationThread, MapAdapter, ObservedHead]:
+        loop, fix, adapter, head = self.loop, self.fixation, self.adapter, self.head
+        if self.phase != "running" or loop is None or fix is None or adapter is None or head is None:
+            raise UnavailableError(f"the daemon is {self.phase}, not running")
+        return loop, fix, adapter, head
+
+    def look(self, request: LookRequest, replace: bool = False) -> LookJob:
+        """Queue a look after checking it against the image, the map and the joint limits."""
+        loop, _, adapter, head = self._running_parts()
+        if request.kind == "target":
+            width, height = self.config.image_size
+            d_low, d_high = adapter.map.params.disparity_range
+            for name, value, low, high, what in (("x", request.values[0], 0, width - 1, "the image's columns"),
+                                                 ("y", request.values[1], 0, height - 1, "the image's rows"),
+                                                 ("d", request.values[2], d_low, d_high,
+                                                  "the map's disparity range (gaze_map.disparity_range)")):
+                if not low <= value <= high:
+                    raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [{low:g}, {high:g}]", name)
+        else:
+            pose = head.pose_now(loop) if request.relative else np.zeros(3)
+            goal = pose + np.asarray(request.values, dtype=float)
+            for i, name in enumerate(("pan", "tilt", "vergence")):
+                low, high = head.pose_low[i], head.pose_high[i]
+                if not low - 1e-9 <= goal[i] <= high + 1e-9:
+                    where = f"{pose[i]:.2f} + {request.values[i]:g} = {goal[i]:.2f}" if request.relative \
+                        else f"{goal[i]:g}"
+                    raise InvalidRequestError(f"{name}: {where} deg is outside the limits [{low:g}, {high:g}] deg "
+                                       "(servo_bus.joints, fixation.vergence_range)", name)
+        job = self.looks.submit(request, replace=replace)
+        log.info("look %d queued: %s", job.id, request.as_dict())
+        return job
+
+    def set_exploration(self, enabled: bool) -> bool:
+        _, fix, _, _ = self._running_parts()
+        if fix.explore != enabled:
+            fix.explore = enabled
+            log.info("exploration %s (requested)", "on" if enabled else "off")
+            self.hub.publish("exploration", enabled=enabled)
+        return fix.explore
+
+    def set_torque(self, enabled: bool) -> bool:
+        loop, _, _, _ = self._running_parts()
+        if loop.down_reason is not None:
+            raise UnavailableError(f"servo bus down ({loop.down_reason}): torque cannot be switched now")
+        try:
+            loop.set_torque(enabled)
+        except DriverError as err:
+            raise ControlError(f"torque {'on' if enabled else 'off'} failed: {err}", "enabled") from err
+        self.hub.publish("torque", enabled=enabled)
+        return enabled
+
+    def _map_path(self, name: str | None) -> Path:
+        if name is None:
+            return self.config.map_path
+        if not MAP_NAME.fullmatch(name):
+            raise InvalidRequestError(f"name {name!r}: expected a file name in the state directory, such as "
+                               "'before-lens-swap.npz' (letters, digits, . _ -; ending .npz)", "name")
+        return self.config.state_dir / name
+
+    def save_map(self, name: str | None = None) -> dict[str, Any]:
+        """Save the map (default: the checkpoint file, atomically, keeping .prev)."""
+        _, _, adapter, _ = self._running_parts()
+        path = self._map_path(name)
+        if name is None and self.checkpointer is not None:
+            self.checkpointer.save()
+            if self.checkpointer.error:
+                raise ControlError(self.checkpointer.error, "name")
+            adaptations = self.checkpointer.last_adaptations
+        else:
+            try:
+                adaptations = adapter.with_map(lambda gm: (gm.save(path), gm.adaptations)[1])
+            except OSError as err:
+                raise ControlError(f"{path}: cannot save: {err}", "name") from err
+        self.hub.publish("map", action="saved", path=str(path), adaptations=adaptations)
+        return {"path": str(path), "adaptations": adaptations}
+
+    def load_map(self, name: str | None = None) -> dict[str, Any]:
+        """Replace the map being learned by a saved one (made for the same map parameters)."""
+        _, _, adapter, _ = self._running_parts()
+        path = self._map_path(name)
+        if not path.exists():
+            raise NotFoundError(f"{path}: no such map file", "name")
+        try:
+            gm = GazeMap.load(path)
+        except MapFileError as err:
+            raise ControlError(str(err), "name") from err
+        if gm.params != self.config.map_params():
+            raise ControlError(f"{path}: saved for other map parameters (image size {gm.params.image_size}, "
+                               f"grid {gm.params.grid_shape}, profile {gm.params.profile}) than this head's",
+                               "name")
+        adapter.replace_map(gm)
+        log.warning("gaze map replaced by %s (%d adaptations)", path, gm.adaptations)
+        self.hub.publish("map", action="loaded", path=str(path), adaptations=gm.adaptations)
+        return {"path": str(path), "adaptations": gm.adaptations}
+
+    def reset_map(self, seed: int | None = None) -> dict[str, Any]:
+        """Start learning again from a random map; the map before is saved as `before-reset.npz`."""
+        _, _, adapter, _ = self._running_parts()
+        backup = self.config.state_dir / "before-reset.npz"
+        adapter.with_map(lambda gm: gm.save(backup, keep_previous=False))
+        seed = self.config.gaze_map.seed if seed is None else seed
+        adapter.replace_map(GazeMap(self.config.map_params(), seed=seed))
+        log.warning("gaze map reset to a random map (seed %d); the previous one is in %s", seed, backup)
+        self.hub.publish("map", action="reset", seed=seed, backup=str(backup), adaptations=0)
+        return {"path": str(self.config.map_path), "adaptations": 0, "backup": str(backup)}
+
     # -- running -----------------------------------------------------------------------------------
     def request_stop(self, signum: int | None = None, frame: Any = None) -> None:
         if signum is not None:
@@ -865,7 +1218,7 @@ class Daemon:
         self.stop_event.set()
 
     def run(self, install_signals: bool = True) -> int:
-        from headctl.status import StatusServer
+        from headctl.api import ApiServer
 
         cfg = self.config
         # A thread waiting for the GIL gets it after this long (CPython's default is 5 ms): the
@@ -879,7 +1232,13 @@ class Daemon:
             stack.callback(self.notifier.close)
             logging.getLogger().addHandler(self.events)
             stack.callback(logging.getLogger().removeHandler, self.events)
-            self.status_server = stack.enter_context(StatusServer(cfg.socket_path, self))
+            stack.enter_context(StateDirLock(cfg.lock_path))
+            if cfg.api.enabled:
+                self.api_server = stack.enter_context(ApiServer(
+                    self, cfg.api.host, cfg.api.port, cfg.api.token, cfg.api.stream_fps, cfg.api.jpeg_quality))
+                self.api_url = self.api_server.url
+                write_atomically(cfg.api_url_path, self.api_url + "\n")
+                stack.callback(cfg.api_url_path.unlink, missing_ok=True)
             self.notifier.notify(status="starting: restoring the gaze map")
             gm, self.map_source, self.map_problems = restore_map(cfg)
             self.map_restored = {"adaptations": gm.adaptations, "recent_retinal_errors": list(gm.recent_errors)}
@@ -905,16 +1264,17 @@ class Daemon:
             self.adapter.start()
             stack.callback(self.adapter.stop)
             self.head = ObservedHead(LoopBus(self.loop, self.abort), AbortablePairSource(self.pair, self.abort),
-                                     clock=bus.clock, vergence_range=cfg.fixation.vergence_range)
+                                     clock=bus.clock, vergence_range=cfg.fixation.vergence_range, events=self.hub)
             controller = FixationController(self.head, self.adapter, cfg.fixation.params,
                                             seed=None if not cfg.simulated else cfg.gaze_map.seed)
             self.fixation = FixationThread(controller, self.head, self.adapter, self.loop, self.abort,
-                                           cfg.fixation.explore, cfg.fixation.rate_hz)
+                                           cfg.fixation.explore, cfg.fixation.rate_hz, on_record=self._on_record,
+                                           looks=self.looks, events=self.hub)
             self.fixation.start()
             stack.callback(self.fixation.stop)
             self.phase = "running"
-            log.info("headctl running: %s, state in %s, status socket %s", cfg.path, cfg.state_dir,
-                     cfg.socket_path)
+            log.info("headctl running: %s, state in %s, API %s", cfg.path, cfg.state_dir,
+                     self.api_url or "off (api.enabled: false)")
             self.notifier.notify(ready=1, status=self._status_line())
             self._supervise()
             self._shutdown()
@@ -931,20 +1291,21 @@ class Daemon:
     def _supervise(self) -> None:
         """The main thread: systemd STATUS and WATCHDOG until asked to stop."""
         watchdog_s = self.notifier.watchdog_s
-        interval_s = min(1.0, watchdog_s / 3) if watchdog_s else 1.0
-        last_line = ""
+        interval_s = min(0.25, watchdog_s / 3) if watchdog_s else 0.25  # faults reach clients this fast
+        last_line, last_line_s = "", -math.inf
         while not self.stop_event.wait(interval_s):
             line = self._status_line()
             fields: dict[str, Any] = {}
-            if line != last_line:
+            if line != last_line and time.monotonic() - last_line_s >= 1.0:
                 fields["status"] = line
-                last_line = line
+                last_line, last_line_s = line, time.monotonic()
             loop = self.loop
             # Only a live servo loop keeps systemd from restarting the service.
             if watchdog_s and loop is not None and loop.is_alive() and time.monotonic() - loop.last_cycle_s < 1.0:
                 fields["watchdog"] = 1
             if fields:
                 self.notifier.notify(**fields)
+            self._watch_faults()
             self._watch_cameras()
 
     def _watch_cameras(self) -> None:

@@ -109,7 +109,11 @@ class DriverHead:
 
 
     def read_pose(self) -> np.ndarray:
-        pose = pose_of(self.bus.read_state().positions)
+        return self.pose_from(self.bus.read_state().positions)
+
+    def pose_from(self, positions: dict[str, float]) -> np.ndarray:
+        """(pan, tilt, vergence) as this head reads joint positions (with the pan reading offset)."""
+        pose = pose_of(positions)
         pose[0] += self.pan_reading_offset_deg
         return pose
 

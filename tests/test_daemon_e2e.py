@@ -1,75 +1,21 @@
 """End to end: `headctl run` on the simulated head (configs/sim.yaml) in a subprocess.
 
-Each test drives the daemon through its status socket (polling with deadlines, never a bare
+Each test drives the daemon through its HTTP API (polling with deadlines, never a bare
 sleep): it learns, survives injected faults, stops on SIGTERM within 5 s with the map saved,
 continues from that map after a restart, and a kill -9 during a checkpoint leaves a loadable map.
 """
 from __future__ import annotations
 
-import os
-import pathlib
 import signal
-import subprocess
-import sys
 import time
 
 import pytest
 import yaml
 
 from calib_free import GazeMap
-from headctl.status import StatusError, query
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-SIM = ROOT / "configs" / "sim.yaml"
+from daemon_proc import SIM, DaemonProcess as Daemon
 
 pytestmark = pytest.mark.timeout(180)
-
-
-class Daemon:
-    """`headctl run` in a subprocess, with a state directory of its own."""
-
-    def __init__(self, state_dir: pathlib.Path, config: pathlib.Path = SIM) -> None:
-        self.state_dir = state_dir
-        self.socket = state_dir / "status.sock"
-        self.log = open(state_dir.parent / f"{state_dir.name}-daemon.log", "ab")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        env.pop("NOTIFY_SOCKET", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "run", "--config", str(config),
-                                      "--state-dir", str(state_dir)], cwd=ROOT, env=env,
-                                     stdout=self.log, stderr=subprocess.STDOUT)
-
-    def status(self) -> dict:
-        return query(self.socket, timeout_s=5.0)["status"]
-
-    def inject(self, fault: str, **args) -> None:
-        query(self.socket, {"cmd": "inject", "fault": fault, **args})
-
-    def wait(self, predicate, timeout_s: float, what: str) -> dict:
-        """Poll the status until `predicate(status)`; fail with the last status after the deadline."""
-        deadline = time.monotonic() + timeout_s
-        status: dict = {}
-        while time.monotonic() < deadline:
-            assert self.proc.poll() is None, f"the daemon exited with {self.proc.returncode} waiting for {what}"
-            try:
-                status = self.status()
-            except StatusError:
-                status = {}
-            if status and predicate(status):
-                return status
-            time.sleep(0.05)
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; last status {status}")
-
-    def terminate(self, timeout_s: float = 5.0) -> tuple[int, float]:
-        started = time.monotonic()
-        self.proc.send_signal(signal.SIGTERM)
-        code = self.proc.wait(timeout_s + 2.0)
-        return code, time.monotonic() - started
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(5)
-        self.log.close()
 
 
 @pytest.fixture
@@ -139,7 +85,7 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     assert code == 0 and seconds < 5.0
     saved = GazeMap.load(state / "gaze_map.npz")
     assert saved.adaptations >= before["adaptations"]
-    assert not (state / "status.sock").exists()
+    assert not (state / "api.url").exists()
 
     again = Daemon(state)
     daemons.append(again)
@@ -185,8 +131,8 @@ def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, daemons):
 def test_status_command_prints_the_state_and_fails_without_a_daemon(tmp_path, daemons, capsys):
     from headctl.cli import main
 
-    assert main(["status", "--state-dir", str(tmp_path / "none")]) == 1
-    assert "no status socket" in capsys.readouterr().err
+    assert main(["status", "--state-dir", str(tmp_path / "none"), "--url", "http://127.0.0.1:9"]) == 1
+    assert "cannot reach the daemon" in capsys.readouterr().err
     state = tmp_path / "state"
     d = Daemon(state)
     daemons.append(d)

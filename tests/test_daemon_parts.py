@@ -1,8 +1,10 @@
-"""The daemon's parts in-process: the servo loop, map restore and checkpoints, sd_notify, the status socket."""
+"""The daemon's parts in-process: the servo loop, map restore and checkpoints, sd_notify, the state-directory lock."""
 from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 
@@ -15,9 +17,9 @@ from drivers.errors import BusDownError, ServoHardwareError
 from drivers.servo_bus import JOINTS, ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 from headctl.config import load_config
-from headctl.daemon import Checkpointer, LoopBus, ServoLoop, ShutdownError, SystemdNotifier, restore_map
+from headctl.daemon import (Checkpointer, LoopBus, ServoLoop, ShutdownError, StateDirLock, SystemdNotifier,
+                            restore_map)
 from headctl.errors import HeadctlError
-from headctl.status import StatusError, StatusServer, query
 
 
 def wait_until(predicate, timeout_s=5.0, what="condition"):
@@ -191,24 +193,22 @@ def test_sd_notify_datagrams_reach_the_notify_socket(tmp_path):
     assert SystemdNotifier({"WATCHDOG_USEC": "100", "WATCHDOG_PID": "1"}).watchdog_s is None  # not ours
 
 
-class _Target:
-    def status(self):
-        return {"state": "running", "value": np.float64(1.5)}
-
-    def inject(self, fault, **kw):
-        raise HeadctlError("fault injection needs the simulated head")
-
-
-def test_the_status_socket_answers_and_reports_errors(tmp_path):
-    path = tmp_path / "status.sock"
-    with StatusServer(path, _Target()):
-        assert query(path)["status"] == {"state": "running", "value": 1.5}
-        with pytest.raises(StatusError, match="needs the simulated head"):
-            query(path, {"cmd": "inject", "fault": "bus_down"})
-        with pytest.raises(StatusError, match="unknown cmd"):
-            query(path, {"cmd": "dance"})
-        with pytest.raises(HeadctlError, match="another headctl daemon"):
-            StatusServer(path, _Target()).__enter__()
-    assert not path.exists()
-    with pytest.raises(StatusError, match="no status socket"):
-        query(path)
+def test_one_daemon_per_state_directory_and_the_lock_dies_with_its_holder(tmp_path):
+    path = tmp_path / "headctl.lock"
+    with StateDirLock(path):
+        with pytest.raises(HeadctlError, match=f"another headctl daemon \\(pid {os.getpid()}\\)"):
+            StateDirLock(path).__enter__()
+    with StateDirLock(path) as lock:  # released: free again
+        lock.close()
+        lock.close()  # idempotent
+    # A holder killed with -9 leaves the file but not the lock.
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time; fd = os.open(sys.argv[1], "
+                               "os.O_RDWR | os.O_CREAT); fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); "
+                               "time.sleep(60)", str(path)], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    with pytest.raises(HeadctlError, match="another headctl daemon"):
+        StateDirLock(path).__enter__()
+    holder.kill()
+    holder.wait(5)
+    with StateDirLock(path):
+        assert path.read_text().strip() == str(os.getpid())

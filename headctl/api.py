@@ -1,0 +1,490 @@
+"""The daemon's HTTP control API and dashboard (FastAPI on uvicorn, on its own thread).
+
+Routes (README, "The control API"); all JSON, under /api/v1:
+
+    GET  /state                     joints, pose, fixation, learning, faults, servo loop, cameras
+    GET  /learning?since=N          learning-curve points after point N
+    POST /look/target               {x, y, d, wait_s?, replace?}: look at an image target
+    POST /look/angles               {pan, tilt, vergence, relative?, wait_s?, replace?}
+    GET  /looks/{id}?wait_s=S       a look's state (waits up to S s for it to finish)
+    DELETE /looks/{id}              cancel a queued look
+    GET  /events                    Server-Sent Events: saccade_onset, saccade_done,
+                                    fixation_converged, fixation_refused, look_started, look_done,
+                                    fault, fault_cleared, exploration, torque, map
+    POST /exploration, /torque      {enabled}
+    POST /map/save, /map/load       {name?}; POST /map/reset {seed?}
+    GET  /eyes/{left|right}.mjpg    MJPEG with the fovea and the last correspondence marked
+    GET  /eyes/{left|right}.jpg     one such frame
+    POST /sim/faults                fault injection, simulated head only
+    GET  /metrics                   Prometheus exposition (not under /api/v1)
+    GET  /                          the dashboard (headctl/dashboard/)
+
+A refused request is a 4xx JSON object {"error", "field", "reason"}, never a traceback.
+Bound to loopback by default; with a token configured every route but the dashboard's static
+files needs `Authorization: Bearer <token>` (or `?token=`, for a browser's <img> and
+EventSource). Nothing here holds a lock the servo loop waits on: state is read from the
+latest-value slots, and motion goes through the look queue to the fixation thread.
+"""
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import logging
+import math
+import socket
+import threading
+import time
+from http import HTTPStatus
+from pathlib import Path
+from typing import Any, AsyncIterator, Literal
+
+import cv2
+import numpy as np
+import uvicorn
+from fastapi import Depends, FastAPI, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from headctl.control import ControlError, LookJob, LookRequest, UnavailableError, plain
+from headctl.errors import HeadctlError
+
+log = logging.getLogger(__name__)
+
+DASHBOARD_DIR = Path(__file__).resolve().parent / "dashboard"
+MAX_WAIT_S = 60.0
+SSE_PING_S = 15.0
+
+
+# --- request bodies ----------------------------------------------------------------------------
+class _Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not ignored
+
+
+class _Waitable(_Body):
+    wait_s: float = Field(0.0, ge=0.0, le=MAX_WAIT_S,
+                          description="answer when the look is finished, or after this long (0: at once)")
+    replace: bool = Field(False, description="cancel the looks still queued first")
+
+
+class TargetLook(_Waitable):
+    x: float = Field(description="column in the left image, px")
+    y: float = Field(description="row in the left image, px")
+    d: float = Field(description="disparity x_right - x_left, px")
+
+
+class AnglesLook(_Waitable):
+    pan: float | None = Field(None, description="deg")
+    tilt: float | None = Field(None, description="deg")
+    vergence: float | None = Field(None, description="deg, left eye minus right eye")
+    relative: bool = False
+
+    @model_validator(mode="after")
+    def _complete(self) -> "AnglesLook":
+        missing = [k for k in ("pan", "tilt", "vergence") if getattr(self, k) is None]
+        if missing and not self.relative:
+            raise ValueError(f"{', '.join(missing)} missing: an absolute look needs pan, tilt and vergence "
+                             "(or send relative: true, where a missing angle means 0)")
+        for k in ("pan", "tilt", "vergence"):
+            value = getattr(self, k)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"{k} must be a finite number of degrees")
+        return self
+
+
+class Switch(_Body):
+    enabled: bool
+
+
+class MapFile(_Body):
+    name: str | None = Field(None, description="a file in the state directory (default: the checkpoint)")
+
+
+class MapReset(_Body):
+    seed: int | None = Field(None, ge=0, description="the random map's seed (default: gaze_map.seed)")
+
+
+class Fault(_Body):
+    fault: Literal["bus_down", "restore_bus", "hardware_error", "camera_stall", "camera_resume"]
+    joint: str | None = None
+    camera: Literal["left", "right"] | None = None
+    bits: int = Field(0, ge=0, le=255)
+
+
+# --- errors ---------------------------------------------------------------------------------
+def _error(status: int, field: str | None, reason: str, **extra: Any) -> JSONResponse:
+    return JSONResponse({"error": HTTPStatus(status).phrase, "field": field, "reason": reason, **extra},
+                        status_code=status)
+
+
+def _field_of(loc: tuple[Any, ...]) -> str | None:
+    parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
+    return ".".join(parts) or (str(loc[0]) if loc else None)
+
+
+async def _on_invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
+    errors = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": e.get("msg", "invalid")}
+              for e in exc.errors()]
+    first = errors[0] if errors else {"field": None, "reason": "invalid request"}
+    if any(e.get("type") == "json_invalid" for e in exc.errors()):
+        first = {"field": "body", "reason": "the body is not valid JSON"}
+    return _error(422, first["field"], first["reason"], errors=errors)
+
+
+async def _on_control(request: Request, exc: ControlError) -> JSONResponse:
+    return _error(exc.status, exc.field, str(exc))
+
+
+async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    headers = getattr(exc, "headers", None)
+    response = _error(exc.status_code, None, str(exc.detail))
+    if headers:
+        response.headers.update(headers)
+    return response
+
+
+async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("%s %s failed", request.method, request.url.path)
+    return _error(500, None, f"internal error ({type(exc).__name__}); the daemon's log has the details")
+
+
+class _Unauthorized(StarletteHTTPException):
+    def __init__(self, reason: str) -> None:
+        super().__init__(401, reason, headers={"WWW-Authenticate": 'Bearer realm="headctl"'})
+
+
+# --- the eyes' images -------------------------------------------------------------------------
+class EyeImages:
+    """JPEG frames of each eye with the fovea (green cross) and the last correspondence (the
+    matched point of the last fixation, yellow circle, with its confidence) marked; one encoding
+    per camera frame, shared by every client."""
+
+    def __init__(self, daemon: Any, quality: int) -> None:
+        self.daemon = daemon
+        self.quality = quality
+        self._lock = threading.Lock()
+        self._cache: dict[str, tuple[int, bytes]] = {}
+
+    def jpeg(self, side: str) -> tuple[int, bytes] | None:
+        camera = self.daemon.cameras.get(side)
+        frame = camera.latest() if camera is not None else None
+        if frame is None:
+            return None
+        with self._lock:
+            cached = self._cache.get(side)
+        if cached is not None and cached[0] == frame.counter:
+            return cached
+        image = frame.image if frame.image.ndim == 3 else cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR)
+        image = image.copy()
+        self._mark(image, side)
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+        if not ok:
+            return None
+        encoded = (frame.counter, data.tobytes())
+        with self._lock:
+            self._cache[side] = encoded
+        return encoded
+
+    def _mark(self, image: np.ndarray, side: str) -> None:
+        height, width = image.shape[:2]
+        cx, cy = int(round((width - 1) / 2)), int(round((height - 1) / 2))
+        arm = max(6, width // 40)
+        cv2.drawMarker(image, (cx, cy), (0, 255, 0), cv2.MARKER_CROSS, 2 * arm, 1, cv2.LINE_AA)
+        fixation = self.daemon.fixation
+        last = fixation.last if fixation is not None else None
+        if last is None or last.match is None:
+            return
+        eye = last.match.left if side == "left" else last.match.right
+        point = (int(round(eye.x)), int(round(eye.y)))
+        cv2.circle(image, point, arm, (0, 220, 255), 1, cv2.LINE_AA)
+        cv2.putText(image, f"c={last.confidence:.2f}", (point[0] + arm + 2, point[1] + 4),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 220, 255), 1, cv2.LINE_AA)
+
+
+# --- the app ---------------------------------------------------------------------------------
+def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
+               jpeg_quality: int = 80) -> FastAPI:
+    """The API over `daemon` (a `headctl.daemon.Daemon`, or anything with its control methods)."""
+    app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None,
+                  description="Control API of a calibration-free stereo camera head.")
+    app.state.closing = threading.Event()
+    app.state.streams = set()  # (loop, asyncio.Queue) of the open event streams
+    eyes = EyeImages(daemon, jpeg_quality)
+
+    def authorize(request: Request) -> None:
+        if token is None:
+            return
+        header = request.headers.get("authorization", "")
+        given = header[7:].strip() if header.lower().startswith("bearer ") else request.query_params.get("token")
+        if given is None:
+            raise _Unauthorized("a token is required: send 'Authorization: Bearer <token>' (or ?token=)")
+        if not hmac.compare_digest(given.encode(), token.encode()):
+            raise _Unauthorized("wrong token")
+
+    app.add_exception_handler(RequestValidationError, _on_invalid)
+    app.add_exception_handler(ControlError, _on_control)
+    app.add_exception_handler(StarletteHTTPException, _on_http)
+    app.add_exception_handler(Exception, _on_unexpected)
+    guarded = [Depends(authorize)]
+
+    # -- the dashboard ----------------------------------------------------------------
+    @app.get("/", include_in_schema=False)
+    def dashboard() -> Response:
+        index = DASHBOARD_DIR / "index.html"
+        if not index.exists():
+            return _error(404, None, f"{index}: the dashboard is not installed")
+        return FileResponse(index, headers={"Cache-Control": "no-cache"})
+
+    if DASHBOARD_DIR.is_dir():
+        app.mount("/dashboard", StaticFiles(directory=DASHBOARD_DIR), name="dashboard")
+
+    # -- state ------------------------------------------------------------------------
+    @app.get("/api/v1/state", dependencies=guarded)
+    def state() -> Response:
+        return _json(daemon.status())
+
+    @app.get("/api/v1/learning", dependencies=guarded)
+    def learning(since: int = Query(0, ge=0), limit: int = Query(5000, ge=0, le=5000)) -> Response:
+        return _json(daemon.learning_since(since, limit))
+
+    # -- looks ------------------------------------------------------------------------
+    async def answer_look(job: LookJob, wait_s: float) -> Response:
+        if wait_s > 0 and not job.done.is_set():
+            await _wait_done(job, wait_s)
+        body = plain(job.as_dict())
+        return _json(body, status=200 if job.done.is_set() else 202)
+
+    @app.post("/api/v1/look/target", dependencies=guarded)
+    async def look_target(body: TargetLook) -> Response:
+        job = await run_in_threadpool(daemon.look, LookRequest("target", (body.x, body.y, body.d)), body.replace)
+        return await answer_look(job, body.wait_s)
+
+    @app.post("/api/v1/look/angles", dependencies=guarded)
+    async def look_angles(body: AnglesLook) -> Response:
+        values = tuple(float(getattr(body, k) or 0.0) for k in ("pan", "tilt", "vergence"))
+        job = await run_in_threadpool(daemon.look, LookRequest("angles", values, body.relative),  # type: ignore[arg-type]
+                                      body.replace)
+        return await answer_look(job, body.wait_s)
+
+    @app.get("/api/v1/looks/{look_id}", dependencies=guarded)
+    async def get_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
+        return await answer_look(daemon.looks.get(look_id), wait_s)
+
+    @app.delete("/api/v1/looks/{look_id}", dependencies=guarded)
+    def cancel_look(look_id: int) -> Response:
+        return _json(plain(daemon.looks.cancel(look_id).as_dict()))
+
+    # -- switches and the map ---------------------------------------------------------
+    @app.post("/api/v1/exploration", dependencies=guarded)
+    def exploration(body: Switch) -> Response:
+        return _json({"enabled": daemon.set_exploration(body.enabled)})
+
+    @app.post("/api/v1/torque", dependencies=guarded)
+    def torque(body: Switch) -> Response:
+        return _json({"enabled": daemon.set_torque(body.enabled)})
+
+    @app.post("/api/v1/map/save", dependencies=guarded)
+    def map_save(body: MapFile | None = None) -> Response:
+        return _json(daemon.save_map(body.name if body else None))
+
+    @app.post("/api/v1/map/load", dependencies=guarded)
+    def map_load(body: MapFile | None = None) -> Response:
+        return _json(daemon.load_map(body.name if body else None))
+
+    @app.post("/api/v1/map/reset", dependencies=guarded)
+    def map_reset(body: MapReset | None = None) -> Response:
+        return _json(daemon.reset_map(body.seed if body else None))
+
+    @app.post("/api/v1/sim/faults", dependencies=guarded)
+    def inject(body: Fault) -> Response:
+        try:
+            done = daemon.inject(body.fault, joint=body.joint, camera=body.camera, bits=body.bits)
+        except ControlError:
+            raise
+        except HeadctlError as err:
+            raise ControlError(str(err), "fault") from err
+        return _json({"injected": done})
+
+    # -- streams ----------------------------------------------------------------------
+    @app.get("/api/v1/events", dependencies=guarded)
+    async def events(request: Request, after: int | None = Query(None, ge=0)) -> Response:
+        last_id = request.headers.get("last-event-id")
+        if after is None and last_id is not None and last_id.isdigit():
+            after = int(last_id)
+        return StreamingResponse(_event_stream(app, daemon, after), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+    @app.get("/api/v1/eyes/{side}.jpg", dependencies=guarded)
+    async def eye_jpeg(side: Literal["left", "right"]) -> Response:
+        encoded = await run_in_threadpool(eyes.jpeg, side)
+        if encoded is None:
+            raise UnavailableError(f"camera {side}: no frame yet")
+        return Response(encoded[1], media_type="image/jpeg", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/api/v1/eyes/{side}.mjpg", dependencies=guarded)
+    async def eye_mjpeg(side: Literal["left", "right"],
+                        fps: float = Query(stream_fps, gt=0, le=60)) -> Response:
+        return StreamingResponse(_mjpeg(app, eyes, side, fps), media_type="multipart/x-mixed-replace; boundary=frame",
+                                 headers={"Cache-Control": "no-cache"})
+
+    @app.get("/metrics", dependencies=guarded, include_in_schema=False)
+    def metrics() -> Response:
+        from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+        return Response(generate_latest(app.state.registry), media_type=CONTENT_TYPE_LATEST)
+
+    from headctl.metrics import registry_for
+    app.state.registry = registry_for(daemon)
+    return app
+
+
+def _json(body: Any, status: int = 200) -> Response:
+    # NaN is no JSON: `plain` turns it into null before it gets here.
+    return Response(json.dumps(body, default=_default, allow_nan=False), status_code=status,
+                    media_type="application/json")
+
+
+def _default(value: Any) -> Any:
+    converted = plain(value)
+    if converted is value:
+        return str(value)
+    return converted
+
+
+async def _wait_done(job: LookJob, wait_s: float) -> None:
+    """Wait for `job` to finish without holding a worker thread (its done callback wakes us)."""
+    loop = asyncio.get_running_loop()
+    finished = asyncio.Event()
+    job.add_done_callback(lambda _job: loop.call_soon_threadsafe(finished.set))
+    try:
+        await asyncio.wait_for(finished.wait(), wait_s)
+    except asyncio.TimeoutError:
+        pass
+
+
+async def _event_stream(app: FastAPI, daemon: Any, after: int | None) -> AsyncIterator[bytes]:
+    loop = asyncio.get_running_loop()
+    queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(maxsize=1024)
+    lost = 0
+
+    def put(event: dict[str, Any] | None) -> None:
+        nonlocal lost
+        try:
+            queue.put_nowait(event)
+        except asyncio.QueueFull:  # a client that does not read loses events, never blocks the head
+            lost += 1
+
+    entry = (loop, put)
+    app.state.streams.add(entry)
+    unsubscribe = daemon.hub.subscribe(lambda e: loop.call_soon_threadsafe(put, e), after_seq=after)
+    try:
+        yield b"retry: 2000\n: headctl events\n\n"
+        while not app.state.closing.is_set():
+            try:
+                event = await asyncio.wait_for(queue.get(), SSE_PING_S)
+            except asyncio.TimeoutError:
+                yield b": ping\n\n"
+                continue
+            if event is None:  # the server is closing
+                break
+            if lost:
+                yield f"event: lost\ndata: {json.dumps({'count': lost})}\n\n".encode()
+                lost = 0
+            data = json.dumps(event, default=_default, allow_nan=False)
+            yield f"id: {event['seq']}\nevent: {event['type']}\ndata: {data}\n\n".encode()
+    finally:
+        unsubscribe()
+        app.state.streams.discard(entry)
+
+
+async def _mjpeg(app: FastAPI, eyes: EyeImages, side: str, fps: float) -> AsyncIterator[bytes]:
+    period_s = 1.0 / fps
+    last_counter = None
+    while not app.state.closing.is_set():
+        started = time.monotonic()
+        encoded = await run_in_threadpool(eyes.jpeg, side)  # OpenCV encodes without the GIL
+        if encoded is not None and encoded[0] != last_counter:
+            last_counter = encoded[0]
+            yield (b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: " + str(len(encoded[1])).encode()
+                   + b"\r\n\r\n" + encoded[1] + b"\r\n")
+        await asyncio.sleep(max(0.0, period_s - (time.monotonic() - started)))
+
+
+# --- the server thread -------------------------------------------------------------------------
+class ApiServer(threading.Thread):
+    """uvicorn serving `create_app(daemon)` on its own thread and event loop; a context manager.
+
+    `__enter__` returns once the socket listens (the port is taken, or the address is wrong:
+    HeadctlError naming it); `url` is then the address clients use (with port 0, the port
+    the kernel chose)."""
+
+    def __init__(self, daemon: Any, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
+                 stream_fps: float = 10.0, jpeg_quality: int = 80) -> None:
+        super().__init__(name="api-server", daemon=True)
+        self.host, self.port = host, port
+        self.app = create_app(daemon, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
+        self._sock: socket.socket | None = None
+        self._server: uvicorn.Server | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.url = ""
+        self.error: BaseException | None = None
+
+    def __enter__(self) -> "ApiServer":
+        family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((self.host, self.port))
+        except OSError as err:
+            sock.close()
+            raise HeadctlError(f"api: cannot listen on {self.host}:{self.port} ({err.strerror}); "
+                               "is another headctl running? (api.port in the config)") from err
+        sock.listen(128)
+        sock.set_inheritable(True)
+        self._sock = sock
+        port = sock.getsockname()[1]
+        host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(self.host, self.host)
+        self.url = f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
+        config = uvicorn.Config(self.app, log_level="warning", access_log=False, lifespan="off",
+                                timeout_graceful_shutdown=2, http="httptools")
+        self._server = uvicorn.Server(config)
+        self.start()
+        log.info("control API and dashboard on %s", self.url)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def run(self) -> None:
+        assert self._server is not None and self._sock is not None
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._server.serve(sockets=[self._sock]))
+        except Exception as err:  # reported through the status, never lost
+            self.error = err
+            log.exception("%s: the API server failed", self.name)
+        finally:
+            loop.close()
+
+    def stop(self, timeout_s: float = 4.0) -> None:
+        """End the streams, stop serving, close the socket. Safe to call twice."""
+        self.app.state.closing.set()
+        for loop, put in list(self.app.state.streams):
+            try:
+                loop.call_soon_threadsafe(put, None)
+            except RuntimeError:  # its loop is already closed
+                pass
+        if self._server is not None:
+            self._server.should_exit = True
+        if self.is_alive() and threading.current_thread() is not self:
+            self.join(timeout_s)
+            if self.is_alive():
+                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None

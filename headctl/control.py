@@ -1,0 +1,280 @@
+"""What clients ask of the daemon, apart from HTTP: gaze requests ("looks") and events.
+
+- `LookRequest` / `LookJob`: look at an image target (x, y, d), or at joint angles (pan, tilt,
+  vergence; absolute or relative). A job is queued, taken by the fixation thread between two
+  fixations, and ends `done` (the fixation converged, or the angles were reached), `failed`
+  (refused: the reason says why) or `cancelled`. `done` is a `threading.Event` to wait on; the
+  job's id is what an HTTP client waits on later.
+- `LookQueue`: the bounded queue of jobs and the record of the last finished ones.
+- `EventHub`: saccade onset/done, fixation converged/refused, faults, look started/done, ...
+  published by the daemon's threads to any number of subscribers (the HTTP event stream),
+  each a callback that must not block; the last events are kept so that a client that
+  reconnects (SSE `Last-Event-ID`) misses none.
+
+The HTTP layer (`headctl.api`) only translates; everything here is usable and tested without it.
+"""
+from __future__ import annotations
+
+import collections
+import itertools
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from headctl.errors import HeadctlError
+
+log = logging.getLogger(__name__)
+
+# The states of a look.
+QUEUED, RUNNING, DONE, FAILED, CANCELLED = "queued", "running", "done", "failed", "cancelled"
+FINISHED = (DONE, FAILED, CANCELLED)
+
+
+class ControlError(HeadctlError):
+    """A client's request that cannot be carried out; `field` names what is wrong."""
+
+    status = 409
+
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+class InvalidRequestError(ControlError):
+    """A request whose value is out of range (outside the image, the joint limits...)."""
+
+    status = 422
+
+
+class QueueFullError(ControlError):
+    status = 429
+
+
+class NotFoundError(ControlError):
+    status = 404
+
+
+class UnavailableError(ControlError):
+    """The daemon cannot do it now (starting, stopping, not a simulated head...)."""
+
+    status = 503
+
+
+@dataclass(frozen=True)
+class LookRequest:
+    """Look at an image target (`kind` "target": x, y, d px in the left image) or at joint
+    angles (`kind` "angles": pan, tilt, vergence deg, absolute or `relative` to the pose when
+    the look starts)."""
+
+    kind: str
+    values: tuple[float, float, float]
+    relative: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        names = ("x", "y", "d") if self.kind == "target" else ("pan", "tilt", "vergence")
+        out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
+        if self.kind == "angles":
+            out["relative"] = self.relative
+        return out
+
+
+@dataclass
+class LookJob:
+    id: int
+    request: LookRequest
+    state: str = QUEUED
+    outcome: str = ""  # the fixation's outcome ("taught" or why it did not teach), or why it failed
+    detail: str = ""
+    result: dict[str, Any] = field(default_factory=dict)
+    created_s: float = field(default_factory=time.time)
+    started_s: float | None = None
+    finished_s: float | None = None
+    done: threading.Event = field(default_factory=threading.Event, repr=False)
+    _callbacks: list[Callable[["LookJob"], None]] = field(default_factory=list, repr=False)
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add_done_callback(self, fn: Callable[["LookJob"], None]) -> None:
+        """Call `fn(job)` when the job finishes (at once if it has); from the finishing thread."""
+        with self._lock:
+            if not self.done.is_set():
+                self._callbacks.append(fn)
+                return
+        fn(self)
+
+    def _set_done(self) -> None:
+        with self._lock:
+            self.done.set()
+            callbacks, self._callbacks = self._callbacks, []
+        for fn in callbacks:
+            try:
+                fn(self)
+            except Exception:  # a client's callback must not break the fixation thread
+                log.exception("look %d: a done callback failed", self.id)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "request": self.request.as_dict(), "state": self.state, "outcome": self.outcome,
+                "detail": self.detail, "result": self.result, "created": self.created_s,
+                "started": self.started_s, "finished": self.finished_s}
+
+
+class LookQueue:
+    """Looks waiting for the fixation thread (at most `size`), and the last finished ones."""
+
+    def __init__(self, size: int = 16, keep_finished: int = 256) -> None:
+        self.size = size
+        self._cond = threading.Condition()
+        self._queued: collections.deque[LookJob] = collections.deque()
+        self._jobs: collections.OrderedDict[int, LookJob] = collections.OrderedDict()
+        self._keep = keep_finished
+        self._ids = itertools.count(1)
+
+    def submit(self, request: LookRequest, replace: bool = False) -> LookJob:
+        """Queue a look; with `replace`, looks still queued are cancelled first (a tracker's
+        newest target wins). QueueFullError when `size` are waiting."""
+        with self._cond:
+            if replace:
+                while self._queued:
+                    self._finish_locked(self._queued.popleft(), CANCELLED, "replaced", "a newer look replaced it")
+            if len(self._queued) >= self.size:
+                raise QueueFullError(f"{len(self._queued)} looks already queued (the limit, api.max_queued_looks); "
+                                     "wait for one, or send replace: true")
+            job = LookJob(next(self._ids), request)
+            self._queued.append(job)
+            self._jobs[job.id] = job
+            self._trim_locked()
+            self._cond.notify_all()
+            return job
+
+    def take(self, timeout_s: float = 0.0) -> LookJob | None:
+        """The oldest queued look, now running; None if none came within `timeout_s`."""
+        with self._cond:
+            if not self._queued and timeout_s > 0:
+                self._cond.wait(timeout_s)
+            if not self._queued:
+                return None
+            job = self._queued.popleft()
+            job.state, job.started_s = RUNNING, time.time()
+            return job
+
+    def wait_for_work(self, timeout_s: float) -> bool:
+        """Block until a look is queued (True) or `timeout_s` passed (False)."""
+        with self._cond:
+            return bool(self._queued) or self._cond.wait_for(lambda: bool(self._queued), timeout_s)
+
+    def finish(self, job: LookJob, state: str, outcome: str, detail: str = "",
+               result: dict[str, Any] | None = None) -> None:
+        with self._cond:
+            self._finish_locked(job, state, outcome, detail, result)
+
+    def cancel(self, job_id: int) -> LookJob:
+        with self._cond:
+            job = self.get(job_id)
+            if job.state != QUEUED:
+                raise ControlError(f"look {job_id} is {job.state}: only a queued look can be cancelled", "id")
+            self._queued.remove(job)
+            self._finish_locked(job, CANCELLED, "cancelled", "cancelled by a client")
+            return job
+
+    def cancel_all(self, reason: str) -> None:
+        with self._cond:
+            while self._queued:
+                self._finish_locked(self._queued.popleft(), CANCELLED, "cancelled", reason)
+
+    def get(self, job_id: int) -> LookJob:
+        with self._cond:
+            job = self._jobs.get(job_id)
+        if job is None:
+            raise NotFoundError(f"no look with id {job_id} (the last {self._keep} are kept)", "id")
+        return job
+
+    def pending(self) -> int:
+        with self._cond:
+            return len(self._queued)
+
+    def _finish_locked(self, job: LookJob, state: str, outcome: str, detail: str = "",
+                       result: dict[str, Any] | None = None) -> None:
+        job.state, job.outcome, job.detail = state, outcome, detail
+        job.result = result or {}
+        job.finished_s = time.time()
+        job._set_done()
+
+    def _trim_locked(self) -> None:
+        while len(self._jobs) > self._keep + self.size:
+            oldest_id, oldest = next(iter(self._jobs.items()))
+            if oldest.state not in FINISHED:
+                break
+            del self._jobs[oldest_id]
+
+
+Subscriber = Callable[[dict[str, Any]], None]
+
+
+class EventHub:
+    """Publish events to subscribers (callbacks that must not block); keeps the last `history`."""
+
+    def __init__(self, history: int = 512) -> None:
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._history: collections.deque[dict[str, Any]] = collections.deque(maxlen=history)
+        self._subscribers: list[Subscriber] = []
+        self.counts: collections.Counter[str] = collections.Counter()
+
+    def publish(self, type_: str, **fields: Any) -> dict[str, Any]:
+        with self._lock:
+            self._seq += 1
+            event = {"seq": self._seq, "time": time.time(), "type": type_,
+                     **{k: plain(v) for k, v in fields.items()}}
+            self._history.append(event)
+            self.counts[type_] += 1
+            subscribers = list(self._subscribers)
+        for deliver in subscribers:
+            try:
+                deliver(event)
+            except Exception:  # one broken subscriber must not stop the publisher (a servo thread)
+                log.exception("event subscriber failed on %s", type_)
+        return event
+
+    def subscribe(self, deliver: Subscriber, after_seq: int | None = None) -> Callable[[], None]:
+        """Call `deliver(event)` for every event from now on (and first for those kept after
+        `after_seq`, if given); returns the function that unsubscribes."""
+        with self._lock:
+            backlog = [e for e in self._history if after_seq is not None and e["seq"] > after_seq]
+            self._subscribers.append(deliver)
+        for event in backlog:
+            deliver(event)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if deliver in self._subscribers:
+                    self._subscribers.remove(deliver)
+        return unsubscribe
+
+    def recent(self, count: int = 50) -> list[dict[str, Any]]:
+        with self._lock:
+            return list(self._history)[-count:]
+
+    @property
+    def subscribers(self) -> int:
+        with self._lock:
+            return len(self._subscribers)
+
+
+def plain(value: Any) -> Any:
+    """JSON-ready: numpy arrays and scalars as lists and floats, NaN as None."""
+    if isinstance(value, np.ndarray):
+        return [plain(v) for v in value.tolist()]
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, (np.floating, float)):
+        f = float(value)
+        return None if f != f else round(f, 4)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
