@@ -3,7 +3,7 @@ from a frame's exposure to the vergence command it leads to being on the bus.
 
 Runs `headctl run` on the simulated head (configs/sim.yaml: servo bus and cameras in real
 time, fixations, the adapter learning, checkpoints) in a child process with a temporary
-state directory for `--seconds`, then reads the daemon's own figures from its status socket:
+state directory for `--seconds`, then reads the daemon's own figures from its HTTP API:
 the servo loop's cycle periods (the last 6,000 cycles, 60 s at 100 Hz) and, for every
 fine-vergence step, the time from the exposure of the pair it reacts to until the loop
 wrote the command. As a baseline, the same `ServoLoop` runs in this process on an idle
@@ -29,7 +29,7 @@ from drivers.servo_bus import ServoBusConfig  # noqa: E402
 from drivers.sim_servo import SimulatedServoBus  # noqa: E402
 from headctl.config import load_config  # noqa: E402
 from headctl.daemon import ServoLoop  # noqa: E402
-from headctl.status import StatusError, query  # noqa: E402
+from headctl.client import ApiClient, ApiError  # noqa: E402
 
 
 def idle_baseline(config_path: Path, seconds: float) -> dict:
@@ -48,22 +48,23 @@ def idle_baseline(config_path: Path, seconds: float) -> dict:
 def run_daemon(config_path: Path, seconds: float) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-daemon-") as state:
         proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "--log-level", "WARNING", "run",
-                                 "--config", str(config_path), "--state-dir", state], cwd=ROOT,
+                                 "--config", str(config_path), "--state-dir", state, "--api-port", "0"], cwd=ROOT,
                                 stderr=subprocess.DEVNULL)
-        sock = Path(state) / "status.sock"
+        url_file = Path(state) / "api.url"
         try:
             deadline = time.monotonic() + 30
             while True:
                 try:
-                    if query(sock)["status"]["state"] == "running":
+                    client = ApiClient(url_file.read_text().strip())
+                    if client.state()["state"] == "running":
                         break
-                except StatusError:
+                except (OSError, ApiError):
                     pass
                 if time.monotonic() > deadline or proc.poll() is not None:
                     raise SystemExit("the daemon did not start")
                 time.sleep(0.1)
             time.sleep(seconds)  # the measurement itself: the daemon learns meanwhile
-            status = query(sock)["status"]
+            status = client.state()
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(10)

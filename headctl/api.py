@@ -193,7 +193,7 @@ class EyeImages:
         height, width = image.shape[:2]
         cx, cy = int(round((width - 1) / 2)), int(round((height - 1) / 2))
         arm = max(6, width // 40)
-        cv2.drawMarker(image, (cx, cy), (0, 255, 0), cv2.MARKER_CROSS, 2 * arm, 1, cv2.LINE_AA)
+        cv2.drawMarker(image, (cx, cy), (0, 255, 0), cv2.MARKER_CROSS, 2 * arm, 2)  # 2 px: survives JPEG
         fixation = self.daemon.fixation
         last = fixation.last if fixation is not None else None
         if last is None or last.match is None:

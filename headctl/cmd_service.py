@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     run = sub.add_parser(
         "run", help="run the service (default: the simulated head of configs/sim.yaml)",
         description="Run the daemon for one head until SIGTERM or SIGINT: servo loop, cameras, exploratory "
-                    "fixations, online learning with checkpoints, status socket, systemd notifications.")
+                    "fixations, online learning with checkpoints, the HTTP control API and dashboard, systemd "
+                    "notifications.")
     _config_args(run)
     run.add_argument("--api-port", type=int, metavar="PORT",
                      help="override api.port (0: an ephemeral port, written to <state_dir>/api.url)")

@@ -253,6 +253,12 @@ class EventHub:
                     self._subscribers.remove(deliver)
         return unsubscribe
 
+    @property
+    def seq(self) -> int:
+        """The last event's number (stream from here with `after`)."""
+        with self._lock:
+            return self._seq
+
     def recent(self, count: int = 50) -> list[dict[str, Any]]:
         with self._lock:
             return list(self._history)[-count:]

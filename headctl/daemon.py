@@ -101,9 +101,11 @@ class ServoLoop(threading.Thread):
     REBOOT_AFTER_S = 1.0  # a hardware error that leaves torque on persists this long: reboot
 
     def __init__(self, bus: ServoBus, rate_hz: float = 100.0, input_timeout_s: float = 0.5,
-                 history: int = 6000, realtime_priority: int = 0) -> None:
+                 history: int = 6000, realtime_priority: int = 0,
+                 on_fault_change: Callable[[], None] | None = None) -> None:
         super().__init__(name="servo-io", daemon=True)
         self.bus = bus
+        self.on_fault_change = on_fault_change  # the bus went down or came back, a joint faulted or cleared
         self.realtime_priority = realtime_priority
         self.period_s = 1.0 / rate_hz
         self.input_timeout_s = input_timeout_s
@@ -287,6 +289,7 @@ class ServoLoop(threading.Thread):
             self.down_reason = None
             with self._cond:
                 self._goals = {}  # the bus restored torque at the positions read back
+            self._fault_changed()
         faults = state.faults
         now = time.monotonic()
         with self._cond:
@@ -301,6 +304,7 @@ class ServoLoop(threading.Thread):
             for joint in set(self._fault_since) - set(faults):
                 log.warning("%s: %s: hardware error cleared; joint free again", self.name, self.bus.describe(joint))
                 del self._fault_since[joint]
+            changed = set(faults) != set(self.faults)
             self.faults = faults
             self._state = state
             self._state_seq += 1
@@ -314,6 +318,15 @@ class ServoLoop(threading.Thread):
         self._holding = stale
         self._write(state, requests)
         self._recover_faults(state, now)
+        if changed:
+            self._fault_changed()
+
+    def _fault_changed(self) -> None:
+        if self.on_fault_change is not None:
+            try:
+                self.on_fault_change()
+            except Exception:  # a listener must not stop the servo loop
+                log.exception("%s: fault listener failed", self.name)
 
     def _recover_faults(self, state: BusState, now: float) -> None:
         """With `reboot_on_hardware_error`, reboot a servo whose error persists with its torque on
@@ -378,10 +391,13 @@ class ServoLoop(threading.Thread):
             request.done.set()
 
     def _went_down(self, reason: str) -> None:
-        if self.down_reason is None:
+        first = self.down_reason is None
+        if first:
             self.bus_down_count += 1
             log.error("%s: servo bus down (%s): motion paused until it is back", self.name, reason)
         self.down_reason = reason
+        if first:
+            self._fault_changed()
         self._fail_requests(BusDownError(reason))
 
     def _fail_requests(self, err: BaseException, requests: list[_WriteRequest] | None = None) -> None:
@@ -906,6 +922,7 @@ class Daemon:
         self._points_lock = threading.Lock()
         self._point_seq = 0  # the learning points' index: grows through a map reset or load
         self._faults_seen: set[str] = set()
+        self._faults_lock = threading.Lock()
 
     # -- building ------------------------------------------------------------------------
     def _build_bus(self) -> ServoBus:
@@ -995,13 +1012,16 @@ class Daemon:
         return out
 
     def _watch_faults(self) -> None:
-        """A `fault` event when a fault appears, `fault_cleared` when it is gone."""
-        items = self.fault_items()
-        for key in items.keys() - self._faults_seen:
-            self.hub.publish("fault", key=key, message=items[key])
-        for key in self._faults_seen - items.keys():
-            self.hub.publish("fault_cleared", key=key)
-        self._faults_seen = set(items)
+        """A `fault` event when a fault appears, `fault_cleared` when it is gone: polled by the
+        main thread, and called by the servo loop the moment its bus or a joint changes (a bus
+        down for less than a poll is still reported)."""
+        with self._faults_lock:
+            items = self.fault_items()
+            for key in items.keys() - self._faults_seen:
+                self.hub.publish("fault", key=key, message=items[key])
+            for key in self._faults_seen - items.keys():
+                self.hub.publish("fault_cleared", key=key)
+            self._faults_seen = set(items)
 
     def state(self) -> str:
         if self.phase != "running":
@@ -1054,6 +1074,7 @@ class Daemon:
             "uptime_s": round(time.monotonic() - self.started_s, 3),
             "faults": self.faults(),
             "api": self.api_url,
+            "events_seq": self.hub.seq,
             "image_size": list(self.config.image_size),
             "joints": joints,
             "pose": pose,
@@ -1256,7 +1277,7 @@ class Daemon:
             for camera in self.cameras.values():
                 camera.enable()
             self.loop = ServoLoop(bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s,
-                                  realtime_priority=cfg.service.realtime_priority)
+                                  realtime_priority=cfg.service.realtime_priority, on_fault_change=self._watch_faults)
             self.loop.start()
             stack.callback(self.loop.stop)
             self.adapter = MapAdapter(gm, on_adapted=self._on_adapted)

@@ -177,7 +177,7 @@ def test_checkpoints_every_n_adaptations_are_loadable(tmp_path):
     assert GazeMap.load(f"{config.map_path}.prev").adaptations == 2
 
 
-# --- systemd, status socket -------------------------------------------------------------------
+# --- systemd, the state-directory lock -------------------------------------------------------------------
 def test_sd_notify_datagrams_reach_the_notify_socket(tmp_path):
     path = str(tmp_path / "notify")
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as server:

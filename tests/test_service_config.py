@@ -136,3 +136,37 @@ def test_check_refuses_an_invalid_file_with_exit_2(tmp_path, capsys):
     path = _write(tmp_path, data)
     assert main(["check", "--config", str(path), "--no-connect"]) == 2
     assert f"{path}: fixation.rate_hz: got -1.0, expected a rate >= 0" in capsys.readouterr().err
+
+
+# --- api ------------------------------------------------------------------------------------------
+def test_the_api_defaults_to_loopback_without_a_token():
+    api = load_config().api
+    assert api.enabled and api.host == "127.0.0.1" and api.token is None
+    assert api.url == f"http://127.0.0.1:{api.port}"
+
+
+@pytest.mark.parametrize("api, words", [
+    ({"host": "0.0.0.0"}, "api.token: got None, expected a token (api.token or api.token_file): api.host '0.0.0.0'"),
+    ({"host": "192.0.2.7", "port": 80}, "api.host '192.0.2.7' is not a loopback address"),
+    ({"port": 70000}, "api: got"),
+    ({"token": "short"}, "token: got 'short', expected at least 16 characters"),
+    ({"token": "x" * 20, "token_file": "t"}, "api.token_file: got 't', expected either api.token or api.token_file"),
+    ({"token_file": "missing-token"}, "api.token_file: got 'missing-token', expected a readable file"),
+    ({"stream_fps": 500}, "stream_fps"),
+    ({"bogus": 1}, "api.bogus"),
+])
+def test_bad_api_settings_name_the_key(tmp_path, api, words):
+    data = _sim()
+    data["api"] = api
+    with pytest.raises(ConfigError) as err:
+        load_config(_write(tmp_path, data))
+    assert words in str(err.value)
+
+
+def test_a_token_file_beside_the_config_allows_any_address(tmp_path):
+    (tmp_path / "api-token").write_text("  0123456789abcdef0123  \n")
+    data = _sim()
+    data["api"] = {"host": "0.0.0.0", "token_file": "api-token"}
+    api = load_config(_write(tmp_path, data)).api
+    assert api.token == "0123456789abcdef0123" and api.token_file == str(tmp_path / "api-token")
+    assert "0123456789abcdef" not in repr(api)  # never in a log line

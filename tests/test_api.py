@@ -1,0 +1,500 @@
+"""The HTTP control API against a real daemon on the simulated head, over loopback.
+
+One daemon (in this process, API on an ephemeral port) serves the module's tests while it
+explores and learns, as on a robot; every endpoint is exercised, with malformed bodies,
+out-of-range targets, wrong tokens and concurrent clients. Events are read from the SSE
+stream from a known sequence number, never waited for with sleeps.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import http.client
+import json
+import threading
+import time
+import urllib.parse
+
+import cv2
+import numpy as np
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+
+from calib_free import GazeMap
+from headctl.cli import main
+from headctl.client import ApiClient, ApiError
+from headctl.config import load_config
+from headctl.daemon import Daemon
+
+pytestmark = pytest.mark.timeout(120)
+
+TOKEN = "s3cret-token-for-the-tests"
+
+
+def start_daemon(state_dir, **api):
+    config = load_config().with_state_dir(state_dir).with_api(port=0, **api)
+    daemon = Daemon(config)
+    thread = threading.Thread(target=daemon.run, kwargs={"install_signals": False}, name="test-daemon")
+    thread.start()
+    deadline = time.monotonic() + 30
+    while daemon.phase != "running":
+        assert thread.is_alive(), "the daemon stopped while starting"
+        assert time.monotonic() < deadline, f"the daemon is still {daemon.phase} after 30 s"
+        time.sleep(0.02)
+    return daemon, thread
+
+
+def stop_daemon(daemon, thread):
+    daemon.request_stop()
+    thread.join(15)
+    assert not thread.is_alive(), "the daemon did not stop"
+
+
+@pytest.fixture(scope="module")
+def head(tmp_path_factory):
+    daemon, thread = start_daemon(tmp_path_factory.mktemp("api-state"), max_queued_looks=3)
+    client = ApiClient(daemon.api_url, timeout_s=10.0)
+    yield daemon, client
+    stop_daemon(daemon, thread)
+
+
+def raw(client, method, path, body: bytes | str | None = None, headers=None):
+    """A request as sent by a sloppy client: (status, parsed JSON or bytes, headers)."""
+    parts = urllib.parse.urlsplit(client.url)
+    conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=10)
+    try:
+        conn.request(method, path, body=body, headers=headers or {"Content-Type": "application/json"})
+        response = conn.getresponse()
+        payload = response.read()
+        kind = response.getheader("Content-Type", "")
+        return response.status, (json.loads(payload) if "json" in kind else payload), dict(response.getheaders())
+    finally:
+        conn.close()
+
+
+def events_after(client, seq, predicate, timeout_s=30.0):
+    """Events after `seq` from the SSE stream until `predicate(events)` holds; fails at the deadline."""
+    seen: list[dict] = []
+    deadline = time.monotonic() + timeout_s
+    for event in client.events(after=seq, timeout_s=timeout_s):
+        seen.append(event)
+        if predicate(seen):
+            return seen
+        assert time.monotonic() < deadline, f"timed out; events seen: {[e['type'] for e in seen]}"
+    raise AssertionError(f"the stream ended; events seen: {[e['type'] for e in seen]}")
+
+
+def wait_state(client, predicate, timeout_s=20.0, what="state"):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        state = client.state()
+        if predicate(state):
+            return state
+        assert time.monotonic() < deadline, f"timed out waiting for {what}; last state {state}"
+        time.sleep(0.05)
+
+
+# --- state -------------------------------------------------------------------------------------
+def test_state_reports_joints_pose_and_learning(head):
+    daemon, client = head
+    s = wait_state(client, lambda s: s["fixation"]["done"] >= 1, what="a first fixation")
+    assert s["state"] == "running" and s["api"] == client.url
+    assert set(s["joints"]) == {"pan", "tilt", "left_eye", "right_eye"}
+    j, pose = s["joints"], s["pose"]
+    # The pose is the joints' as the fixation strategy sees them: vergence = left - right eye.
+    assert pose["pan"] == pytest.approx(j["pan"]["position_deg"], abs=1e-3)
+    assert pose["vergence"] == pytest.approx(j["left_eye"]["position_deg"] - j["right_eye"]["position_deg"], abs=1e-3)
+    assert s["image_size"] == [320, 240] and s["torque"] is True
+    assert s["servo_loop"]["rate_hz"] == 100.0
+
+
+def test_learning_points_come_in_order_and_only_once(head):
+    _, client = head
+    first = wait_state(client, lambda s: s["learning"]["adaptations_this_run"] >= 2, 60, "two adaptations")
+    assert first
+    page = client.learning(0)
+    points = page["points"]
+    assert len(points) >= 2 and page["next"] == points[-1]["n"]
+    assert [p["n"] for p in points] == sorted({p["n"] for p in points})
+    assert all(0 <= p["retinal_error"] and len(p["output_error_deg"]) == 3 and 0 < p["confidence"] <= 1
+               for p in points)
+    later = client.learning(page["next"])
+    assert all(p["n"] > page["next"] for p in later["points"])
+
+
+# --- looks -------------------------------------------------------------------------------------
+def test_a_target_look_fixates_and_its_events_tell_the_story(head):
+    daemon, client = head
+    seq = client.state()["events_seq"]
+    job = client.look_target(160, 120, -5, wait_s=30)
+    assert job["state"] in ("done", "failed") and job["request"] == {"kind": "target", "x": 160, "y": 120, "d": -5}
+    assert job["result"]["pose_before"] is not None and job["finished"] >= job["started"] >= job["created"]
+    if job["state"] == "done":  # converged: the head looked at something, how near the target is measured
+        assert job["result"]["converged"] and job["result"]["landing_error_px"] >= 0
+    events = events_after(client, seq, lambda es: any(e["type"] == "look_done" and e["id"] == job["id"] for e in es))
+    mine = [e for e in events if e["type"] in ("look_started", "look_done") and e.get("id") == job["id"]]
+    assert [e["type"] for e in mine] == ["look_started", "look_done"]
+    between = events[events.index(mine[0]):events.index(mine[1])]
+    kinds = [e["type"] for e in between]
+    assert "saccade_onset" in kinds and ("fixation_converged" in kinds or "fixation_refused" in kinds)
+    assert kinds.index("saccade_onset") < kinds.index("saccade_done")
+    assert all(b["seq"] > a["seq"] for a, b in zip(events, events[1:]))
+
+
+def test_an_angles_look_reaches_the_pose_absolute_and_relative(head):
+    _, client = head
+    job = client.look_angles(12.0, -6.0, 8.0, wait_s=30)
+    assert job["state"] == "done", job
+    assert job["result"]["pose_after"] == pytest.approx([12.0, -6.0, 8.0], abs=0.35)
+    job = client.look_angles(-2.0, 1.0, 0.0, relative=True, wait_s=30)
+    assert job["state"] == "done", job
+    before = np.array(job["result"]["pose_before"])
+    assert job["result"]["pose_after"] == pytest.approx((before + [-2.0, 1.0, 0.0]).tolist(), abs=0.35)
+
+
+def test_a_look_without_waiting_gives_an_id_to_wait_on(head):
+    _, client = head
+    job = client.look_angles(0.0, 0.0, 6.0)
+    assert job["state"] in ("queued", "running", "done") and isinstance(job["id"], int)
+    finished = client.look(job["id"], wait_s=30)
+    assert finished["id"] == job["id"] and finished["state"] == "done"
+    assert finished["result"]["pose_after"] == pytest.approx([0.0, 0.0, 6.0], abs=0.35)
+
+
+@pytest.mark.parametrize("body, field, words", [
+    ({"x": 400, "y": 100, "d": 0}, "x", "outside the image's columns, [0, 319]"),
+    ({"x": 100, "y": -1, "d": 0}, "y", "outside the image's rows"),
+    ({"x": 100, "y": 100, "d": 90}, "d", "disparity range"),
+    ({"x": 100, "y": 100}, "d", "Field required"),
+    ({"x": "left", "y": 100, "d": 0}, "x", "valid number"),
+    ({"x": 100, "y": 100, "d": 0, "speed": 3}, "speed", "Extra inputs are not permitted"),
+    ({"x": 100, "y": 100, "d": 0, "wait_s": 600}, "wait_s", "less than or equal to 60"),
+])
+def test_a_bad_target_is_refused_with_the_field_and_the_reason(head, body, field, words):
+    _, client = head
+    status, answer, _ = raw(client, "POST", "/api/v1/look/target", json.dumps(body))
+    assert status == 422
+    assert answer["field"] == field and words in answer["reason"] and answer["error"] == "Unprocessable Entity"
+
+
+@pytest.mark.parametrize("body, field, words", [
+    ({"pan": 55, "tilt": 0, "vergence": 5}, "pan", "outside the limits [-40, 40]"),
+    ({"pan": 0, "tilt": 0, "vergence": 40}, "vergence", "outside the limits [1, 20]"),
+    ({"pan": 0, "tilt": 0}, None, "vergence missing"),
+    ({"tilt": 100, "relative": True}, "tilt", "outside the limits [-25, 25]"),
+    ({"pan": float("inf"), "tilt": 0, "vergence": 5}, None, ""),
+])
+def test_angles_outside_the_limits_are_refused_never_clamped(head, body, field, words):
+    _, client = head
+    pose_before = client.state()["pose"]
+    status, answer, _ = raw(client, "POST", "/api/v1/look/angles", json.dumps(body))
+    assert status == 422, answer
+    assert answer["field"] == field or field is None
+    assert words in answer["reason"]
+    assert "Traceback" not in json.dumps(answer)
+    assert client.state()["fixation"]["looks_queued"] == 0
+    assert pose_before  # nothing was queued, so nothing moved on this request's account
+
+
+def test_malformed_bodies_are_4xx_json_never_a_traceback(head):
+    _, client = head
+    for body in (b"{not json", b"", b"[1, 2, 3]", "{\"x\": 1e999999}".encode(), b"\xff\xfe"):
+        status, answer, _ = raw(client, "POST", "/api/v1/look/target", body)
+        assert status == 422, (body, answer)
+        assert answer["field"] and answer["reason"] and "Traceback" not in json.dumps(answer)
+    status, answer, _ = raw(client, "GET", "/api/v1/nowhere")
+    assert status == 404 and answer["error"] == "Not Found"
+    status, answer, _ = raw(client, "DELETE", "/api/v1/state")
+    assert status == 405 and answer["reason"]
+
+
+def test_unknown_looks_and_cancelling(head):
+    daemon, client = head
+    with pytest.raises(ApiError) as err:
+        client.look(987654)
+    assert err.value.status == 404 and err.value.field == "id"
+    client.set_exploration(False)
+    try:
+        first = client.look_angles(5.0, 0.0, 6.0)
+        queued = [client.look_angles(a, 0.0, 6.0) for a in (-5.0, 5.0)]
+        # Queued ones can be cancelled; a finished one cannot.
+        status, answer, _ = raw(client, "DELETE", f"/api/v1/looks/{queued[-1]['id']}")
+        if status == 200:
+            assert answer["state"] == "cancelled"
+        else:  # the fixation thread had already taken it
+            assert status == 409 and answer["field"] == "id"
+        done = client.look(first["id"], wait_s=30)
+        assert done["state"] == "done"
+        status, answer, _ = raw(client, "DELETE", f"/api/v1/looks/{first['id']}")
+        assert status == 409 and "only a queued look can be cancelled" in answer["reason"]
+        client.look(queued[0]["id"], wait_s=30)
+    finally:
+        client.set_exploration(True)
+
+
+def test_a_full_queue_is_429_and_replace_makes_the_newest_win(head):
+    daemon, client = head
+    client.set_exploration(False)
+    daemon.fixation.looks.size  # noqa: B018 -- the config's max_queued_looks (3)
+    try:
+        # Fill faster than the head moves: 1 running + 3 queued; then one more is refused.
+        jobs, refused = [], None
+        for i in range(8):
+            try:
+                jobs.append(client.look_angles(-10.0 + 3 * i, 0.0, 6.0))
+            except ApiError as err:
+                refused = err
+                break
+        assert refused is not None and refused.status == 429 and "already queued" in refused.reason
+        newest = client.look_angles(1.0, 2.0, 7.0, replace=True)
+        outcomes = [client.look(j["id"], wait_s=30) for j in jobs]
+        assert any(o["state"] == "cancelled" and o["outcome"] == "replaced" for o in outcomes)
+        assert client.look(newest["id"], wait_s=30)["state"] == "done"
+    finally:
+        client.set_exploration(True)
+
+
+# --- switches ------------------------------------------------------------------------------------
+def test_exploration_off_stops_fixations_and_on_resumes_them(head):
+    daemon, client = head
+    seq = client.state()["events_seq"]
+    assert client.set_exploration(False) is False
+    s = wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)", what="idle")
+    assert s["fixation"]["explore"] is False
+    done = s["fixation"]["done"]
+    events = events_after(client, seq, lambda es: any(e["type"] == "exploration" for e in es))
+    assert [e["enabled"] for e in events if e["type"] == "exploration"] == [False]
+    # No fixation starts while it is off: the count holds across several servo-loop seconds.
+    cycles = s["servo_loop"]["cycles"]
+    wait_state(client, lambda s: s["servo_loop"]["cycles"] >= cycles + 150, what="1.5 s of servo cycles")
+    assert client.state()["fixation"]["done"] == done
+    assert client.set_exploration(True) is True
+    wait_state(client, lambda s: s["fixation"]["done"] > done, 30, "fixations again")
+
+
+def test_torque_off_holds_nothing_refuses_looks_and_comes_back_without_a_jump(head):
+    daemon, client = head
+    client.set_exploration(False)
+    try:
+        wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)")
+        assert client.set_torque(False) is False
+        s = client.state()
+        assert s["torque"] is False and not any(j["torque_on"] for j in s["joints"].values())
+        job = client.look_angles(3.0, 3.0, 6.0, wait_s=10)
+        assert job["state"] == "failed" and job["outcome"] == "torque off"
+        positions = {k: j["position_deg"] for k, j in s["joints"].items()}
+        assert client.set_torque(True) is True
+        s = wait_state(client, lambda s: all(j["torque_on"] for j in s["joints"].values()), what="torque on")
+        # Torque came back at the present position (the goal set there first): nothing moved.
+        for joint, position in positions.items():
+            assert s["joints"][joint]["position_deg"] == pytest.approx(position, abs=0.2)
+        assert client.look_angles(3.0, 3.0, 6.0, wait_s=30)["state"] == "done"
+    finally:
+        client.set_torque(True)
+        client.set_exploration(True)
+
+
+# --- the map -----------------------------------------------------------------------------------
+def test_map_save_load_reset_and_their_refusals(head):
+    daemon, client = head
+    state_dir = daemon.config.state_dir
+    wait_state(client, lambda s: s["learning"]["adaptations"] >= 1, 60, "an adaptation")
+    saved = client.request("POST", "/api/v1/map/save", {"name": "snapshot.npz"})
+    assert saved["path"] == str(state_dir / "snapshot.npz") and GazeMap.load(saved["path"]).adaptations >= 1
+    default = client.request("POST", "/api/v1/map/save", {})
+    assert default["path"] == str(state_dir / "gaze_map.npz")
+
+    reset = client.request("POST", "/api/v1/map/reset", {"seed": 7})
+    assert reset["adaptations"] == 0 and GazeMap.load(reset["backup"]).adaptations >= saved["adaptations"]
+    assert client.state()["learning"]["adaptations"] < saved["adaptations"] or saved["adaptations"] < 3
+    loaded = client.request("POST", "/api/v1/map/load", {"name": "snapshot.npz"})
+    assert loaded["adaptations"] == saved["adaptations"]
+    assert client.state()["learning"]["adaptations"] >= saved["adaptations"]
+
+    for body, status, field, words in (
+            ({"name": "../etc/passwd"}, 422, "name", "a file name in the state directory"),
+            ({"name": "missing.npz"}, 404, "name", "no such map file"),
+            ({"name": 5}, 422, "name", "valid string")):
+        code, answer, _ = raw(client, "POST", "/api/v1/map/load", json.dumps(body))
+        assert code == status and answer["field"] == field and words in answer["reason"], answer
+    # A map made for another image size is refused, the running one kept.
+    other = GazeMap(load_config().map_params().__class__.profile_values("default", image_size=(640, 480)))
+    other.save(state_dir / "other.npz")
+    code, answer, _ = raw(client, "POST", "/api/v1/map/load", json.dumps({"name": "other.npz"}))
+    assert code == 409 and "other map parameters" in answer["reason"]
+
+
+# --- streams and metrics -----------------------------------------------------------------------
+def test_eye_images_have_the_fovea_marked(head):
+    daemon, client = head
+    for side in ("left", "right"):
+        status, payload, headers = raw(client, "GET", f"/api/v1/eyes/{side}.jpg")
+        assert status == 200 and headers["content-type"] == "image/jpeg"
+        image = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR)
+        assert image.shape == (240, 320, 3)
+        b, g, r = image[119:122, 150:156].astype(int).mean(axis=(0, 1))  # the cross's left arm
+        assert g > 150 and g > max(r, b) + 50, (b, g, r)
+        b, g, r = image[100:110, 20:30].astype(int).mean(axis=(0, 1))  # the scene elsewhere: grey
+        assert abs(g - r) < 20 and abs(g - b) < 20
+    status, answer, _ = raw(client, "GET", "/api/v1/eyes/middle.jpg")
+    assert status == 422 and answer["field"] == "side"
+
+
+def test_the_mjpeg_stream_sends_successive_frames(head):
+    _, client = head
+    parts = urllib.parse.urlsplit(client.url)
+    conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=10)
+    conn.request("GET", "/api/v1/eyes/left.mjpg?fps=20")
+    response = conn.getresponse()
+    assert response.status == 200 and "boundary=frame" in response.getheader("Content-Type")
+    frames = []
+    while len(frames) < 3:
+        line = response.readline()
+        if line.lower().startswith(b"content-length:"):
+            length = int(line.split(b":")[1])
+            response.readline()
+            frames.append(response.read(length))
+    conn.close()
+    images = [cv2.imdecode(np.frombuffer(f, np.uint8), cv2.IMREAD_GRAYSCALE) for f in frames]
+    assert all(im.shape == (240, 320) for im in images)
+    assert not np.array_equal(images[0], images[-1])  # live: sensor noise at least
+
+
+def test_metrics_expose_the_loop_fixations_learning_and_servos(head):
+    _, client = head
+    wait_state(client, lambda s: s["fixation"]["taught"] >= 1, 60, "a taught fixation")
+    state = client.state()
+    status, payload, headers = raw(client, "GET", "/metrics")
+    assert status == 200 and headers["content-type"].startswith("text/plain")
+    samples = [s for f in text_string_to_metric_families(payload.decode()) for s in f.samples]
+
+    def value(name, **labels):
+        return next(s.value for s in samples if s.name == name and all(s.labels.get(k) == v for k, v in labels.items()))
+
+    def labels(name, key):
+        return {s.labels[key] for s in samples if s.name == name}
+
+    assert value("headctl_up") == 1.0
+    assert value("headctl_fixations_total") >= state["fixation"]["done"]
+    assert value("headctl_fixations_taught_total") >= state["fixation"]["taught"] >= 1
+    assert value("headctl_servo_loop_cycles_total") >= state["servo_loop"]["cycles"]
+    assert 0.009 < value("headctl_servo_loop_period_seconds", quantile="0.5") < 0.011
+    assert value("headctl_servo_temperature_celsius", joint="tilt") > 0
+    assert value("headctl_servo_input_voltage_volts", joint="pan") > 5
+    assert 0 < value("headctl_retinal_error_ratio") < 2 and 0 < value("headctl_confidence_ratio") <= 1
+    assert labels("headctl_output_error_degrees", "axis") == {"pan", "tilt", "vergence"}
+    assert labels("headctl_servo_bus_errors_total", "kind") == {"read", "write", "down"}
+    for reason, count in state["fixation"]["refused"].items():
+        assert value("headctl_fixations_refused_total", reason=reason) >= count
+
+
+def test_a_fault_and_its_clearing_are_events_and_state(head):
+    daemon, client = head
+    seq = client.state()["events_seq"]
+    client.request("POST", "/api/v1/sim/faults", {"fault": "bus_down"})
+    try:
+        s = wait_state(client, lambda s: s["state"] == "degraded", what="degraded")
+        assert any("servo bus down" in f for f in s["faults"])
+    finally:
+        # At once: a fault shorter than the supervisor's poll is reported all the same.
+        client.request("POST", "/api/v1/sim/faults", {"fault": "restore_bus"})
+    events = events_after(client, seq, lambda es: any(e["type"] == "fault_cleared" for e in es))
+    fault = next(e for e in events if e["type"] == "fault")
+    cleared = next(e for e in events if e["type"] == "fault_cleared")
+    assert fault["key"] == cleared["key"] == "servo_bus" and "servo bus down" in fault["message"]
+    wait_state(client, lambda s: s["state"] == "running", what="running again")
+    code, answer, _ = raw(client, "POST", "/api/v1/sim/faults", json.dumps({"fault": "meteor"}))
+    assert code == 422 and answer["field"] == "fault"
+
+
+# --- many clients at once -------------------------------------------------------------------------
+def test_concurrent_clients_while_the_head_learns(head):
+    daemon, client = head
+    before = client.state()
+    rng = np.random.default_rng(3)
+
+    def one_client(seed: int) -> list[int]:
+        own = ApiClient(client.url, timeout_s=30)
+        r = np.random.default_rng(seed)
+        codes = []
+        for i in range(20):
+            try:
+                kind = i % 4
+                if kind == 0:
+                    own.look_target(float(r.uniform(40, 280)), float(r.uniform(30, 210)), float(r.uniform(-30, 5)),
+                                    replace=True)
+                elif kind == 1:
+                    own.learning(0)
+                else:
+                    assert own.state()["state"] in ("running", "degraded")
+                codes.append(200)
+            except ApiError as err:
+                codes.append(err.status or 0)
+        return codes
+
+    with concurrent.futures.ThreadPoolExecutor(8) as pool:
+        results = list(pool.map(one_client, rng.integers(0, 1 << 30, 8)))
+    codes = [c for r in results for c in r]
+    assert len(codes) == 160 and all(c in (200, 429) for c in codes), sorted(set(codes))
+    after = wait_state(client, lambda s: s["fixation"]["done"] > before["fixation"]["done"], 30, "fixations")
+    # The servo loop ran at its rate throughout (cycles ~ 100 per second).
+    assert after["servo_loop"]["cycles"] > before["servo_loop"]["cycles"]
+    assert after["state"] == "running" and not daemon.api_server.error
+
+
+# --- the command line as a client --------------------------------------------------------------
+def test_look_and_status_commands(head, capsys):
+    daemon, client = head
+    url = ["--url", client.url]
+    assert main(["look", "--angles", "4", "-3", "7", *url]) == 0
+    out = capsys.readouterr().out
+    assert "done, reached" in out and "pose now: pan 4.00, tilt -3.00" in out
+    assert main(["look", "--angles", "90", "0", "5", *url]) == 1
+    assert "422" in capsys.readouterr().err
+    code = main(["look", "150", "110", "-3", *url])
+    out = capsys.readouterr().out
+    assert code in (0, 1) and out.startswith("look ") and "target x 150, y 110, d -3 px" in out
+    assert main(["look", "--relative", "1", "2", "3", *url]) == 2
+    assert main(["status", *url]) == 0
+    assert "fixation:" in capsys.readouterr().out
+
+
+# --- a token ---------------------------------------------------------------------------------
+def test_a_token_guards_every_route_but_the_page(tmp_path):
+    daemon, thread = start_daemon(tmp_path / "state", token=TOKEN)
+    try:
+        anonymous = ApiClient(daemon.api_url)
+        for method, path in (("GET", "/api/v1/state"), ("POST", "/api/v1/look/target"), ("GET", "/metrics"),
+                             ("GET", "/api/v1/eyes/left.jpg")):
+            status, answer, headers = raw(anonymous, method, path, "{}")
+            assert status == 401 and "token is required" in answer["reason"], (path, answer)
+            assert headers["www-authenticate"].startswith("Bearer")
+        with pytest.raises(ApiError) as err:
+            ApiClient(daemon.api_url, token="wrong-token-wrong-token").state()
+        assert err.value.status == 401 and err.value.reason == "wrong token"
+        assert ApiClient(daemon.api_url, token=TOKEN).state()["state"] in ("running", "degraded")
+        status, _, _ = raw(anonymous, "GET", f"/api/v1/state?token={TOKEN}")
+        assert status == 200
+        status, page, _ = raw(anonymous, "GET", "/")
+        assert status == 200
+    finally:
+        stop_daemon(daemon, thread)
+
+
+def test_the_event_stream_ends_when_the_daemon_stops(tmp_path):
+    daemon, thread = start_daemon(tmp_path / "state")
+    client = ApiClient(daemon.api_url)
+    ended = threading.Event()
+
+    def read() -> None:
+        for _ in client.events(after=0, timeout_s=30):
+            pass
+        ended.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    wait_state(client, lambda s: daemon.hub.subscribers == 1, what="the stream subscribed")
+    started = time.monotonic()
+    stop_daemon(daemon, thread)
+    assert ended.wait(10) and time.monotonic() - started < 10
+    assert daemon.hub.subscribers == 0
+    assert not (daemon.config.state_dir / "api.url").exists()
