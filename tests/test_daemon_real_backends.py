@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from test_daemon_e2e import ROOT, Daemon
+from daemon_proc import ROOT, DaemonProcess as Daemon
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -87,6 +87,11 @@ def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator,
         positions = [s["joints"]["pan"]["position_deg"]]
         s = d.wait(lambda s: abs(s["joints"]["pan"]["position_deg"] - positions[0]) > 0.5, 30, "the head moving")
         assert all(j["torque_on"] for j in s["joints"].values())
+        # Torque through the API, on the real driver: off on every servo, then on again.
+        assert d.client.set_torque(False) is False
+        d.wait(lambda s: not any(j["torque_on"] for j in s["joints"].values()), 10, "torque off on the servos")
+        assert d.client.set_torque(True) is True
+        d.wait(lambda s: all(j["torque_on"] for j in s["joints"].values()), 10, "torque on again")
         code, seconds = d.terminate()
         assert code == 0 and seconds < 5.0
     finally:
