@@ -201,13 +201,18 @@ class FixationController:
         high = np.minimum(self.head.pose_high, pose + step)
         return self.rng.uniform(low, np.maximum(low, high)) - pose
 
-    def fixate(self, target: Sequence[float] | None = None) -> FixationRecord:
-        """One fixation: to a client's image target (x, y, d), or exploratory when None."""
+    def fixate(self, target: Sequence[float] | None = None,
+               reference_pose: Sequence[float] | None = None) -> FixationRecord:
+        """One fixation: to a client's image target (x, y, d), or exploratory when None.
+
+        `reference_pose`: the pose whose view the target was chosen in, when the head may have
+        moved since (a queued look); the saccade then goes to that pose plus the map's command
+        for the target, which is where the client meant, from wherever the head is now."""
         started = self.clock()
         record = FixationRecord(index=self.count, kind="explore" if target is None else "target")
         self.count += 1
         try:
-            self._run(record, target)
+            self._run(record, target, reference_pose)
         except HeadTimeoutError as err:
             record.outcome = REFUSED_NO_FRAMES if isinstance(err, PairTimeoutError) else REFUSED_NOT_SETTLED
             record.detail = str(err)
@@ -215,7 +220,8 @@ class FixationController:
         log.debug("fixation %d (%s): %s %s", record.index, record.kind, record.outcome, record.detail)
         return record
 
-    def _run(self, record: FixationRecord, target: Sequence[float] | None) -> None:
+    def _run(self, record: FixationRecord, target: Sequence[float] | None,
+             reference_pose: Sequence[float] | None = None) -> None:
         p = self.params
         head = self.head
         # The pre-fixation pair, at rest.
@@ -230,6 +236,8 @@ class FixationController:
             record.target = np.asarray(target, dtype=float)
             try:
                 planned = np.asarray(self.map.command(record.target), dtype=float)
+                if reference_pose is not None:
+                    planned = np.asarray(reference_pose, dtype=float) + planned - pose_before
             except OutOfRangeError as err:
                 record.outcome, record.detail = REFUSED_TARGET_OUTSIDE, str(err)
                 return

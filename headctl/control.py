@@ -73,12 +73,16 @@ class LookRequest:
     kind: str
     values: tuple[float, float, float]
     relative: bool = False
+    # A target's: the pose whose view it was chosen in (the head's when it was queued).
+    reference_pose: tuple[float, float, float] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         names = ("x", "y", "d") if self.kind == "target" else ("pan", "tilt", "vergence")
         out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
         if self.kind == "angles":
             out["relative"] = self.relative
+        elif self.reference_pose is not None:
+            out["reference_pose"] = list(self.reference_pose)
         return out
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import fcntl
 import logging
 import math
@@ -543,6 +544,8 @@ class FixationThread(threading.Thread):
     """Clients' looks first, else exploratory fixations (back to back or at `rate_hz`) while
     exploration is on; paused while the bus is down or torque is off."""
 
+    SAME_VIEW_DEG = 0.25  # the head moved less than this on every axis: the same view
+
     def __init__(self, controller: FixationController, head: ObservedHead, adapter: MapAdapter,
                  loop: ServoLoop, abort: threading.Event, explore: bool = True, rate_hz: float = 0.0,
                  on_record: Callable[[FixationRecord], None] | None = None, looks: LookQueue | None = None,
@@ -562,6 +565,7 @@ class FixationThread(threading.Thread):
         self.taught = 0
         self.refused: collections.Counter[str] = collections.Counter()
         self.last: FixationRecord | None = None
+        self.landing_errors_px: collections.deque[float] = collections.deque(maxlen=200)  # target looks'
         self.error: BaseException | None = None
         self._lock = threading.Lock()
 
@@ -610,12 +614,12 @@ class FixationThread(threading.Thread):
             self.head.phase = "stopped"
             self.looks.cancel_all("the fixation controller stopped")
 
-    def _fixate(self, target: np.ndarray | None) -> FixationRecord:
+    def _fixate(self, target: np.ndarray | None, reference_pose: np.ndarray | None = None) -> FixationRecord:
         """One fixation, taught or refused; one aborted because the head failed under it is
         refused with that reason."""
         self.head.phase = "choosing target"
         try:
-            record = self.controller.fixate(target)
+            record = self.controller.fixate(target, reference_pose)
         except (HeadctlError, DriverError) as err:
             if isinstance(err, ShutdownError):
                 reason = REFUSED_SHUTDOWN
@@ -649,14 +653,24 @@ class FixationThread(threading.Thread):
 
     def _look_at_target(self, job: LookJob) -> None:
         target = np.asarray(job.request.values, dtype=float)
-        record = self._fixate(target)
+        reference = job.request.reference_pose
+        record = self._fixate(target, None if reference is None else np.asarray(reference))
         result: dict[str, Any] = {"converged": record.converged, "taught": record.taught,
                                   "vergence_steps": record.vergence_steps, "duration_s": record.duration_s,
                                   "pose_before": record.pose_before, "pose_after": record.pose_after,
-                                  "planned": record.planned}
+                                  "planned": record.planned, "position": None, "confidence": None,
+                                  "landing_error_px": None}
+        moved = (None if reference is None or record.pose_before is None
+                 else float(np.max(np.abs(record.pose_before - np.asarray(reference)))))
+        result["head_moved_deg"] = moved
         if record.match is not None:
-            result.update(position=record.position, confidence=record.confidence,
-                          landing_error_px=float(np.hypot(*(record.position[:2] - target[:2]))))
+            result.update(position=record.position, confidence=record.confidence)
+            # Where the head landed, in the image the target was chosen in: measurable only
+            # when the pre-fixation images are that view (the head has not moved since).
+            if moved is None or moved <= self.SAME_VIEW_DEG:
+                landing = float(np.hypot(*(record.position[:2] - target[:2])))
+                result["landing_error_px"] = landing
+                self.landing_errors_px.append(landing)
         self.looks.finish(job, DONE if record.converged else FAILED, record.outcome, record.detail, plain(result))
 
     def _look_at_angles(self, job: LookJob) -> None:
@@ -916,9 +930,8 @@ class Daemon:
         self.events = EventLog()
         self.hub = EventHub()  # what clients stream: saccades, fixations, looks, faults
         self.looks = LookQueue(config.api.max_queued_looks)
-        # The learning curves (one point an adaptation) and the target looks' landing errors.
+        # The learning curves: one point an adaptation.
         self.learning_points: collections.deque[dict[str, Any]] = collections.deque(maxlen=5000)
-        self.landing_errors_px: collections.deque[float] = collections.deque(maxlen=200)
         self._points_lock = threading.Lock()
         self._point_seq = 0  # the learning points' index: grows through a map reset or load
         self._faults_seen: set[str] = set()
@@ -963,10 +976,6 @@ class Daemon:
                     "output_error_deg": result.output_error, "confidence": sample.confidence}))
         if self.checkpointer is not None:
             self.checkpointer.maybe(adaptations)
-
-    def _on_record(self, record: FixationRecord) -> None:
-        if record.kind == "target" and record.match is not None and record.target is not None:
-            self.landing_errors_px.append(float(np.hypot(*(record.position[:2] - record.target[:2]))))
 
     def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]:
         """The learning-curve points after point `since` (at most `limit`, the newest) and the
@@ -1144,6 +1153,8 @@ class Daemon:
                                                   "the map's disparity range (gaze_map.disparity_range)")):
                 if not low <= value <= high:
                     raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [{low:g}, {high:g}]", name)
+            # The target is in the view of the pose now; the head may move before the look runs.
+            request = dataclasses.replace(request, reference_pose=tuple(head.pose_now(loop).tolist()))
         else:
             pose = head.pose_now(loop) if request.relative else np.zeros(3)
             goal = pose + np.asarray(request.values, dtype=float)
@@ -1289,8 +1300,8 @@ class Daemon:
             controller = FixationController(self.head, self.adapter, cfg.fixation.params,
                                             seed=None if not cfg.simulated else cfg.gaze_map.seed)
             self.fixation = FixationThread(controller, self.head, self.adapter, self.loop, self.abort,
-                                           cfg.fixation.explore, cfg.fixation.rate_hz, on_record=self._on_record,
-                                           looks=self.looks, events=self.hub)
+                                           cfg.fixation.explore, cfg.fixation.rate_hz, looks=self.looks,
+                                           events=self.hub)
             self.fixation.start()
             stack.callback(self.fixation.stop)
             self.phase = "running"

@@ -124,7 +124,7 @@ class DaemonCollector(Collector):
                 if math.isfinite(value):
                     output.add_metric([axis], float(value))
         yield output
-        landing = list(d.landing_errors_px)
+        landing = list(d.fixation.landing_errors_px) if d.fixation is not None else []
         yield _gauge("headctl_landing_error_pixels", "median landing error of the last target looks (what the "
                      "head fixated vs the target, in the image before the saccade)",
                      float(np.median(landing)) if landing else None)

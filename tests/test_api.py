@@ -125,11 +125,17 @@ def test_learning_points_come_in_order_and_only_once(head):
 def test_a_target_look_fixates_and_its_events_tell_the_story(head):
     daemon, client = head
     seq = client.state()["events_seq"]
+    pose = client.state()["pose"]
     job = client.look_target(160, 120, -5, wait_s=30)
-    assert job["state"] in ("done", "failed") and job["request"] == {"kind": "target", "x": 160, "y": 120, "d": -5}
+    request = job["request"]
+    assert job["state"] in ("done", "failed") and (request["x"], request["y"], request["d"]) == (160, 120, -5)
+    # The view the target was chosen in: the pose when it was sent (exploration may move the head meanwhile).
+    assert len(request["reference_pose"]) == 3
     assert job["result"]["pose_before"] is not None and job["finished"] >= job["started"] >= job["created"]
-    if job["state"] == "done":  # converged: the head looked at something, how near the target is measured
+    if job["state"] == "done" and job["result"]["head_moved_deg"] <= 0.25:
+        # Converged in the view it was chosen in: how near the target it landed is measured.
         assert job["result"]["converged"] and job["result"]["landing_error_px"] >= 0
+    assert pose
     events = events_after(client, seq, lambda es: any(e["type"] == "look_done" and e["id"] == job["id"] for e in es))
     mine = [e for e in events if e["type"] in ("look_started", "look_done") and e.get("id") == job["id"]]
     assert [e["type"] for e in mine] == ["look_started", "look_done"]
@@ -138,6 +144,29 @@ def test_a_target_look_fixates_and_its_events_tell_the_story(head):
     assert "saccade_onset" in kinds and ("fixation_converged" in kinds or "fixation_refused" in kinds)
     assert kinds.index("saccade_onset") < kinds.index("saccade_done")
     assert all(b["seq"] > a["seq"] for a, b in zip(events, events[1:]))
+
+
+def test_a_queued_target_goes_where_it_was_meant_though_the_head_moved_first(head):
+    daemon, client = head
+    client.set_exploration(False)
+    try:
+        wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)")
+        reference = client.look_angles(0.0, 0.0, 6.0, wait_s=30)["result"]["pose_after"]
+        move = client.look_angles(15.0, 10.0, 6.0)  # queued first: the head will have moved
+        target = client.look_target(200, 90, -4)
+        assert target["request"]["reference_pose"] == pytest.approx(reference, abs=0.35)
+        assert client.look(move["id"], wait_s=30)["state"] == "done"
+        job = client.look(target["id"], wait_s=30)
+        result = job["result"]
+        assert result["head_moved_deg"] > 5 and result["landing_error_px"] is None  # another view: not measurable
+        # The saccade went to the reference pose plus the map's command for the target (the map
+        # as it was then: unchanged unless this look taught it).
+        if not result["taught"]:
+            daemon.adapter.wait_idle(5)
+            meant = np.asarray(target["request"]["reference_pose"]) + daemon.adapter.command((200, 90, -4))
+            assert np.asarray(result["pose_before"]) + result["planned"] == pytest.approx(meant, abs=0.05)
+    finally:
+        client.set_exploration(True)
 
 
 def test_an_angles_look_reaches_the_pose_absolute_and_relative(head):
