@@ -13,6 +13,9 @@ log() { printf '[setup] %s\n' "$*" >&2; }
 # Debian packages: the Aravis 0.8 typelib and tools (GenICam cameras, and the fake GigE
 # camera the tests use), and what building PyGObject < 3.51 needs.
 debs=(gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config gcc)
+# The test job also drives the dashboard in a headless browser (tests/test_dashboard.py);
+# the run job never pulls a browser.
+if [ "${1:-}" = test ]; then debs+=(chromium chromium-driver); fi
 python=${PYTHON:-python3}
 if ! "$python" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
     debs+=(python3 python3-venv python3-dev); python=python3

@@ -1,0 +1,174 @@
+"""The live dashboard (headctl/dashboard) in Debian's headless Chromium against the real daemon.
+
+`headctl run` on the simulated head (configs/sim.yaml with an API token, the API on an
+ephemeral port) in a subprocess; the page, opened as /?token=..., must load without a
+JavaScript error or a refused request (every request it makes must carry the token), show
+both eyes' live streams, the joint angles and a learning curve, and its exploration button
+must change the service's state and show the new one. Every wait is a WebDriverWait condition.
+HEADCTL_SCREENSHOT=1 also writes docs/figures/dashboard.png.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import pathlib
+import time
+import urllib.parse
+
+import pytest
+import yaml
+
+from daemon_proc import ROOT, SIM, DaemonProcess
+
+CHROMIUM = pathlib.Path("/usr/bin/chromium")
+CHROMEDRIVER = pathlib.Path("/usr/bin/chromedriver")
+INSTALL = "./setup.sh test installs them (apt-get install chromium chromium-driver)"
+SCREENSHOT = ROOT / "docs" / "figures" / "dashboard.png"
+TOKEN = "dashboard-test-token-0123456789"
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _require_browser() -> None:
+    """Fail (not skip) naming the install step when the browser or its driver is missing."""
+    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not os.access(p, os.X_OK)]
+    if missing:
+        pytest.fail(f"{' and '.join(missing)} not found: {INSTALL}", pytrace=False)
+    if importlib.util.find_spec("selenium") is None:
+        pytest.fail("selenium is not installed: ./setup.sh test installs the test extra", pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def _browser_installed() -> None:
+    """Checked before the daemon starts (autouse fixtures come first)."""
+    _require_browser()
+
+
+@pytest.fixture
+def daemon(tmp_path):
+    """`headctl run` on the simulated head, its API needing TOKEN; listening when yielded."""
+    config = yaml.safe_load(SIM.read_text())
+    config["api"] = {**(config.get("api") or {}), "token": TOKEN}
+    config_path = tmp_path / "sim-token.yaml"
+    config_path.write_text(yaml.safe_dump(config, sort_keys=False))
+    proc = DaemonProcess(tmp_path / "state", config_path, token=TOKEN)
+    try:
+        proc.client       # waits for <state_dir>/api.url
+        yield proc
+    finally:
+        if proc.proc.poll() is None:
+            proc.terminate(10.0)
+        print(f"--- daemon log (tail)\n{proc.tail(40)}")   # shown on failure
+        proc.kill()
+
+
+@pytest.fixture
+def browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                "--disable-background-networking", "--disable-extensions", "--disable-sync",
+                "--no-first-run", "--window-size=1400,1000"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    # The driver's path given explicitly: Selenium Manager never looks for (or downloads) one.
+    driver = webdriver.Chrome(service=Service(executable_path=str(CHROMEDRIVER)), options=options)
+    driver.set_page_load_timeout(20)
+    try:
+        yield driver
+    finally:
+        for entry in driver.get_log("browser"):   # what the test did not read; shown on failure
+            print(f"browser {entry['level']}: {entry['message']}")
+        driver.quit()     # before the daemon stops (fixtures end in reverse order): no stream left open
+
+
+# Draws an <img> (the current frame of its MJPEG stream) on a canvas; returns its size and a
+# hash of its pixels (FNV-1a over the RGBA bytes).
+FRAME_HASH_JS = """
+const img = document.getElementById(arguments[0]);
+if (!img || !img.complete || !img.naturalWidth) return null;
+const c = document.createElement('canvas');
+c.width = img.naturalWidth; c.height = img.naturalHeight;
+const ctx = c.getContext('2d');
+ctx.drawImage(img, 0, 0);
+const px = ctx.getImageData(0, 0, c.width, c.height).data;
+let h = 0x811c9dc5;
+for (let i = 0; i < px.length; i++) { h ^= px[i]; h = Math.imul(h, 0x01000193) >>> 0; }
+return [c.width, c.height, h];
+"""
+
+
+def _severe(driver) -> list[str]:
+    return [e["message"] for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+
+
+def test_dashboard_live(daemon, browser):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver = browser
+    wait = WebDriverWait(driver, 20, poll_frequency=0.1)
+    driver.get(f"{daemon.url}/?token={urllib.parse.quote(TOKEN)}")
+    assert "headctl" in driver.title
+
+    def text(element_id: str) -> str:
+        return driver.find_element(By.ID, element_id).text.strip()
+
+    def number(element_id: str) -> float | None:
+        try:
+            return float(text(element_id))
+        except ValueError:
+            return None
+
+    # the state arrives: service state and the joint angles as numbers
+    wait.until(lambda d: text("service-state") not in ("", "connecting", "unreachable"))
+    for element_id in ("joint-pan", "joint-tilt", "joint-left_eye", "joint-right_eye",
+                       "pose-pan", "pose-tilt", "vergence", "fix-done", "fix-taught"):
+        wait.until(lambda d, i=element_id: number(i) is not None, f"#{element_id} shows no number")
+
+    # both eyes stream: the frame drawn at two moments at least 1 s apart differs
+    for side in ("left", "right"):
+        eye = f"eye-{side}"
+        first = wait.until(lambda d, e=eye: d.execute_script(FRAME_HASH_JS, e), f"#{eye} shows no frame")
+        assert first[0] > 0 and first[1] > 0, f"#{eye} is {first[0]} x {first[1]}"
+        src = driver.find_element(By.ID, eye).get_attribute("src")
+        assert src.startswith(f"{daemon.url}/api/v1/eyes/{side}.mjpg?") and f"token={TOKEN}" in src, src
+        t0 = time.monotonic()
+        wait.until(lambda d, e=eye: time.monotonic() - t0 >= 1.0
+                   and (d.execute_script(FRAME_HASH_JS, e) or first)[2] != first[2],
+                   f"#{eye} shows the same frame for 20 s")
+
+    # a learning curve gets points; events arrive through the SSE stream
+    wait.until(lambda d: int(d.find_element(By.ID, "curve-retinal").get_attribute("data-points") or 0) > 0,
+               "#curve-retinal got no points")
+    wait.until(lambda d: int(d.find_element(By.ID, "events").get_attribute("data-count") or 0) > 0,
+               "#events got no server-sent event")
+
+    # the toggles show the server's state; the exploration button flips it, and the page shows the new one
+    torque = daemon.status()["torque"]
+    wait.until(lambda d: text("torque-state") == ("on" if torque else "off"), "#torque-state is not the server's")
+    def explore_on_server() -> bool:
+        return daemon.status()["fixation"]["explore"]
+
+    button = driver.find_element(By.ID, "explore-toggle")
+    for _ in range(2):        # off and back on (or on and back off)
+        before = explore_on_server()
+        wait.until(lambda d: text("explore-state") == ("on" if before else "off"))
+        wait.until(lambda d: button.is_enabled())
+        button.click()
+        wait.until(lambda d: explore_on_server() != before, f"fixation.explore is still {before} on the server")
+        wait.until(lambda d: text("explore-state") == ("off" if before else "on"),
+                   "#explore-state does not show the new state")
+        assert button.get_attribute("data-enabled") == str(not before).lower()
+
+    if os.environ.get("HEADCTL_SCREENSHOT") == "1":
+        WebDriverWait(driver, 60, poll_frequency=0.5).until(
+            lambda d: int(d.find_element(By.ID, "curve-retinal").get_attribute("data-points") or 0) >= 20)
+        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+        driver.save_screenshot(str(SCREENSHOT))
+
+    severe = _severe(driver)
+    assert not severe, "JavaScript errors in the browser log:\n" + "\n".join(severe)
