@@ -705,7 +705,10 @@
     for (const box of document.querySelectorAll("input[data-log]")) box.addEventListener("change", scheduleDraw);
     window.addEventListener("resize", scheduleDraw);
     watchEyes();
-    connectEyes(false);
+    // The streams start after the page's load event: an endless multipart image must not keep the
+    // page loading (a browser's spinner, or a test waiting for the load to finish).
+    if (document.readyState === "complete") connectEyes(false);
+    else window.addEventListener("load", () => connectEyes(false), { once: true });
     connectEvents();
     refreshState();
     pollLearning();
