@@ -3,8 +3,9 @@
 `headctl run` on the simulated head (configs/sim.yaml with an API token, the API on an
 ephemeral port) in a subprocess; the page, opened as /?token=..., must load without a
 JavaScript error or a refused request (every request it makes must carry the token), show
-both eyes' live streams, the joint angles and a learning curve, and its exploration button
-must change the service's state and show the new one. Every wait is a WebDriverWait condition.
+both eyes' live streams, the joint angles and a learning curve; its exploration button must
+change the service's state and show the new one, and an injected fault must show while it
+lasts. Every wait is a WebDriverWait condition.
 HEADCTL_SCREENSHOT=1 also writes docs/figures/dashboard.png.
 """
 from __future__ import annotations
@@ -163,6 +164,13 @@ def test_dashboard_live(daemon, browser):
         wait.until(lambda d: text("explore-state") == ("off" if before else "on"),
                    "#explore-state does not show the new state")
         assert button.get_attribute("data-enabled") == str(not before).lower()
+
+    # a fault shows in the fault list (and as a fault event) while it lasts
+    daemon.inject("bus_down")
+    wait.until(lambda d: "servo bus down" in text("faults"), "#faults does not show the servo bus down")
+    wait.until(lambda d: driver.find_elements(By.CSS_SELECTOR, "#events .k.fault"), "#events shows no fault event")
+    daemon.inject("restore_bus")
+    wait.until(lambda d: text("faults") == "none", "#faults still shows a fault after the bus came back")
 
     if os.environ.get("HEADCTL_SCREENSHOT") == "1":
         WebDriverWait(driver, 60, poll_frequency=0.5).until(
