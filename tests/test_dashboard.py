@@ -3,9 +3,9 @@
 `headctl run` on the simulated head (configs/sim.yaml with an API token, the API on an
 ephemeral port) in a subprocess; the page, opened as /?token=..., must load without a
 JavaScript error or a refused request (every request it makes must carry the token), show
-both eyes' live streams, the joint angles and a learning curve; its exploration button must
-change the service's state and show the new one, and an injected fault must show while it
-lasts. Every wait is a WebDriverWait condition.
+both eyes' live streams, the joint angles and a learning curve; its exploration and torque
+buttons must change the service's state and show the new one, and an injected fault must
+show while it lasts. Every wait is a WebDriverWait condition.
 HEADCTL_SCREENSHOT=1 also writes docs/figures/dashboard.png.
 """
 from __future__ import annotations
@@ -148,22 +148,24 @@ def test_dashboard_live(daemon, browser):
     wait.until(lambda d: int(d.find_element(By.ID, "events").get_attribute("data-count") or 0) > 0,
                "#events got no server-sent event")
 
-    # the toggles show the server's state; the exploration button flips it, and the page shows the new one
-    torque = daemon.status()["torque"]
-    wait.until(lambda d: text("torque-state") == ("on" if torque else "off"), "#torque-state is not the server's")
-    def explore_on_server() -> bool:
-        return daemon.status()["fixation"]["explore"]
-
-    button = driver.find_element(By.ID, "explore-toggle")
-    for _ in range(2):        # off and back on (or on and back off)
-        before = explore_on_server()
-        wait.until(lambda d: text("explore-state") == ("on" if before else "off"))
-        wait.until(lambda d: button.is_enabled())
-        button.click()
-        wait.until(lambda d: explore_on_server() != before, f"fixation.explore is still {before} on the server")
-        wait.until(lambda d: text("explore-state") == ("off" if before else "on"),
-                   "#explore-state does not show the new state")
-        assert button.get_attribute("data-enabled") == str(not before).lower()
+    # each toggle shows the server's state; a click flips it there (torque off asks first), and the
+    # page shows the new state: off and back on (or on and back off)
+    on_server = {"explore": lambda: daemon.status()["fixation"]["explore"],
+                 "torque": lambda: daemon.status()["torque"]}
+    for name, server_state in on_server.items():
+        button = driver.find_element(By.ID, f"{name}-toggle")
+        for _ in range(2):
+            before = server_state()
+            wait.until(lambda d: text(f"{name}-state") == ("on" if before else "off"),
+                       f"#{name}-state does not show the server's state ({before})")
+            wait.until(lambda d: button.is_enabled())
+            button.click()
+            if name == "torque" and before:
+                wait.until(lambda d: d.switch_to.alert, "no confirmation before torque off").accept()
+            wait.until(lambda d: server_state() != before, f"{name} is still {before} on the server")
+            wait.until(lambda d: text(f"{name}-state") == ("off" if before else "on"),
+                       f"#{name}-state does not show the new state")
+            assert button.get_attribute("data-enabled") == str(not before).lower()
 
     # a fault shows in the fault list (and as a fault event) while it lasts
     daemon.inject("bus_down")
