@@ -218,6 +218,8 @@ def _status(args: argparse.Namespace) -> int:
 def format_status(s: dict[str, Any]) -> str:
     """The daemon's state for people."""
     lines = [f"{s['state']}  (pid {s['pid']}, up {s['uptime_s']:.0f} s, {s['config']})"]
+    if s.get("api"):
+        lines.append(f"  api and dashboard: {s['api']}/")
     lines += [f"  fault: {f}" for f in s["faults"]]
     for joint, j in s["joints"].items():
         goal = "-" if j["goal_deg"] is None else f"{j['goal_deg']:.2f}"
@@ -227,8 +229,13 @@ def format_status(s: dict[str, Any]) -> str:
     loop = s["servo_loop"] or {}
     lines.append(f"  servo loop: {loop.get('rate_hz')} Hz, {loop.get('cycles')} cycles, period p50/p99 "
                  f"{loop.get('period_p50_ms')}/{loop.get('period_p99_ms')} ms, overruns {loop.get('overruns')}")
+    pose = s.get("pose")
+    if pose:
+        lines.append(f"  pose: pan {pose['pan']:.2f}, tilt {pose['tilt']:.2f}, vergence {pose['vergence']:.2f} deg; "
+                     f"torque {'on' if s.get('torque') else 'off'}")
     fx = s["fixation"]
-    lines.append(f"  fixation: {fx['state']}; {fx['done']} done, {fx['taught']} taught")
+    lines.append(f"  fixation: {fx['state']}; exploration {'on' if fx['explore'] else 'off'}; {fx['done']} done, "
+                 f"{fx['taught']} taught; {fx.get('looks_queued', 0)} looks queued")
     for reason, n in sorted(fx["refused"].items(), key=lambda kv: -kv[1]):
         lines.append(f"    refused {n:5d}: {reason}")
     le = s["learning"]
