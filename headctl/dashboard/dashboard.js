@@ -37,17 +37,24 @@
     }
   }
 
-  async function api(path, { method = "GET", body, params } = {}) {
-    const init = { method, cache: "no-store", headers: { Accept: "application/json" } };
+  /** A JSON request; a service that does not answer within `timeoutMs` is an error, not a frozen page. */
+  async function api(path, { method = "GET", body, params, timeoutMs = 5000 } = {}) {
+    const abort = new AbortController();
+    const timer = setTimeout(() => abort.abort(), timeoutMs);
+    const init = { method, cache: "no-store", headers: { Accept: "application/json" }, signal: abort.signal };
     if (body !== undefined) {
       init.headers["Content-Type"] = "application/json";
       init.body = JSON.stringify(body);
     }
-    const response = await fetch(withToken(API + path, params), init);
-    let data = null;
-    try { data = await response.json(); } catch (_) { /* not JSON */ }
-    if (!response.ok) throw new ApiError(response.status, data);
-    return data;
+    try {
+      const response = await fetch(withToken(API + path, params), init);
+      let data = null;
+      try { data = await response.json(); } catch (_) { /* not JSON */ }
+      if (!response.ok) throw new ApiError(response.status, data);
+      return data;
+    } finally {
+      clearTimeout(timer);
+    }
   }
 
   // -- formatting --------------------------------------------------------------------------------
@@ -694,7 +701,7 @@
       const button = $("map-save");
       button.disabled = true;
       try {
-        const r = await api("/map/save", { method: "POST", body: {} });
+        const r = await api("/map/save", { method: "POST", body: {}, timeoutMs: 30000 });
         showMessage(`map saved: ${r.path} (${r.adaptations} adaptations)`);
       } catch (err) {
         showMessage(`map save failed: ${err.message}`, true);
