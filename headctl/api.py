@@ -243,9 +243,12 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
         app.mount("/dashboard", StaticFiles(directory=DASHBOARD_DIR), name="dashboard")
 
     # -- state ------------------------------------------------------------------------
+    state_cache = StateCache(daemon)
+
     @app.get("/api/v1/state", dependencies=guarded)
-    def state() -> Response:
-        return _json(daemon.status())
+    async def state() -> Response:
+        # On the event loop, not a worker thread: one thread fewer contending for the GIL.
+        return Response(state_cache.body(), media_type="application/json")
 
     @app.get("/api/v1/learning", dependencies=guarded)
     def learning(since: int = Query(0, ge=0), limit: int = Query(5000, ge=0, le=5000)) -> Response:
@@ -342,6 +345,24 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
     return app
 
 
+class StateCache:
+    """The state's JSON, built again only once something happened (an event was published) or
+    `max_age_s` passed: a hundred clients polling cost the daemon what ten would."""
+
+    def __init__(self, daemon: Any, max_age_s: float = 0.1) -> None:
+        self.daemon = daemon
+        self.max_age_s = max_age_s
+        self._cached: tuple[int, float, bytes] | None = None
+
+    def body(self) -> bytes:
+        seq, now = self.daemon.hub.seq, time.monotonic()
+        cached = self._cached
+        if cached is None or cached[0] != seq or now - cached[1] > self.max_age_s:
+            body = json.dumps(self.daemon.status(), default=_default, allow_nan=False).encode()
+            self._cached = cached = (seq, now, body)
+        return cached[2]
+
+
 def _json(body: Any, status: int = 200) -> Response:
     # NaN is no JSON: `plain` turns it into null before it gets here.
     return Response(json.dumps(body, default=_default, allow_nan=False), status_code=status,
@@ -435,7 +456,10 @@ class ApiServer(threading.Thread):
 
     def __enter__(self) -> "ApiServer":
         family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
-        sock = socket.socket(family, socket.SOCK_STREAM)
+        # IPPROTO_TCP named: asyncio sets TCP_NODELAY on the accepted sockets only when the
+        # listening socket says it is TCP; without it, every answer on a kept-open connection
+        # waits ~40 ms for the client's delayed ACK.
+        sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             sock.bind((self.host, self.port))

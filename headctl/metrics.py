@@ -53,17 +53,15 @@ class DaemonCollector(Collector):
             return
         yield CounterMetricFamily("headctl_servo_loop_cycles", "servo loop cycles", loop.cycles)
         yield CounterMetricFamily("headctl_servo_loop_overruns", "cycles that overran their period", loop.overruns)
-        periods = np.asarray(list(loop.periods_s), dtype=float)
-        period = GaugeMetricFamily("headctl_servo_loop_period_seconds",
-                                   "servo loop period over the last cycles, by quantile", labels=["quantile"])
-        jitter = GaugeMetricFamily("headctl_servo_loop_jitter_seconds",
-                                   "|period - nominal| over the last cycles, by quantile", labels=["quantile"])
-        if len(periods):
-            for q in (0.5, 0.99, 1.0):
-                period.add_metric([str(q)], float(np.quantile(periods, q)))
-                jitter.add_metric([str(q)], float(np.quantile(np.abs(periods - loop.period_s), q)))
-        yield period
-        yield jitter
+        timing = loop.timing()
+        for name, what in (("period", "servo loop period"), ("jitter", "|period - nominal|")):
+            family = GaugeMetricFamily(f"headctl_servo_loop_{name}_seconds",
+                                       f"{what} over the last 6,000 cycles, by quantile", labels=["quantile"])
+            for q, label in (("0.5", "p50"), ("0.99", "p99"), ("1.0", "max")):
+                value = timing[f"{name}_{label}_ms"]
+                if value is not None:
+                    family.add_metric([q], value / 1e3)
+            yield family
         errors = CounterMetricFamily("headctl_servo_bus_errors", "servo bus errors, by kind", labels=["kind"])
         errors.add_metric(["read"], loop.read_errors)
         errors.add_metric(["write"], loop.write_errors)
