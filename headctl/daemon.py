@@ -1027,6 +1027,9 @@ class Daemon:
             out["adapter"] = f"adapter: {self.adapter.error!r}"
         if self.checkpointer is not None and self.checkpointer.error:
             out["checkpoint"] = self.checkpointer.error
+        api = self.api_server
+        if api is not None and self.phase == "running" and (api.error is not None or not api.is_alive()):
+            out["api"] = f"control API stopped: {api.error!r}"
         return out
 
     def _watch_faults(self) -> None:

@@ -214,14 +214,12 @@ def test_a_bad_target_is_refused_with_the_field_and_the_reason(head, body, field
 ])
 def test_angles_outside_the_limits_are_refused_never_clamped(head, body, field, words):
     _, client = head
-    pose_before = client.state()["pose"]
     status, answer, _ = raw(client, "POST", "/api/v1/look/angles", json.dumps(body))
     assert status == 422, answer
     assert answer["field"] == field or field is None
     assert words in answer["reason"]
     assert "Traceback" not in json.dumps(answer)
-    assert client.state()["fixation"]["looks_queued"] == 0
-    assert pose_before  # nothing was queued, so nothing moved on this request's account
+    assert client.state()["fixation"]["looks_queued"] == 0  # nothing was queued
 
 
 def test_malformed_bodies_are_4xx_json_never_a_traceback(head):
@@ -263,7 +261,7 @@ def test_unknown_looks_and_cancelling(head):
 def test_a_full_queue_is_429_and_replace_makes_the_newest_win(head):
     daemon, client = head
     client.set_exploration(False)
-    daemon.fixation.looks.size  # noqa: B018 -- the config's max_queued_looks (3)
+    assert daemon.looks.size == 3  # the config's api.max_queued_looks
     try:
         # Fill faster than the head moves: 1 running + 3 queued; then one more is refused.
         jobs, refused = [], None
@@ -527,3 +525,15 @@ def test_the_event_stream_ends_when_the_daemon_stops(tmp_path):
     assert ended.wait(10) and time.monotonic() - started < 10
     assert daemon.hub.subscribers == 0
     assert not (daemon.config.state_dir / "api.url").exists()
+
+
+def test_a_port_in_use_is_a_clear_error_at_start(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert main(["run", "--state-dir", str(tmp_path / "state"), "--api-port", str(port)]) == 1
+    err = capsys.readouterr().err
+    assert f"api: cannot listen on 127.0.0.1:{port}" in err and "api.port" in err
