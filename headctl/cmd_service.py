@@ -300,4 +300,8 @@ def format_look(job: dict[str, Any]) -> str:
     if result.get("landing_error_px") is not None:
         lines.append(f"  landed {result['landing_error_px']:.1f} px from the target; confidence "
                      f"{result['confidence']:.2f}; {result['vergence_steps']} vergence steps")
+    elif result.get("head_moved_deg") is not None and result.get("confidence") is not None:
+        lines.append(f"  the head had moved {result['head_moved_deg']:.1f} deg before the look ran (exploration, or a "
+                     f"look before it): aimed from the pose the target was seen in, landing not measurable; "
+                     f"confidence {result['confidence']:.2f}")
     return "\n".join(lines)
