@@ -652,13 +652,19 @@ class FixationThread(threading.Thread):
         request = job.request
         self.events.publish("look_started", id=job.id, **request.as_dict())
         paused = self.paused_reason()
-        if paused is not None:
-            self.looks.finish(job, FAILED, paused, f"cannot look: {paused}")
-        elif request.kind == "target":
-            self._look_at_target(job)
-        else:
-            self._look_at_angles(job)
-        self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
+        try:
+            if paused is not None:
+                self.looks.finish(job, FAILED, paused, f"cannot look: {paused}")
+            elif request.kind == "target":
+                self._look_at_target(job)
+            else:
+                self._look_at_angles(job)
+        except BaseException as err:  # a client waiting on it hears of it before the thread reports it
+            if not job.done.is_set():
+                self.looks.finish(job, FAILED, "internal error", repr(err))
+            raise
+        finally:
+            self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
 
     def _look_at_target(self, job: LookJob) -> None:
         target = np.asarray(job.request.values, dtype=float)
