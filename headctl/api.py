@@ -116,6 +116,22 @@ class Fault(_Body):
 
 
 # --- errors ---------------------------------------------------------------------------------
+class ErrorBody(BaseModel):
+    """Every refusal: the HTTP reason phrase, the field at fault (or null), and why."""
+
+    error: str
+    field: str | None
+    reason: str
+
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorBody, "description": text} for code, text in (
+        (401, "no token, or a wrong one"), (404, "no such route, look or map file"),
+        (409, "not possible now (a map for another head, a look no longer queued)"),
+        (422, "a field missing, mistyped or out of range"), (429, "the look queue is full"),
+        (503, "the daemon is not running (starting, stopping)"))}
+
+
 def _error(status: int, field: str | None, reason: str, **extra: Any) -> JSONResponse:
     return JSONResponse({"error": HTTPStatus(status).phrase, "field": field, "reason": reason, **extra},
                         status_code=status)
@@ -209,7 +225,7 @@ class EyeImages:
 def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
                jpeg_quality: int = 80) -> FastAPI:
     """The API over `daemon` (a `headctl.daemon.Daemon`, or anything with its control methods)."""
-    app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None,
+    app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None, responses=ERROR_RESPONSES,
                   description="Control API of a calibration-free stereo camera head.")
     app.state.closing = threading.Event()
     app.state.streams = set()  # (loop, asyncio.Queue) of the open event streams

@@ -222,6 +222,17 @@ def test_angles_outside_the_limits_are_refused_never_clamped(head, body, field, 
     assert client.state()["fixation"]["looks_queued"] == 0  # nothing was queued
 
 
+def test_the_openapi_schema_names_every_route_and_the_error_shape(head):
+    _, client = head
+    status, spec, _ = raw(client, "GET", "/openapi.json")
+    assert status == 200
+    assert {"/api/v1/state", "/api/v1/look/target", "/api/v1/look/angles", "/api/v1/looks/{look_id}",
+            "/api/v1/events", "/api/v1/exploration", "/api/v1/torque", "/api/v1/map/save"} <= set(spec["paths"])
+    refusal = spec["paths"]["/api/v1/look/target"]["post"]["responses"]["422"]
+    assert refusal["content"]["application/json"]["schema"]["$ref"].endswith("/ErrorBody")
+    assert set(spec["components"]["schemas"]["ErrorBody"]["properties"]) == {"error", "field", "reason"}
+
+
 def test_malformed_bodies_are_4xx_json_never_a_traceback(head):
     _, client = head
     for body in (b"{not json", b"", b"[1, 2, 3]", "{\"x\": 1e999999}".encode(), b"\xff\xfe"):
