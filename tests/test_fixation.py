@@ -178,6 +178,35 @@ def test_driver_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
         assert rig.bus.true_position("pan") == pytest.approx(15.0, abs=0.3)  # 5 commanded, 15 done
 
 
+def test_with_the_pan_reading_offset_no_goal_is_clamped_by_the_bus_and_moves_stay_commanded_plus_offset():
+    # DriverHead clips a goal in the coordinates it writes, the joints' own: near the pan
+    # limit the bus sends what was asked, and the head moves exactly the commanded move plus
+    # the offset -- what `executed_command="commanded"` teaches stays consistent.
+    with SimulatedHeadRig(seed=0) as rig:
+        head = rig.head
+        controller = FixationController(head, GazeMap.for_image(320, 240, seed=0), seed=3)
+        head.move_to(np.array([32.0, 0.0, 6.0]))
+        head.wait_settled(5.0)
+        head.pan_reading_offset_deg = 10.0
+        asked_goals, sent_goals = [], []
+        write_goals = rig.bus.write_goals
+
+        def spy(goals):
+            asked_goals.append(dict(goals))
+            sent_goals.append(write_goals(goals))
+            return sent_goals[-1]
+
+        rig.bus.write_goals = spy
+        for n in range(12):
+            before = head.read_pose()
+            planned = np.array([25.0, 0.0, 0.0]) if n % 3 == 0 else controller.random_command(before)
+            commanded = head.move_to(before + planned) - before
+            head.wait_settled(5.0)
+            assert head.read_pose()[0] - before[0] == pytest.approx(commanded[0] + 10.0, abs=0.3)
+        assert asked_goals == sent_goals
+        assert sum(goals["pan"] == head.pose_high[0] for goals in sent_goals) >= 2  # the limit was reached
+
+
 def test_a_missing_stereo_pair_is_told_apart_from_a_head_that_does_not_settle():
     from calib_free.fixation import PairTimeoutError
 
