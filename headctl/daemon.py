@@ -72,6 +72,14 @@ class StaleStateError(HeadctlError, TimeoutError):
     """The servo loop produced no fresh state in time."""
 
 
+def join_thread(thread: threading.Thread, timeout_s: float) -> None:
+    """Wait for a thread asked to stop (not from itself); a warning if it does not."""
+    if thread.is_alive() and threading.current_thread() is not thread:
+        thread.join(timeout_s)
+        if thread.is_alive():
+            log.warning("%s did not stop within %.1f s", thread.name, timeout_s)
+
+
 def _percentiles(values: Any, qs: tuple[float, ...]) -> list[float | None]:
     arr = np.asarray(list(values), dtype=float)
     return [float(np.percentile(arr, q)) if len(arr) else None for q in qs]
@@ -208,10 +216,7 @@ class ServoLoop(threading.Thread):
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop_event.set()
-        if self.is_alive() and threading.current_thread() is not self:
-            self.join(timeout_s)
-            if self.is_alive():
-                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
+        join_thread(self, timeout_s)
 
     # -- the loop ------------------------------------------------------------------------
     def _set_priority(self) -> None:
@@ -580,10 +585,7 @@ class FixationThread(threading.Thread):
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self.abort.set()
-        if self.is_alive() and threading.current_thread() is not self:
-            self.join(timeout_s)
-            if self.is_alive():
-                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
+        join_thread(self, timeout_s)
 
     def counts(self) -> dict[str, Any]:
         with self._lock:
