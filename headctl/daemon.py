@@ -562,8 +562,7 @@ class FixationThread(threading.Thread):
 
     def __init__(self, controller: FixationController, head: ObservedHead, adapter: MapAdapter,
                  loop: ServoLoop, abort: threading.Event, explore: bool = True, rate_hz: float = 0.0,
-                 on_record: Callable[[FixationRecord], None] | None = None, looks: LookQueue | None = None,
-                 events: EventHub | None = None) -> None:
+                 looks: LookQueue | None = None, events: EventHub | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
@@ -572,7 +571,6 @@ class FixationThread(threading.Thread):
         self.abort = abort
         self.explore = explore
         self.min_interval_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
-        self.on_record = on_record
         self.looks = looks or LookQueue()
         self.events = events or head.events
         self.done = 0
@@ -730,8 +728,6 @@ class FixationThread(threading.Thread):
         else:
             self.events.publish("fixation_refused", index=record.index, kind=record.kind, reason=record.outcome,
                                 detail=record.detail)
-        if self.on_record is not None:
-            self.on_record(record)
 
 
 class EventLog(logging.Handler):
