@@ -1,9 +1,10 @@
 """The adapter thread: the gaze map learns in the background while the head keeps moving.
 
 `MapAdapter` owns a `GazeMap` and a named thread that takes training samples (r*, m, c)
-from a bounded queue and adapts the map. Readers (`command`, `snapshot`) and the thread
-share one lock, held only for the microseconds of a lookup or an adaptation, so the
-fixation loop never waits on learning. A full queue drops the oldest sample (counted):
+from a bounded queue and adapts the map. Readers (`command`, `with_map`) and the thread
+share one lock, held for the milliseconds of a lookup or an adaptation, so the fixation loop
+never waits long on learning; `progress` (adaptations, recent retinal errors) is published
+after each adaptation and read without the lock, so a status reader never waits at all. A full queue drops the oldest sample (counted):
 learning may lag, motion never blocks. An exception in the thread reaches `on_error` and
 `error`; the thread stops through an event.
 """
@@ -20,6 +21,18 @@ import numpy as np
 from calib_free.gaze_map import AdaptResult, GazeMap
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Progress:
+    """How far learning is, as of the last adaptation (a latest-value slot, read lock-free)."""
+
+    adaptations: int
+    recent_retinal_errors: tuple[float, ...]  # eq. 8, the window of eq. 9
+
+    @classmethod
+    def of(cls, gaze_map: GazeMap) -> "Progress":
+        return cls(gaze_map.adaptations, tuple(gaze_map.recent_errors))
 
 
 @dataclass(frozen=True)
@@ -41,6 +54,7 @@ class MapAdapter:
         self.on_error = on_error
         self.error: BaseException | None = None
         self.dropped = 0
+        self.progress = Progress.of(gaze_map)
         self._queue: queue.Queue[Sample] = queue.Queue(maxsize=queue_size)
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -106,6 +120,7 @@ class MapAdapter:
         measured for the old one and are dropped. Returns the old map."""
         with self._lock:
             old, self.map = self.map, gaze_map
+            self.progress = Progress.of(gaze_map)
             while True:
                 try:
                     self._queue.get_nowait()
@@ -125,6 +140,7 @@ class MapAdapter:
             try:
                 with self._lock:
                     result = self.map.adapt(sample.position, sample.command, confidence=sample.confidence)
+                    self.progress = Progress.of(self.map)
                 if self.on_adapted is not None:
                     self.on_adapted(sample, result)
             except Exception as err:  # reported, never lost; the thread keeps learning

@@ -24,12 +24,14 @@ top-left pixel's centre), the disparity range as configured.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import io
 import json
 import logging
 import os
 import tempfile
+import time
 import zipfile
 from collections import deque
 from dataclasses import dataclass, field
@@ -384,6 +386,21 @@ class GazeMap:
 
     def _poly_tensor(self) -> np.ndarray:
         return self.polynomial.tensor if self.polynomial is not None else _NO_POLYNOMIAL
+
+    def warm_up(self) -> float:
+        """Compile the inner loops now, on a throwaway copy (this map is not changed); returns
+        the seconds it took.
+
+        numba compiles on first call: several seconds on the first run after an install (then
+        read from the cache beside `_kernels.py`). Paid here, at startup, it is not paid inside
+        the first adaptation, where it would hold up everything waiting on the map.
+        """
+        start_s = time.perf_counter()
+        scratch = copy.deepcopy(self)
+        w, h = self.params.image_size
+        centre = (w / 2.0, h / 2.0, sum(self.params.disparity_range) / 2.0)
+        scratch.adapt(centre, scratch.command(centre), confidence=1.0)
+        return time.perf_counter() - start_s
 
     # -- learning ----------------------------------------------------------------------
     def retinal_error(self, found: Sequence[float], expected: Sequence[float]) -> float:

@@ -977,7 +977,7 @@ class Daemon:
         return {side: {"head": head, "pose_source": pose_source(side)} for side in ("left", "right")}
 
     def _on_adapted(self, sample: Sample, result: AdaptResult) -> None:
-        adaptations = self.adapter.map.adaptations if self.adapter is not None else 0
+        adaptations = self.adapter.progress.adaptations if self.adapter is not None else 0
         if result.accepted:
             self.adaptations_run += 1
             self.recent_output_errors.append(np.asarray(result.output_error, dtype=float))
@@ -1072,12 +1072,13 @@ class Daemon:
             pose = dict(zip(("pan", "tilt", "vergence"), self.head.pose_from(state.positions).round(4).tolist()))
         learning: dict[str, Any] = {}
         if self.adapter is not None:
-            def figures(gm: GazeMap) -> dict[str, Any]:
-                recent = list(gm.recent_errors)
-                return {"adaptations": gm.adaptations,
+            # The published progress, not the map under its lock: a status reader (the API's
+            # event loop) must never wait for an adaptation.
+            progress = self.adapter.progress
+            recent = list(progress.recent_retinal_errors)
+            learning = {"adaptations": progress.adaptations,
                         "mean_retinal_error": float(np.mean(recent)) if recent else None,
                         "recent_retinal_errors": recent}
-            learning = self.adapter.with_map(figures)  # type: ignore[assignment]
             outs = list(self.recent_output_errors)
             learning["output_error_deg"] = (np.mean(outs, axis=0).round(4).tolist() if outs else None)
             learning["adaptations_this_run"] = self.adaptations_run
@@ -1290,6 +1291,9 @@ class Daemon:
             self.notifier.notify(status="starting: restoring the gaze map")
             gm, self.map_source, self.map_problems = restore_map(cfg)
             self.map_restored = {"adaptations": gm.adaptations, "recent_retinal_errors": list(gm.recent_errors)}
+            self.notifier.notify(status="starting: compiling the gaze map's inner loops")
+            compile_s = gm.warm_up()
+            (log.info if compile_s > 1.0 else log.debug)("gaze map inner loops ready in %.1f s", compile_s)
             bus = self.bus = self._build_bus()
             stack.callback(self._close_bus)
             bus.open()
@@ -1332,7 +1336,7 @@ class Daemon:
     def _status_line(self) -> str:
         fix = self.fixation.counts() if self.fixation is not None else {"done": 0, "taught": 0}
         faults = self.faults()
-        adaptations = self.adapter.map.adaptations if self.adapter is not None else 0
+        adaptations = self.adapter.progress.adaptations if self.adapter is not None else 0
         line = f"{self.state()}: {fix['done']} fixations, {fix['taught']} taught, {adaptations} adaptations"
         return line + (f"; {faults[0]}" if faults else "")
 

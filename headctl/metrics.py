@@ -106,7 +106,7 @@ class DaemonCollector(Collector):
         adapter = d.adapter
         if adapter is not None:
             yield CounterMetricFamily("headctl_adaptations", "adaptations of the gaze map (this map)",
-                                      adapter.map.adaptations)
+                                      adapter.progress.adaptations)
         points = d.learning_since(0, 100)["points"]
         retinal = [p["retinal_error"] for p in points if p["retinal_error"] is not None]
         confidence = [p["confidence"] for p in points if p["confidence"] is not None]

@@ -107,6 +107,30 @@ def test_state_reports_joints_pose_and_learning(head):
     assert s["servo_loop"]["rate_hz"] == 100.0
 
 
+def test_state_answers_while_the_map_is_busy(head):
+    """The state is read on the API's event loop: it must not wait for the map's lock, which an
+    adaptation (or numba compiling on the first one) can hold for seconds."""
+    daemon, client = head
+    held, release = threading.Event(), threading.Event()
+
+    def hold(_map):
+        held.set()
+        release.wait(30)
+
+    holder = threading.Thread(target=daemon.adapter.with_map, args=(hold,), name="holds-the-map")
+    holder.start()
+    try:
+        assert held.wait(10), "could not take the map's lock"
+        quick = ApiClient(client.url, timeout_s=3.0)
+        first = quick.state()
+        # Until the answer is built anew with the lock held (the state is cached for 0.1 s).
+        rebuilt = wait_state(quick, lambda s: s["uptime_s"] > first["uptime_s"], 5.0, "a state built anew")
+        assert not release.is_set() and rebuilt["learning"]["adaptations"] >= first["learning"]["adaptations"]
+    finally:
+        release.set()
+        holder.join(10)
+
+
 def test_learning_points_come_in_order_and_only_once(head):
     _, client = head
     first = wait_state(client, lambda s: s["learning"]["adaptations_this_run"] >= 2, 60, "two adaptations")

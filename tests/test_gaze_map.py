@@ -1,6 +1,8 @@
 """The gaze map: the update rule (eqs. 8-11) by hand, bad inputs, persistence, learning."""
 from __future__ import annotations
 
+import copy
+
 import math
 import os
 import signal
@@ -152,6 +154,18 @@ def test_save_load_round_trips_exactly_and_learning_continues_identically(tmp_pa
         b = loaded.adapt(s.position, s.command, 0.8)
         assert a.retinal_error == b.retinal_error
         np.testing.assert_array_equal(gm.command(s.position), loaded.command(s.position))
+
+
+@pytest.mark.parametrize("profile", ["default", "paper"])
+def test_warm_up_leaves_the_map_exactly_as_it_was(profile):
+    gm, sampler = trained(profile, n=30)
+    twin = copy.deepcopy(gm)
+    assert gm.warm_up() >= 0.0
+    assert gm.adaptations == twin.adaptations and list(gm.recent_errors) == list(twin.recent_errors)
+    np.testing.assert_array_equal(gm.grid, twin.grid)
+    s = sampler.draw()  # and it goes on learning exactly as the untouched twin does
+    assert gm.adapt(s.position, s.command, 0.8).retinal_error == twin.adapt(s.position, s.command, 0.8).retinal_error
+    np.testing.assert_array_equal(gm.command(s.position), twin.command(s.position))
 
 
 def test_save_keeps_the_previous_file(tmp_path):
