@@ -294,8 +294,9 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
         return await answer_look(daemon.looks.get(look_id), wait_s)
 
     @app.delete("/api/v1/looks/{look_id}", dependencies=guarded)
-    def cancel_look(look_id: int) -> Response:
-        return _json(plain(daemon.looks.cancel(look_id).as_dict()))
+    async def cancel_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
+        # A queued look ends at once; a running one stops at its next servo cycle or frame wait.
+        return await answer_look(daemon.looks.cancel(look_id), wait_s)
 
     # -- switches and the map ---------------------------------------------------------
     @app.post("/api/v1/exploration", dependencies=guarded)

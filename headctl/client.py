@@ -76,6 +76,10 @@ class ApiClient:
     def look(self, look_id: int, wait_s: float = 0.0) -> dict[str, Any]:
         return self.request("GET", f"/api/v1/looks/{look_id}?wait_s={wait_s}", wait_s=wait_s)
 
+    def cancel_look(self, look_id: int, wait_s: float = 0.0) -> dict[str, Any]:
+        """Cancel a queued look, or stop a running one (waiting up to `wait_s` for it to stop)."""
+        return self.request("DELETE", f"/api/v1/looks/{look_id}?wait_s={wait_s}", wait_s=wait_s)
+
     def set_exploration(self, enabled: bool) -> bool:
         return bool(self.request("POST", "/api/v1/exploration", {"enabled": enabled})["enabled"])
 

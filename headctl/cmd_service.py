@@ -266,14 +266,28 @@ def _look(args: argparse.Namespace) -> int:
     if client is None:
         return 2
     a, b, c = args.values
+    job: dict[str, Any] | None = None
     try:
+        # Queued first, then waited on by id: Ctrl-C while waiting can then cancel it.
         if args.angles:
-            job = client.look_angles(a, b, c, relative=args.relative, wait_s=args.wait, replace=args.replace)
+            job = client.look_angles(a, b, c, relative=args.relative, replace=args.replace)
         else:
-            job = client.look_target(a, b, c, wait_s=args.wait, replace=args.replace)
+            job = client.look_target(a, b, c, replace=args.replace)
+        if args.wait > 0:
+            print(f"look {job['id']} {job['state']}; waiting up to {args.wait:g} s (Ctrl-C cancels it)",
+                  file=sys.stderr, flush=True)
+            job = client.look(job["id"], wait_s=args.wait)
     except ApiError as err:
         print(f"headctl look: {err}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        if job is None:
+            return 130
+        try:
+            job = client.cancel_look(job["id"], wait_s=5.0)
+        except ApiError as err:  # it ended meanwhile, or the daemon went away
+            print(f"headctl look: interrupted; look {job['id']} not cancelled: {err}", file=sys.stderr)
+            return 130
     if args.json:
         print(json.dumps(job, indent=2))
     else:

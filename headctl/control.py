@@ -4,7 +4,8 @@
   vergence; absolute or relative). A job is queued, taken by the fixation thread between two
   fixations, and ends `done` (the fixation converged, or the angles were reached), `failed`
   (refused: the reason says why) or `cancelled`. `done` is a `threading.Event` to wait on; the
-  job's id is what an HTTP client waits on later.
+  job's id is what an HTTP client waits on later. A running look is cancelled by request
+  (`cancel_requested`): the fixation thread stops it at its next bus access or frame wait.
 - `LookQueue`: the bounded queue of jobs and the record of the last finished ones.
 - `EventHub`: saccade onset/done, fixation converged/refused, faults, look started/done, ...
   published by the daemon's threads to any number of subscribers (the HTTP event stream),
@@ -98,6 +99,10 @@ class LookJob:
     started_s: float | None = None
     finished_s: float | None = None
     done: threading.Event = field(default_factory=threading.Event, repr=False)
+    # Set to stop a running look; the fixation thread finishes it `cancelled` with this outcome.
+    cancel_requested: threading.Event = field(default_factory=threading.Event, repr=False)
+    cancel_outcome: str = ""
+    cancel_detail: str = ""
     _callbacks: list[Callable[["LookJob"], None]] = field(default_factory=list, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -119,10 +124,16 @@ class LookJob:
             except Exception:  # a client's callback must not break the fixation thread
                 log.exception("look %d: a done callback failed", self.id)
 
+    def request_cancel(self, outcome: str, detail: str) -> None:
+        if not self.cancel_requested.is_set():
+            self.cancel_outcome, self.cancel_detail = outcome, detail
+            self.cancel_requested.set()
+
     def as_dict(self) -> dict[str, Any]:
         return {"id": self.id, "request": self.request.as_dict(), "state": self.state, "outcome": self.outcome,
                 "detail": self.detail, "result": self.result, "created": self.created_s,
-                "started": self.started_s, "finished": self.finished_s}
+                "started": self.started_s, "finished": self.finished_s,
+                "cancel_requested": self.cancel_requested.is_set()}
 
 
 class LookQueue:
@@ -132,17 +143,20 @@ class LookQueue:
         self.size = size
         self._cond = threading.Condition()
         self._queued: collections.deque[LookJob] = collections.deque()
+        self._running: LookJob | None = None
         self._jobs: collections.OrderedDict[int, LookJob] = collections.OrderedDict()
         self._keep = keep_finished
         self._ids = itertools.count(1)
 
     def submit(self, request: LookRequest, replace: bool = False) -> LookJob:
-        """Queue a look; with `replace`, looks still queued are cancelled first (a tracker's
-        newest target wins). QueueFullError when `size` are waiting."""
+        """Queue a look; with `replace`, the looks still queued are cancelled and the running one
+        is stopped first (a tracker's newest target wins). QueueFullError when `size` are waiting."""
         with self._cond:
             if replace:
                 while self._queued:
                     self._finish_locked(self._queued.popleft(), CANCELLED, "replaced", "a newer look replaced it")
+                if self._running is not None:
+                    self._running.request_cancel("replaced", "a newer look replaced it")
             if len(self._queued) >= self.size:
                 raise QueueFullError(f"{len(self._queued)} looks already queued (the limit, api.max_queued_looks); "
                                      "wait for one, or send replace: true")
@@ -162,6 +176,7 @@ class LookQueue:
                 return None
             job = self._queued.popleft()
             job.state, job.started_s = RUNNING, time.time()
+            self._running = job
             return job
 
     def wait_for_work(self, timeout_s: float) -> bool:
@@ -175,10 +190,15 @@ class LookQueue:
             self._finish_locked(job, state, outcome, detail, result)
 
     def cancel(self, job_id: int) -> LookJob:
+        """A queued look ends `cancelled` at once; a running one is asked to stop (it ends
+        `cancelled` once the fixation thread has stopped it: wait on `done`)."""
         with self._cond:
             job = self.get(job_id)
+            if job.state == RUNNING:
+                job.request_cancel("cancelled", "cancelled by a client")
+                return job
             if job.state != QUEUED:
-                raise ControlError(f"look {job_id} is {job.state}: only a queued look can be cancelled", "id")
+                raise ControlError(f"look {job_id} is {job.state} already: there is nothing to cancel", "id")
             self._queued.remove(job)
             self._finish_locked(job, CANCELLED, "cancelled", "cancelled by a client")
             return job
@@ -204,6 +224,8 @@ class LookQueue:
         job.state, job.outcome, job.detail = state, outcome, detail
         job.result = result or {}
         job.finished_s = time.time()
+        if self._running is job:
+            self._running = None
         job._set_done()
 
     def _trim_locked(self) -> None:

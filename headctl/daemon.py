@@ -51,7 +51,7 @@ from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, Devic
                             JointLimitError, ServoHardwareError)
 from drivers.servo_bus import AUTO_REBOOT_HOLDOFF_S, JOINTS, BusState, ServoBus, create_servo_bus
 from headctl.config import HeadConfig
-from headctl.control import (DONE, FAILED, ControlError, EventHub, InvalidRequestError, LookJob, LookQueue,
+from headctl.control import (CANCELLED, DONE, FAILED, ControlError, EventHub, InvalidRequestError, LookJob, LookQueue,
                              LookRequest, NotFoundError, UnavailableError, plain)
 from headctl.errors import HeadctlError
 from headctl.head import DriverHead, StereoPairSource
@@ -61,11 +61,44 @@ log = logging.getLogger(__name__)
 REFUSED_BUS_DOWN = "servo bus down"
 REFUSED_SERVO_FAULT = "servo fault"
 REFUSED_SHUTDOWN = "aborted at shutdown"
+REFUSED_CANCELLED = "look cancelled"
 MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
 
 
 class ShutdownError(HeadctlError):
     """The daemon is stopping: the fixation in progress is aborted."""
+
+
+class LookCancelledError(HeadctlError):
+    """A client cancelled the look in progress (or a newer look replaced it)."""
+
+
+class Interrupt:
+    """Why the head's work in progress must stop: the daemon stopping (for good), or a client
+    cancelling the look in progress (that look only). `LoopBus` and `AbortablePairSource` check
+    it before every bus access and every slice of waiting for frames, so a fixation stops
+    within one servo cycle or one frame slice; the motion already sent is completed (the
+    servos hold the last goal), no further saccade or vergence step is sent."""
+
+    def __init__(self, stop: threading.Event) -> None:
+        self.stop = stop
+        self._look: LookJob | None = None
+
+    def check(self) -> None:
+        if self.stop.is_set():
+            raise ShutdownError("the daemon is stopping")
+        look = self._look
+        if look is not None and look.cancel_requested.is_set():
+            raise LookCancelledError(f"look {look.id} stopped: {look.cancel_detail}")
+
+    @contextlib.contextmanager
+    def during(self, job: LookJob):  # type: ignore[no-untyped-def]
+        """Cancelling `job` interrupts what runs inside this block."""
+        self._look = job
+        try:
+            yield
+        finally:
+            self._look = None
 
 
 class StaleStateError(HeadctlError, TimeoutError):
@@ -442,25 +475,22 @@ class LoopBus:
 
     `read_state()` gives the first state read after the call; `write_goals()` returns once the
     loop has written the goals (as the bus clamped them) or raises the bus's error. Both raise
-    `ShutdownError` once the daemon stops, which aborts the fixation in progress.
+    `ShutdownError` once the daemon stops, which aborts the fixation in progress, and
+    `LookCancelledError` once the look in progress is cancelled.
     """
 
-    def __init__(self, loop: ServoLoop, abort: threading.Event) -> None:
+    def __init__(self, loop: ServoLoop, interrupt: Interrupt) -> None:
         self.loop = loop
         self.config = loop.bus.config
         self.name = loop.bus.name
-        self.abort = abort
-
-    def _check(self) -> None:
-        if self.abort.is_set():
-            raise ShutdownError("the daemon is stopping")
+        self.interrupt = interrupt
 
     def read_state(self) -> BusState:
-        self._check()
+        self.interrupt.check()
         return self.loop.fresh_state()
 
     def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
-        self._check()
+        self.interrupt.check()
         return self.loop.request_goals(goals)
 
 
@@ -468,17 +498,16 @@ class AbortablePairSource(StereoPairSource):
     """`StereoPairSource` that waits in short slices so a stopping daemon is not held up, and
     remembers when the last pair it gave was exposed (frame-to-command latency)."""
 
-    def __init__(self, pair: StereoPair, abort: threading.Event, slice_s: float = 0.1) -> None:
+    def __init__(self, pair: StereoPair, interrupt: Interrupt, slice_s: float = 0.1) -> None:
         super().__init__(pair)
-        self.abort = abort
+        self.interrupt = interrupt
         self.slice_s = slice_s
         self.last_pair_time_s: float | None = None
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
         deadline = time.monotonic() + timeout_s
         while True:
-            if self.abort.is_set():
-                raise ShutdownError("the daemon is stopping")
+            self.interrupt.check()
             remaining = deadline - time.monotonic()
             try:
                 frames = self.pair.wait_pair(after_s, max(0.0, min(self.slice_s, remaining)))
@@ -561,14 +590,15 @@ class FixationThread(threading.Thread):
     SAME_VIEW_DEG = 0.25  # the head moved less than this on every axis: the same view
 
     def __init__(self, controller: FixationController, head: ObservedHead, adapter: MapAdapter,
-                 loop: ServoLoop, abort: threading.Event, explore: bool = True, rate_hz: float = 0.0,
+                 loop: ServoLoop, interrupt: Interrupt, explore: bool = True, rate_hz: float = 0.0,
                  looks: LookQueue | None = None, events: EventHub | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
         self.adapter = adapter
         self.loop = loop
-        self.abort = abort
+        self.interrupt = interrupt
+        self.abort = interrupt.stop
         self.explore = explore
         self.min_interval_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
         self.looks = looks or LookQueue()
@@ -632,6 +662,9 @@ class FixationThread(threading.Thread):
         except (HeadctlError, DriverError) as err:
             if isinstance(err, ShutdownError):
                 reason = REFUSED_SHUTDOWN
+            elif isinstance(err, LookCancelledError):
+                reason = REFUSED_CANCELLED
+                log.info("%s", err)
             elif isinstance(err, (BusDownError, StaleStateError)):
                 reason = REFUSED_BUS_DOWN
                 log.info("fixation aborted: %s", err)
@@ -655,10 +688,12 @@ class FixationThread(threading.Thread):
         try:
             if paused is not None:
                 self.looks.finish(job, FAILED, paused, f"cannot look: {paused}")
-            elif request.kind == "target":
-                self._look_at_target(job)
             else:
-                self._look_at_angles(job)
+                with self.interrupt.during(job):
+                    if request.kind == "target":
+                        self._look_at_target(job)
+                    else:
+                        self._look_at_angles(job)
         except BaseException as err:  # a client waiting on it hears of it before the thread reports it
             if not job.done.is_set():
                 self.looks.finish(job, FAILED, "internal error", repr(err))
@@ -686,7 +721,11 @@ class FixationThread(threading.Thread):
                 landing = float(np.hypot(*(record.position[:2] - target[:2])))
                 result["landing_error_px"] = landing
                 self.landing_errors_px.append(landing)
-        self.looks.finish(job, DONE if record.converged else FAILED, record.outcome, record.detail, plain(result))
+        if record.outcome == REFUSED_CANCELLED:
+            self.looks.finish(job, CANCELLED, job.cancel_outcome, job.cancel_detail, plain(result))
+        else:
+            self.looks.finish(job, DONE if record.converged else FAILED, record.outcome, record.detail,
+                              plain(result))
 
     def _look_at_angles(self, job: LookJob) -> None:
         request = job.request
@@ -703,6 +742,9 @@ class FixationThread(threading.Thread):
             self.head.move_to(goal)
             self.head.wait_settled(self.controller.params.settle_timeout_s)
             after = self.head.read_pose()
+        except LookCancelledError:
+            self.looks.finish(job, CANCELLED, job.cancel_outcome, job.cancel_detail)
+            return
         except (HeadctlError, DriverError, HeadTimeoutError) as err:
             self.looks.finish(job, FAILED, type(err).__name__, str(err))
             return
@@ -1315,11 +1357,12 @@ class Daemon:
             self.checkpointer = Checkpointer(self.adapter, cfg.map_path, cfg.service.checkpoint_every)
             self.adapter.start()
             stack.callback(self.adapter.stop)
-            self.head = ObservedHead(LoopBus(self.loop, self.abort), AbortablePairSource(self.pair, self.abort),
+            interrupt = Interrupt(self.abort)
+            self.head = ObservedHead(LoopBus(self.loop, interrupt), AbortablePairSource(self.pair, interrupt),
                                      clock=bus.clock, vergence_range=cfg.fixation.vergence_range, events=self.hub)
             controller = FixationController(self.head, self.adapter, cfg.fixation.params,
                                             seed=None if not cfg.simulated else cfg.gaze_map.seed)
-            self.fixation = FixationThread(controller, self.head, self.adapter, self.loop, self.abort,
+            self.fixation = FixationThread(controller, self.head, self.adapter, self.loop, interrupt,
                                            cfg.fixation.explore, cfg.fixation.rate_hz, looks=self.looks,
                                            events=self.hub)
             self.fixation.start()

@@ -8,8 +8,12 @@ stream from a known sequence number, never waited for with sleeps.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import http.client
 import json
+import signal
+import subprocess
+import sys
 import threading
 import time
 import urllib.parse
@@ -278,19 +282,61 @@ def test_unknown_looks_and_cancelling(head):
     try:
         first = client.look_angles(5.0, 0.0, 6.0)
         queued = [client.look_angles(a, 0.0, 6.0) for a in (-5.0, 5.0)]
-        # Queued ones can be cancelled; a finished one cannot.
-        status, answer, _ = raw(client, "DELETE", f"/api/v1/looks/{queued[-1]['id']}")
+        # Queued (or, if the fixation thread took it meanwhile, running) ones can be cancelled.
+        status, answer, _ = raw(client, "DELETE", f"/api/v1/looks/{queued[-1]['id']}?wait_s=10")
         if status == 200:
-            assert answer["state"] == "cancelled"
-        else:  # the fixation thread had already taken it
-            assert status == 409 and answer["field"] == "id"
+            assert answer["state"] == "cancelled" and answer["outcome"] == "cancelled"
+        else:  # it had ended already (a very slow host)
+            assert status == 409 and "done already" in answer["reason"]
         done = client.look(first["id"], wait_s=30)
         assert done["state"] == "done"
+        # A finished one cannot.
         status, answer, _ = raw(client, "DELETE", f"/api/v1/looks/{first['id']}")
-        assert status == 409 and "only a queued look can be cancelled" in answer["reason"]
+        assert status == 409 and answer["field"] == "id" and "done already" in answer["reason"]
         client.look(queued[0]["id"], wait_s=30)
     finally:
         client.set_exploration(True)
+
+
+@contextlib.contextmanager
+def idle_with_the_left_camera_stalled(client):
+    """Exploration off and the head idle, the left camera stalled: a target look then waits
+    for frames (up to the fixation's 2 s frame timeout) and can be caught running."""
+    client.set_exploration(False)
+    wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)", what="idle")
+    client.request("POST", "/api/v1/sim/faults", {"fault": "camera_stall", "camera": "left"})
+    try:
+        yield
+    finally:
+        client.request("POST", "/api/v1/sim/faults", {"fault": "camera_resume", "camera": "left"})
+        client.set_exploration(True)
+
+
+def test_a_running_look_stops_when_cancelled_or_replaced(head):
+    """A look waiting for frames (the left camera stalled) is stopped at once, well before the
+    fixation's 2 s frame timeout: by DELETE, then by a newer look with replace."""
+    daemon, client = head
+    with idle_with_the_left_camera_stalled(client):
+        seq = client.state()["events_seq"]
+        job = client.look_target(160.0, 120.0, 0.0)
+        events_after(client, seq, lambda es: any(e["type"] == "look_started" and e["id"] == job["id"] for e in es))
+        asked_s = time.time()
+        stopped = client.cancel_look(job["id"], wait_s=10)
+        assert stopped["state"] == "cancelled" and stopped["outcome"] == "cancelled", stopped
+        assert stopped["cancel_requested"] is True and stopped["finished"] - asked_s < 1.0
+        assert stopped["result"]["taught"] is False
+
+        seq = client.state()["events_seq"]
+        older = client.look_target(100.0, 100.0, 0.0)
+        events_after(client, seq, lambda es: any(e["type"] == "look_started" and e["id"] == older["id"] for e in es))
+        newer = client.look_angles(0.0, 0.0, 6.0, replace=True)
+        replaced = client.look(older["id"], wait_s=10)
+        assert replaced["state"] == "cancelled" and replaced["outcome"] == "replaced", replaced
+        assert replaced["detail"] == "a newer look replaced it"
+        client.request("POST", "/api/v1/sim/faults", {"fault": "camera_resume", "camera": "left"})
+        assert client.look(newer["id"], wait_s=30)["state"] == "done"
+        refused = client.state()["fixation"]["refused"]
+        assert refused.get("look cancelled", 0) >= 2  # stopped fixations are counted, never taught
 
 
 def test_a_full_queue_is_429_and_replace_makes_the_newest_win(head):
@@ -518,6 +564,23 @@ def test_look_and_status_commands(head, capsys):
     assert main(["look", "--relative", "1", "2", "3", *url]) == 2
     assert main(["status", *url]) == 0
     assert "fixation:" in capsys.readouterr().out
+
+
+def test_ctrl_c_on_headctl_look_cancels_the_look(head):
+    daemon, client = head
+    with idle_with_the_left_camera_stalled(client):
+        seq = client.state()["events_seq"]
+        cli = subprocess.Popen([sys.executable, "-m", "headctl", "look", "150", "110", "-3", "--url", client.url],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        waiting = cli.stderr.readline()  # the command has the look's id and waits on it
+        started = events_after(client, seq, lambda es: any(e["type"] == "look_started" for e in es))
+        look_id = next(e["id"] for e in started if e["type"] == "look_started")
+        assert waiting.startswith(f"look {look_id} ") and "Ctrl-C cancels it" in waiting, waiting
+        cli.send_signal(signal.SIGINT)
+        out, err = cli.communicate(timeout=20)
+        assert cli.returncode == 1, (out, err)
+        assert f"look {look_id} (target x 150, y 110, d -3 px): cancelled, cancelled" in out
+        assert client.look(look_id)["state"] == "cancelled"
 
 
 # --- a token ---------------------------------------------------------------------------------

@@ -36,16 +36,36 @@ def test_a_full_queue_refuses_and_replace_cancels_the_waiting_ones():
     assert q.pending() == 1 and q.take() is newest
 
 
-def test_only_a_queued_look_can_be_cancelled():
+def test_a_queued_look_is_cancelled_at_once_a_running_one_on_request_an_ended_one_not_at_all():
     q = LookQueue()
     a, b = q.submit(TARGET), q.submit(TARGET)
     q.take()
-    with pytest.raises(ControlError, match="look 1 is running"):
+    assert q.cancel(b.id).state == CANCELLED and b.done.is_set() and q.take() is None
+    # The running look is asked to stop; it ends when the fixation thread has stopped it.
+    assert q.cancel(a.id) is a and a.state == RUNNING and not a.done.is_set()
+    assert a.cancel_requested.is_set() and a.as_dict()["cancel_requested"] is True
+    assert (a.cancel_outcome, a.cancel_detail) == ("cancelled", "cancelled by a client")
+    q.finish(a, CANCELLED, a.cancel_outcome, a.cancel_detail)
+    with pytest.raises(ControlError, match="look 1 is cancelled already") as err:
         q.cancel(a.id)
-    assert q.cancel(b.id).state == CANCELLED and q.take() is None
+    assert err.value.field == "id"
     with pytest.raises(NotFoundError) as err:
         q.get(99)
     assert err.value.field == "id" and err.value.status == 404
+
+
+def test_replace_stops_the_running_look_but_not_a_finished_one():
+    q = LookQueue()
+    running = q.submit(TARGET)
+    q.take()
+    newest = q.submit(TARGET, replace=True)
+    assert running.cancel_requested.is_set() and running.cancel_outcome == "replaced"
+    assert not newest.cancel_requested.is_set()
+    q.finish(running, CANCELLED, running.cancel_outcome)
+    q.take()
+    q.finish(newest, DONE, "taught")
+    q.submit(TARGET, replace=True)
+    assert not newest.cancel_requested.is_set()  # it had ended: nothing to stop
 
 
 def test_done_callbacks_run_once_whenever_they_are_added():

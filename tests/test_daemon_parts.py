@@ -17,8 +17,9 @@ from drivers.errors import BusDownError, ServoHardwareError
 from drivers.servo_bus import JOINTS, ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 from headctl.config import load_config
-from headctl.daemon import (Checkpointer, LoopBus, ServoLoop, ShutdownError, StateDirLock, SystemdNotifier,
-                            restore_map)
+from headctl.control import LookQueue, LookRequest
+from headctl.daemon import (Checkpointer, Interrupt, LookCancelledError, LoopBus, ServoLoop, ShutdownError,
+                            StateDirLock, SystemdNotifier, restore_map)
 from headctl.errors import HeadctlError
 
 
@@ -57,7 +58,7 @@ def test_the_loop_runs_at_its_rate_and_writes_goals_through_the_bus_limits(loop,
     wait_until(lambda: loop.cycles >= 20, what="20 cycles")
     timing = loop.timing()
     assert 9.0 < timing["period_p50_ms"] < 11.0
-    bus = LoopBus(loop, threading.Event())
+    bus = LoopBus(loop, Interrupt(threading.Event()))
     sent = bus.write_goals({"pan": 50.0, "tilt": 5.0})  # pan beyond its limit: the bus clamps it
     assert sent == {"pan": 20.0, "tilt": 5.0}
     wait_until(lambda: abs(sim_bus.true_position("pan") - 20.0) < 0.01, what="pan at its limit")
@@ -69,7 +70,7 @@ def test_stale_input_holds_the_present_position(sim_bus):
     loop = ServoLoop(sim_bus, rate_hz=100.0, input_timeout_s=0.05)
     loop.start()
     try:
-        bus = LoopBus(loop, threading.Event())
+        bus = LoopBus(loop, Interrupt(threading.Event()))
         bus.write_goals({"pan": -20.0})  # a 0.15 s move, then silence from the controller
         wait_until(lambda: abs(loop.goals()["pan"] - (-20.0)) > 0.5, timeout_s=2.0, what="goal replaced by a hold")
         held = loop.goals()["pan"]
@@ -81,7 +82,7 @@ def test_stale_input_holds_the_present_position(sim_bus):
 
 
 def test_bus_down_pauses_motion_and_the_loop_resumes_after_reopening(loop, sim_bus):
-    bus = LoopBus(loop, threading.Event())
+    bus = LoopBus(loop, Interrupt(threading.Event()))
     sim_bus.inject_bus_down()
     wait_until(lambda: loop.down_reason, what="bus down noticed")
     with pytest.raises(BusDownError):
@@ -97,7 +98,7 @@ def test_a_servo_hardware_error_holds_the_joint_until_a_reboot_clears_it(sim_bus
     loop.REBOOT_AFTER_S = 0.3
     loop.start()
     try:
-        bus = LoopBus(loop, threading.Event())
+        bus = LoopBus(loop, Interrupt(threading.Event()))
         sim_bus.inject_hardware_error("tilt", 0x01)  # input voltage: the torque stays on
         wait_until(lambda: "tilt" in loop.faults, what="fault seen")
         assert loop.faults["tilt"] == ("input voltage out of range",)
@@ -117,12 +118,31 @@ def test_a_servo_hardware_error_holds_the_joint_until_a_reboot_clears_it(sim_bus
 
 def test_a_stopping_daemon_aborts_the_fixation_in_progress(loop):
     abort = threading.Event()
-    bus = LoopBus(loop, abort)
+    bus = LoopBus(loop, Interrupt(abort))
     abort.set()
     with pytest.raises(ShutdownError):
         bus.read_state()
     with pytest.raises(ShutdownError):
         bus.write_goals({"pan": 1.0})
+
+
+def test_cancelling_a_look_interrupts_only_that_look(loop):
+    interrupt = Interrupt(threading.Event())
+    bus = LoopBus(loop, interrupt)
+    looks = LookQueue()
+    first = looks.submit(LookRequest("angles", (1.0, 0.0, 6.0)))
+    second = looks.submit(LookRequest("angles", (2.0, 0.0, 6.0)))
+    job = looks.take()
+    assert job is first
+    with interrupt.during(job):
+        bus.read_state()  # not cancelled: the bus answers
+        assert looks.cancel(job.id) is job and job.state == "running" and not job.done.is_set()
+        with pytest.raises(LookCancelledError, match=f"look {job.id} stopped: cancelled by a client"):
+            bus.write_goals({"pan": 1.0})
+    bus.read_state()  # outside the look the cancellation no longer applies
+    with interrupt.during(looks.take()):
+        bus.write_goals({"pan": 2.0})  # the next look runs
+    assert second.state == "running"
 
 
 # --- persistence --------------------------------------------------------------------------
