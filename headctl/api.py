@@ -33,6 +33,7 @@ import json
 import logging
 import math
 import socket
+import ssl
 import threading
 import time
 from http import HTTPStatus
@@ -461,9 +462,11 @@ class ApiServer(threading.Thread):
     the kernel chose)."""
 
     def __init__(self, daemon: Any, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
-                 stream_fps: float = 10.0, jpeg_quality: int = 80) -> None:
+                 stream_fps: float = 10.0, jpeg_quality: int = 80, tls_cert: str | None = None,
+                 tls_key: str | None = None) -> None:
         super().__init__(name="api-server", daemon=True)
         self.host, self.port = host, port
+        self.tls_cert, self.tls_key = tls_cert, tls_key
         self.app = create_app(daemon, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
         self._sock: socket.socket | None = None
         self._server: uvicorn.Server | None = None
@@ -489,9 +492,18 @@ class ApiServer(threading.Thread):
         self._sock = sock
         port = sock.getsockname()[1]
         host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(self.host, self.host)
-        self.url = f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
+        scheme = "https" if self.tls_cert else "http"
+        self.url = f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
         config = uvicorn.Config(self.app, log_level="warning", access_log=False, lifespan="off",
-                                timeout_graceful_shutdown=2, http="httptools")
+                                timeout_graceful_shutdown=2, http="httptools",
+                                ssl_certfile=self.tls_cert, ssl_keyfile=self.tls_key)
+        try:
+            config.load()  # the TLS context: a bad certificate is an error now, not in the thread
+        except (OSError, ssl.SSLError) as err:
+            sock.close()
+            self._sock = None
+            raise HeadctlError(f"api.tls_cert {self.tls_cert}, api.tls_key {self.tls_key}: "
+                               f"cannot serve HTTPS ({err})") from err
         self._server = uvicorn.Server(config)
         self.start()
         log.info("control API and dashboard on %s", self.url)

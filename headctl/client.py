@@ -9,12 +9,15 @@
 Where the daemon listens: `--url`, else `<state_dir>/api.url` (written by the running
 daemon, so an ephemeral port is found too), else the config's `api.host`/`api.port`. The
 token: `--token`, else `$HEADCTL_TOKEN`, else the config's `api.token`/`api.token_file`.
+HTTPS: the server's certificate is checked against `cafile` (`--cacert`), else the system's
+CAs; a client made from the daemon's own config pins the daemon's certificate instead.
 """
 from __future__ import annotations
 
 import http.client
 import json
 import os
+import ssl
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -36,14 +39,22 @@ class ApiError(HeadctlError):
 
 
 class ApiClient:
-    def __init__(self, url: str, token: str | None = None, timeout_s: float = 5.0) -> None:
+    def __init__(self, url: str, token: str | None = None, timeout_s: float = 5.0, cafile: str | None = None,
+                 check_hostname: bool = True) -> None:
         self.url = url.rstrip("/")
         self.token = token
         self.timeout_s = timeout_s
+        self.tls: ssl.SSLContext | None = None
+        if self.url.startswith("https:"):
+            try:
+                self.tls = ssl.create_default_context(cafile=cafile)
+            except (OSError, ssl.SSLError) as err:
+                raise ApiError(f"{cafile}: cannot read the CA certificate ({err})") from err
+            self.tls.check_hostname = check_hostname
 
     @classmethod
     def for_config(cls, config: HeadConfig, url: str | None = None, token: str | None = None,
-                   timeout_s: float = 5.0) -> "ApiClient":
+                   timeout_s: float = 5.0, cafile: str | None = None) -> "ApiClient":
         if url is None:
             try:
                 url = config.api_url_path.read_text(encoding="utf-8").strip() or None
@@ -54,7 +65,11 @@ class ApiClient:
                 raise ApiError(f"{config.path}: api.enabled is false: the daemon has no API to ask")
             url = config.api.url
         token = token or os.environ.get("HEADCTL_TOKEN") or config.api.token
-        return cls(url, token, timeout_s)
+        if cafile is None and config.api.tls_cert:
+            # The daemon's own certificate as the only trust anchor (pinned): no other server can
+            # show it, so its name need not match the address (127.0.0.1 for a 0.0.0.0 bind).
+            return cls(url, token, timeout_s, cafile=config.api.tls_cert, check_hostname=False)
+        return cls(url, token, timeout_s, cafile=cafile)
 
     # -- the routes ---------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -90,7 +105,8 @@ class ApiClient:
         """The event stream, one event (its JSON data) at a time, until the server closes it."""
         path = "/api/v1/events" + (f"?after={after}" if after is not None else "")
         parts = urllib.parse.urlsplit(self.url)
-        conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=timeout_s)
+        conn = (http.client.HTTPSConnection(parts.hostname, parts.port, timeout=timeout_s, context=self.tls)
+                if self.tls is not None else http.client.HTTPConnection(parts.hostname, parts.port, timeout=timeout_s))
         try:
             conn.request("GET", path, headers=self._headers())
             response = conn.getresponse()
@@ -121,14 +137,14 @@ class ApiClient:
             headers["Content-Type"] = "application/json"
         req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
         try:
-            with urllib.request.urlopen(req, timeout=self.timeout_s + wait_s) as response:
+            with urllib.request.urlopen(req, timeout=self.timeout_s + wait_s, context=self.tls) as response:
                 return json.loads(response.read())
         except urllib.error.HTTPError as err:
             raise self._refusal(err.code, err.read()) from None
-        except (urllib.error.URLError, OSError) as err:
-            reason = getattr(err, "reason", err)
+        except (urllib.error.URLError, OSError, http.client.HTTPException) as err:
+            reason = getattr(err, "reason", None) or repr(err)
             raise ApiError(f"{self.url}: cannot reach the daemon ({reason}); is `headctl run` running "
-                           "with this config?") from err
+                           "with this config (and is it http, or https)?") from err
 
     def _refusal(self, status: int, payload: bytes) -> ApiError:
         try:

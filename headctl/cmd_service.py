@@ -76,6 +76,9 @@ def _client_args(parser: argparse.ArgumentParser) -> None:
     _config_args(parser)
     parser.add_argument("--url", help="the daemon's API (default: from the state directory or the config)")
     parser.add_argument("--token", help="the API token (default: $HEADCTL_TOKEN, or the config's api.token)")
+    parser.add_argument("--cacert", metavar="FILE",
+                        help="HTTPS: the CA (or the daemon's own) certificate to check the daemon against "
+                             "(default: the config's api.tls_cert, pinned; else the system's CAs)")
 
 
 def _client(args: argparse.Namespace, command: str) -> Any:
@@ -85,7 +88,7 @@ def _client(args: argparse.Namespace, command: str) -> Any:
     if config is None:
         return None
     try:
-        return ApiClient.for_config(config, url=args.url, token=args.token)
+        return ApiClient.for_config(config, url=args.url, token=args.token, cafile=args.cacert)
     except ApiError as err:
         print(f"headctl {command}: {err}", file=sys.stderr)
         return None

@@ -14,6 +14,7 @@ import dataclasses
 import ipaddress
 import logging
 import os
+import ssl
 import types
 import typing
 from dataclasses import dataclass, field
@@ -192,6 +193,8 @@ class ApiConfig:
     port: int = 8765  # 0: an ephemeral port, written to <state_dir>/api.url
     token: str | None = field(default=None, repr=False)  # 'Authorization: Bearer <token>' (or ?token=)
     token_file: str | None = None  # a file holding the token (mode 0600); relative to the config file
+    tls_cert: str | None = None  # HTTPS: the certificate (PEM, with its chain); relative to the config file
+    tls_key: str | None = None  # ... and its private key (PEM, mode 0600)
     max_queued_looks: int = 16
     stream_fps: float = 10.0  # MJPEG frames a second per client
     jpeg_quality: int = 80
@@ -209,7 +212,7 @@ class ApiConfig:
     @property
     def url(self) -> str:
         host = "127.0.0.1" if self.host in ("0.0.0.0", "") else ("[::1]" if self.host == "::" else self.host)
-        return f"http://{host}:{self.port}"
+        return f"{'https' if self.tls_cert else 'http'}://{host}:{self.port}"
 
 
 @dataclass(frozen=True)
@@ -354,9 +357,7 @@ def parse_config(data: Any, path: Path) -> HeadConfig:
 
     raw_state = top.get("state_dir", "~/.local/state/headctl")
     state_str = _coerce(raw_state, str, "state_dir")
-    state_dir = Path(os.path.expandvars(state_str)).expanduser()
-    if not state_dir.is_absolute():
-        state_dir = Path(path).resolve().parent / state_dir
+    state_dir = _beside(Path(path), state_str)
     return HeadConfig(path=Path(path), servo_bus=servo_bus, cameras=cameras, gaze_map=gaze_map, fixation=fixation,
                       service=service, state_dir=state_dir, logging=log_cfg, api=api)
 
@@ -366,9 +367,7 @@ def _parse_api(data: Any, path: Path) -> ApiConfig:
     if api.token is not None and api.token_file is not None:
         raise _Invalid("api.token_file", api.token_file, "either api.token or api.token_file, not both")
     if api.token_file is not None:
-        token_path = Path(os.path.expandvars(api.token_file)).expanduser()
-        if not token_path.is_absolute():
-            token_path = path.resolve().parent / token_path
+        token_path = _beside(path, api.token_file)
         try:
             token = token_path.read_text(encoding="utf-8").strip()
         except OSError as err:
@@ -379,4 +378,30 @@ def _parse_api(data: Any, path: Path) -> ApiConfig:
     if api.enabled and not is_loopback(api.host) and api.token is None:
         raise _Invalid("api.token", None, f"a token (api.token or api.token_file): api.host {api.host!r} is not "
                        "a loopback address, and the API moves the head")
+    if (api.tls_cert is None) != (api.tls_key is None):
+        missing = "api.tls_key" if api.tls_key is None else "api.tls_cert"
+        raise _Invalid(missing, None, "both api.tls_cert and api.tls_key (HTTPS needs the certificate and its key)")
+    if api.tls_cert is not None and api.tls_key is not None:
+        cert, key = _beside(path, api.tls_cert), _beside(path, api.tls_key)
+        for name, file, given in (("api.tls_cert", cert, api.tls_cert), ("api.tls_key", key, api.tls_key)):
+            if not os.access(file, os.R_OK):
+                raise _Invalid(name, given, f"a readable PEM file ({file} is missing or unreadable)")
+        # Here, not when the daemon starts: `headctl check` and the CLI see a bad pair too.
+        context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        try:
+            context.load_verify_locations(cafile=cert)
+        except ssl.SSLError as err:
+            raise _Invalid("api.tls_cert", api.tls_cert, f"a PEM certificate ({err.reason or err})") from None
+        try:
+            context.load_cert_chain(cert, key)
+        except ssl.SSLError as err:
+            raise _Invalid("api.tls_key", api.tls_key,
+                           f"the PEM private key of the certificate in api.tls_cert ({err.reason or err})") from None
+        api = dataclasses.replace(api, tls_cert=str(cert), tls_key=str(key))
     return api
+
+
+def _beside(config_path: Path, value: str) -> Path:
+    """A path from the config: ~ and $VARS expanded, relative to the config file's directory."""
+    file = Path(os.path.expandvars(value)).expanduser()
+    return file if file.is_absolute() else config_path.resolve().parent / file

@@ -50,7 +50,7 @@ from drivers.camera import Camera, StereoPair, StreamHealth, create_camera
 from drivers.errors import (BusDownError, CameraError, CameraTimeoutError, DeviceStateError, DriverError,
                             JointLimitError, ServoHardwareError)
 from drivers.servo_bus import AUTO_REBOOT_HOLDOFF_S, JOINTS, BusState, ServoBus, create_servo_bus
-from headctl.config import HeadConfig
+from headctl.config import HeadConfig, is_loopback
 from headctl.control import (CANCELLED, DONE, FAILED, ControlError, EventHub, InvalidRequestError, LookJob, LookQueue,
                              LookRequest, NotFoundError, UnavailableError, plain)
 from headctl.errors import HeadctlError
@@ -1326,7 +1326,12 @@ class Daemon:
             stack.enter_context(StateDirLock(cfg.lock_path))
             if cfg.api.enabled:
                 self.api_server = stack.enter_context(ApiServer(
-                    self, cfg.api.host, cfg.api.port, cfg.api.token, cfg.api.stream_fps, cfg.api.jpeg_quality))
+                    self, cfg.api.host, cfg.api.port, cfg.api.token, cfg.api.stream_fps, cfg.api.jpeg_quality,
+                    cfg.api.tls_cert, cfg.api.tls_key))
+                if not cfg.api.tls_cert and not is_loopback(cfg.api.host):
+                    log.warning("api: %s is served without TLS: the token crosses the network in clear text "
+                                "(set api.tls_cert and api.tls_key, or reach it through an SSH tunnel)",
+                                cfg.api.host)
                 self.api_url = self.api_server.url
                 write_atomically(cfg.api_url_path, self.api_url + "\n")
                 stack.callback(cfg.api_url_path.unlink, missing_ok=True)

@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 import urllib.parse
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -28,6 +29,7 @@ from headctl.cli import main
 from headctl.client import ApiClient, ApiError
 from headctl.config import load_config
 from headctl.daemon import Daemon
+from headctl.errors import HeadctlError
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -635,3 +637,39 @@ def test_a_port_in_use_is_a_clear_error_at_start(tmp_path, capsys):
         assert main(["run", "--state-dir", str(tmp_path / "state"), "--api-port", str(port)]) == 1
     err = capsys.readouterr().err
     assert f"api: cannot listen on 127.0.0.1:{port}" in err and "api.port" in err
+
+
+# --- HTTPS ---------------------------------------------------------------------------------------
+TLS = Path(__file__).parent / "data" / "tls"  # test-only: a certificate naming head.example, and its key
+
+
+def test_https_with_the_daemons_own_certificate(tmp_path):
+    tls = {"token": TOKEN, "tls_cert": str(TLS / "head-cert.pem"), "tls_key": str(TLS / "head-key.pem")}
+    daemon, thread = start_daemon(tmp_path / "state", **tls)
+    try:
+        assert daemon.api_url.startswith("https://127.0.0.1:")
+        # A client made from the head's config finds the URL and pins the daemon's certificate.
+        pinned = ApiClient.for_config(load_config().with_state_dir(tmp_path / "state").with_api(**tls))
+        assert pinned.url == daemon.api_url and pinned.state()["api"] == daemon.api_url
+        assert next(pinned.events(after=0))["seq"] >= 1  # the event stream over TLS too
+        assert pinned.set_exploration(False) is False
+        # Any other client checks the name: the certificate names head.example, not 127.0.0.1.
+        with pytest.raises(ApiError, match="head.example|match"):
+            ApiClient(daemon.api_url, TOKEN, cafile=tls["tls_cert"]).state()
+        # Nor do the system's CAs vouch for it.
+        with pytest.raises(ApiError, match="CERTIFICATE_VERIFY_FAILED"):
+            ApiClient(daemon.api_url, TOKEN).state()
+        # Plain HTTP on the HTTPS port is answered with nothing the client could take for an answer.
+        with pytest.raises(ApiError, match="cannot reach the daemon"):
+            ApiClient(daemon.api_url.replace("https:", "http:"), TOKEN, timeout_s=3.0).state()
+        assert pinned.state()["fixation"]["explore"] is False  # still serving
+    finally:
+        stop_daemon(daemon, thread)
+
+
+def test_a_certificate_the_server_cannot_use_is_an_error_at_start(tmp_path):
+    config = load_config().with_state_dir(tmp_path).with_api(
+        port=0, tls_cert=str(TLS / "head-cert.pem"), tls_key=str(TLS / "other-key.pem"))
+    with pytest.raises(HeadctlError, match="api.tls_cert .*head-cert.pem, api.tls_key .*other-key.pem: "
+                                            "cannot serve HTTPS"):
+        Daemon(config).run(install_signals=False)

@@ -14,6 +14,8 @@ from headctl.errors import ConfigError
 CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 EXAMPLES = ["sim.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]
 
+TLS = pathlib.Path(__file__).parent / "data" / "tls"  # test-only certificate and keys
+
 
 def _write(tmp_path, data, name="head.yaml"):
     path = tmp_path / name
@@ -154,13 +156,32 @@ def test_the_api_defaults_to_loopback_without_a_token():
     ({"token_file": "missing-token"}, "api.token_file: got 'missing-token', expected a readable file"),
     ({"stream_fps": 500}, "stream_fps"),
     ({"bogus": 1}, "api.bogus"),
+    ({"tls_cert": "{tls}/head-cert.pem"}, "api.tls_key: got None, expected both api.tls_cert and api.tls_key"),
+    ({"tls_key": "{tls}/head-key.pem"}, "api.tls_cert: got None, expected both"),
+    ({"tls_cert": "{tls}/nowhere.pem", "tls_key": "{tls}/head-key.pem"},
+     "api.tls_cert: got '{tls}/nowhere.pem', expected a readable PEM file"),
+    ({"tls_cert": "{tls}/head-cert.pem", "tls_key": "{tls}/other-key.pem"},
+     "api.tls_key: got '{tls}/other-key.pem', expected the PEM private key of the certificate in api.tls_cert"),
+    ({"tls_cert": "{tls}/README.md", "tls_key": "{tls}/head-key.pem"},
+     "api.tls_cert: got '{tls}/README.md', expected a PEM certificate"),
 ])
 def test_bad_api_settings_name_the_key(tmp_path, api, words):
     data = _sim()
-    data["api"] = api
+    data["api"] = {key: value.replace("{tls}", str(TLS)) if isinstance(value, str) else value
+                   for key, value in api.items()}
     with pytest.raises(ConfigError) as err:
         load_config(_write(tmp_path, data))
-    assert words in str(err.value)
+    assert words.replace("{tls}", str(TLS)) in str(err.value)
+
+
+def test_tls_files_beside_the_config_make_the_url_https(tmp_path):
+    for name in ("head-cert.pem", "head-key.pem"):
+        (tmp_path / name).write_bytes((TLS / name).read_bytes())
+    data = _sim()
+    data["api"] = {"tls_cert": "head-cert.pem", "tls_key": "head-key.pem", "port": 9443}
+    api = load_config(_write(tmp_path, data)).api
+    assert (api.tls_cert, api.tls_key) == (str(tmp_path / "head-cert.pem"), str(tmp_path / "head-key.pem"))
+    assert api.url == "https://127.0.0.1:9443"
 
 
 def test_a_token_file_beside_the_config_allows_any_address(tmp_path):
