@@ -69,13 +69,14 @@ class _Body(BaseModel):
 class _Waitable(_Body):
     wait_s: float = Field(0.0, ge=0.0, le=MAX_WAIT_S,
                           description="answer when the look is finished, or after this long (0: at once)")
-    replace: bool = Field(False, description="cancel the looks still queued first")
+    replace: bool = Field(False, description="cancel the looks still queued and stop the running one first")
 
 
 class TargetLook(_Waitable):
     x: float = Field(description="column in the left image, px")
     y: float = Field(description="row in the left image, px")
-    d: float = Field(description="disparity x_right - x_left, px")
+    d: float | None = Field(None, description="disparity x_right - x_left, px; omitted: measured around "
+                                             "(x, y) in the latest stereo pair")
 
 
 class AnglesLook(_Waitable):

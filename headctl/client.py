@@ -78,9 +78,13 @@ class ApiClient:
     def learning(self, since: int = 0) -> dict[str, Any]:
         return self.request("GET", f"/api/v1/learning?since={since}")
 
-    def look_target(self, x: float, y: float, d: float, wait_s: float = 0.0, replace: bool = False) -> dict[str, Any]:
-        return self.request("POST", "/api/v1/look/target",
-                            {"x": x, "y": y, "d": d, "wait_s": wait_s, "replace": replace}, wait_s=wait_s)
+    def look_target(self, x: float, y: float, d: float | None = None, wait_s: float = 0.0,
+                    replace: bool = False) -> dict[str, Any]:
+        """Fixate the image target (x, y, d); `d` None: the daemon measures it at (x, y)."""
+        body: dict[str, Any] = {"x": x, "y": y, "wait_s": wait_s, "replace": replace}
+        if d is not None:
+            body["d"] = d
+        return self.request("POST", "/api/v1/look/target", body, wait_s=wait_s)
 
     def look_angles(self, pan: float, tilt: float, vergence: float, relative: bool = False, wait_s: float = 0.0,
                     replace: bool = False) -> dict[str, Any]:

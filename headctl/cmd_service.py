@@ -51,17 +51,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     status.set_defaults(func=_status)
 
     look = sub.add_parser(
-        "look", help="look at an image target X Y D (px), or at joint angles with --angles P T V (deg)",
+        "look", help="look at an image target X Y [D] (px), or at joint angles with --angles P T V (deg)",
         description="Send a look to the running daemon and wait for it: an image target (x, y px in the left "
-                    "image, disparity d px) is fixated by a saccade and fine vergence; --angles moves to pan, "
-                    "tilt, vergence (deg), --relative to the present pose.")
+                    "image, disparity d px; without D the daemon measures it there) is fixated by a saccade "
+                    "and fine vergence; --angles moves to pan, tilt, vergence (deg), --relative to the "
+                    "present pose. Ctrl-C while waiting cancels the look.")
     _client_args(look)
-    look.add_argument("values", nargs=3, type=float, metavar=("X|P", "Y|T", "D|V"))
+    look.add_argument("values", nargs="+", type=float, metavar="X Y [D] | P T V",
+                      help="x, y and optionally d (px); with --angles pan, tilt, vergence (deg)")
     look.add_argument("--angles", action="store_true", help="the values are pan, tilt, vergence in degrees")
     look.add_argument("--relative", action="store_true", help="with --angles: relative to the present pose")
     look.add_argument("--wait", type=float, default=20.0, metavar="S",
                       help="seconds to wait for the look to finish (0: queue it and print its id)")
-    look.add_argument("--replace", action="store_true", help="cancel the looks still queued first")
+    look.add_argument("--replace", action="store_true",
+                      help="cancel the looks still queued and stop the running one first")
     look.add_argument("--json", action="store_true", help="print the look as JSON")
     look.set_defaults(func=_look)
 
@@ -265,10 +268,15 @@ def _look(args: argparse.Namespace) -> int:
         print("headctl look: --relative needs --angles (an image target is always relative to the view)",
               file=sys.stderr)
         return 2
+    wanted = (3,) if args.angles else (2, 3)
+    if len(args.values) not in wanted:
+        what = "P T V (pan, tilt, vergence)" if args.angles else "X Y [D] (an image target)"
+        print(f"headctl look: {len(args.values)} values given, expected {what}", file=sys.stderr)
+        return 2
     client = _client(args, "look")
     if client is None:
         return 2
-    a, b, c = args.values
+    a, b, c = (*args.values, None)[:3]
     job: dict[str, Any] | None = None
     try:
         # Queued first, then waited on by id: Ctrl-C while waiting can then cancel it.
@@ -300,7 +308,12 @@ def _look(args: argparse.Namespace) -> int:
 
 def format_look(job: dict[str, Any]) -> str:
     request, result = job["request"], job["result"]
-    what = (f"target x {request['x']:g}, y {request['y']:g}, d {request['d']:g} px" if request["kind"] == "target"
+    if request.get("d_measured"):
+        d = f"{request['d']:.2f} px (measured, NCC {request['d_ncc']:.2f})"
+    else:
+        d = f"{request.get('d', 0):g} px"
+    what = (f"target x {request['x']:g}, y {request['y']:g}, d {d}"
+            if request["kind"] == "target"
             else f"{'relative ' if request.get('relative') else ''}angles pan {request['pan']:g}, "
                  f"tilt {request['tilt']:g}, vergence {request['vergence']:g} deg")
     line = f"look {job['id']} ({what}): {job['state']}"

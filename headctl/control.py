@@ -76,14 +76,20 @@ class LookRequest:
     relative: bool = False
     # A target's: the pose whose view it was chosen in (the head's when it was queued).
     reference_pose: tuple[float, float, float] | None = None
+    # A target sent without d: the NCC of the match that measured it (Daemon.measure_disparity).
+    d_ncc: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         names = ("x", "y", "d") if self.kind == "target" else ("pan", "tilt", "vergence")
         out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
         if self.kind == "angles":
             out["relative"] = self.relative
-        elif self.reference_pose is not None:
-            out["reference_pose"] = list(self.reference_pose)
+        else:
+            if self.reference_pose is not None:
+                out["reference_pose"] = list(self.reference_pose)
+            out["d_measured"] = self.d_ncc is not None
+            if self.d_ncc is not None:
+                out["d_ncc"] = round(self.d_ncc, 3)
         return out
 
 

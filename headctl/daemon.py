@@ -42,6 +42,7 @@ import numpy as np
 
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
+from calib_free.correspondence import as_grey_float, horizontal_offset
 from calib_free.errors import MapFileError
 from calib_free.fixation import FixationController, FixationRecord, HeadTimeoutError, PairTimeoutError
 from calib_free.gaze_map import AdaptResult
@@ -62,6 +63,10 @@ REFUSED_BUS_DOWN = "servo bus down"
 REFUSED_SERVO_FAULT = "servo fault"
 REFUSED_SHUTDOWN = "aborted at shutdown"
 REFUSED_CANCELLED = "look cancelled"
+PAIR_MAX_AGE_S = 0.5  # a target's disparity is measured only in a pair this recent
+# A match this good or better gives a target's disparity; below, the patch is likely matched to
+# something else (a distinctly textured patch scores 0.8-1 on the simulated head).
+MIN_DISPARITY_NCC = 0.6
 MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
 
 
@@ -1206,12 +1211,17 @@ class Daemon:
         if request.kind == "target":
             width, height = self.config.image_size
             d_low, d_high = adapter.map.params.disparity_range
-            for name, value, low, high, what in (("x", request.values[0], 0, width - 1, "the image's columns"),
-                                                 ("y", request.values[1], 0, height - 1, "the image's rows"),
-                                                 ("d", request.values[2], d_low, d_high,
-                                                  "the map's disparity range (gaze_map.disparity_range)")):
+            x, y, d = request.values
+            checks = [("x", x, 0, width - 1, "the image's columns"), ("y", y, 0, height - 1, "the image's rows")]
+            for name, value, low, high, what in checks:
                 if not low <= value <= high:
                     raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [{low:g}, {high:g}]", name)
+            if d is None:  # sent without a disparity: measured where the client pointed
+                d, ncc = self.measure_disparity(x, y)
+                request = dataclasses.replace(request, values=(x, y, d), d_ncc=ncc)
+            if not d_low <= d <= d_high:
+                raise InvalidRequestError(f"d = {d:g} is outside the map's disparity range "
+                                          f"(gaze_map.disparity_range), [{d_low:g}, {d_high:g}]", "d")
             # The target is in the view of the pose now; the head may move before the look runs.
             request = dataclasses.replace(request, reference_pose=tuple(head.pose_now(loop).tolist()))
         else:
@@ -1227,6 +1237,27 @@ class Daemon:
         job = self.looks.submit(request, replace=replace)
         log.info("look %d queued: %s", job.id, request.as_dict())
         return job
+
+    def measure_disparity(self, x: float, y: float) -> tuple[float, float]:
+        """The disparity (px, x_right - x_left) at (x, y) of the left image in the latest stereo
+        pair, and the NCC of the match: where the patch around it lies in the right image, along
+        the same rows, within the map's disparity range (what fine vergence measures at the
+        fovea, measured off-centre)."""
+        _, fix, adapter, _ = self._running_parts()
+        pair = self.pair.latest() if self.pair is not None else None
+        age_s = None if pair is None else time.monotonic() - min(pair.left.time_s, pair.right.time_s)
+        if age_s is None or age_s > PAIR_MAX_AGE_S:
+            raise UnavailableError(f"d: no stereo pair from the last {PAIR_MAX_AGE_S:g} s to measure the "
+                                   f"disparity at ({x:g}, {y:g}) in; send d", "d")
+        params = fix.controller.params
+        d, ncc = horizontal_offset(as_grey_float(pair.left.image), as_grey_float(pair.right.image), (x, y),
+                                   params.vergence_patch_size, adapter.map.params.disparity_range)
+        if ncc < MIN_DISPARITY_NCC:
+            raise InvalidRequestError(
+                f"d: the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "
+                f"scores NCC {ncc:.2f} < {MIN_DISPARITY_NCC}: too near the border, no texture there, or "
+                "seen by one eye only); send d", "d")
+        return d, ncc
 
     def set_exploration(self, enabled: bool) -> bool:
         _, fix, _, _ = self._running_parts()

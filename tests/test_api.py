@@ -223,7 +223,8 @@ def test_a_look_without_waiting_gives_an_id_to_wait_on(head):
     ({"x": 400, "y": 100, "d": 0}, "x", "outside the image's columns, [0, 319]"),
     ({"x": 100, "y": -1, "d": 0}, "y", "outside the image's rows"),
     ({"x": 100, "y": 100, "d": 90}, "d", "disparity range"),
-    ({"x": 100, "y": 100}, "d", "Field required"),
+    ({"x": 100, "y": 100, "d": "near"}, "d", "valid number"),
+    ({"y": 100, "d": 0}, "x", "Field required"),
     ({"x": "left", "y": 100, "d": 0}, "x", "valid number"),
     ({"x": 100, "y": 100, "d": 0, "speed": 3}, "speed", "Extra inputs are not permitted"),
     ({"x": 100, "y": 100, "d": 0, "wait_s": 600}, "wait_s", "less than or equal to 60"),
@@ -339,6 +340,55 @@ def test_a_running_look_stops_when_cancelled_or_replaced(head):
         assert client.look(newer["id"], wait_s=30)["state"] == "done"
         refused = client.state()["fixation"]["refused"]
         assert refused.get("look cancelled", 0) >= 2  # stopped fixations are counted, never taught
+
+
+def test_a_target_without_d_has_its_disparity_measured_there(head):
+    daemon, client = head
+    client.set_exploration(False)
+    try:
+        wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)", what="idle")
+        converged = None
+        for x, y in ((100, 80), (220, 160), (60, 200), (280, 40), (120, 180), (160, 60), (200, 200), (80, 140)):
+            try:
+                job = client.look_target(float(x), float(y), wait_s=30)
+            except ApiError as err:  # nothing to match there in this view (about 1 point in 5)
+                assert err.status == 422 and err.field == "d" and "could not be measured" in err.reason
+                continue
+            request = job["request"]
+            assert request["d_measured"] is True and request["d_ncc"] >= 0.6, request
+            low, high = daemon.adapter.map.params.disparity_range
+            assert low <= request["d"] <= high
+            if job["state"] == "done":
+                converged = job
+                break
+        assert converged is not None, "no look converged in eight"
+        # Fine vergence left the fixated point at zero disparity: measured at the fovea now, d ~ 0.
+        w, h = daemon.config.image_size
+        at_fovea = client.look_target((w - 1) / 2, (h - 1) / 2)["request"]
+        assert at_fovea["d_measured"] and abs(at_fovea["d"]) <= 1.5, at_fovea
+        # Where no patch fits, there is nothing to measure: refused, naming d.
+        with pytest.raises(ApiError) as err:
+            client.look_target(2.0, 2.0)
+        assert err.value.status == 422 and err.value.field == "d" and "send d" in err.value.reason
+    finally:
+        client.set_exploration(True)
+
+
+def test_without_a_recent_stereo_pair_d_cannot_be_measured(head):
+    daemon, client = head
+    with idle_with_the_left_camera_stalled(client):
+        deadline = time.monotonic() + 10
+        while True:  # until the last pair is older than the daemon accepts (0.5 s)
+            try:
+                client.look_target(160.0, 120.0, replace=True)
+            except ApiError as err:
+                if err.status != 422:  # 422: nothing to match at the fovea in the last pair; ask again
+                    refused = err
+                    break
+            assert time.monotonic() < deadline, "a disparity was still measured 10 s after the camera stalled"
+            time.sleep(0.05)
+        assert refused.status == 503 and refused.field == "d" and "no stereo pair from the last" in refused.reason
+        assert client.look_target(160.0, 120.0, 0.0, replace=True)["request"]["d_measured"] is False
 
 
 def test_a_full_queue_is_429_and_replace_makes_the_newest_win(head):
@@ -564,6 +614,16 @@ def test_look_and_status_commands(head, capsys):
     out = capsys.readouterr().out
     assert code in (0, 1) and out.startswith("look ") and "target x 150, y 110, d -3 px" in out
     assert main(["look", "--relative", "1", "2", "3", *url]) == 2
+    for values, expected in ((["1", "2", "--angles"], "expected P T V"), (["1"], "expected X Y [D]"),
+                             (["1", "2", "3", "4"], "expected X Y [D]")):
+        assert main(["look", *values, *url]) == 2
+        assert expected in capsys.readouterr().err
+    code = main(["look", "100", "80", *url])  # d measured by the daemon, or why it could not be
+    out, err = capsys.readouterr()
+    if "422" in err:
+        assert code == 1 and "d: the disparity at (100, 80) could not be measured" in err
+    else:
+        assert code in (0, 1) and "target x 100, y 80, d " in out and "(measured, NCC " in out
     assert main(["status", *url]) == 0
     assert "fixation:" in capsys.readouterr().out
 

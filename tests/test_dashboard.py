@@ -167,6 +167,27 @@ def test_dashboard_live(daemon, browser):
                        f"#{name}-state does not show the new state")
             assert button.get_attribute("data-enabled") == str(not before).lower()
 
+    # a click on the left eye looks there: the page turns the click into image pixels and sends a
+    # target look without d (the daemon measures it), or says why there is none
+    from selenium.webdriver.common.action_chains import ActionChains
+    eye = driver.find_element(By.ID, "eye-left")
+    width, height = eye.size["width"], eye.size["height"]
+    ActionChains(driver).move_to_element_with_offset(eye, int(width / 4), -int(height / 8)).click().perform()
+    wait.until(lambda d: eye.get_attribute("data-click-x"), "the click on the left eye was not taken")
+    w, h = daemon.status()["image_size"]
+    x, y = float(eye.get_attribute("data-click-x")), float(eye.get_attribute("data-click-y"))
+    assert abs(x - 0.75 * w) <= 2 and abs(y - 3 / 8 * h) <= 2, f"clicked at 3/4, 3/8 of the frame; sent {x}, {y}"
+    wait.until(lambda d: eye.get_attribute("data-look") or "no look at" in text("message"),
+               "the click gave neither a look nor a reason")
+    print(f"click on the left eye: {text('message')}")
+    if eye.get_attribute("data-look"):
+        job = daemon.client.look(int(eye.get_attribute("data-look")))
+        request = job["request"]
+        assert (request["x"], request["y"]) == (x, y) and request["d_measured"] is True, request
+        assert f"look {job['id']}" in text("message")
+    else:
+        assert "(d)" in text("message"), text("message")   # refused naming the field: d not measurable
+
     # a fault shows in the fault list (and as a fault event) while it lasts
     daemon.inject("bus_down")
     wait.until(lambda d: "servo bus down" in text("faults"), "#faults does not show the servo bus down")

@@ -541,7 +541,7 @@
       const img = $(`eye-${side}`);
       if (Array.isArray(size) && size[0] > 0 && size[1] > 0) img.style.aspectRatio = `${size[0]} / ${size[1]}`;
       const cam = cams[side];
-      const bits = [`${side} eye`];
+      const bits = [side === "left" ? "left eye (click: look there)" : "right eye"];
       if (Array.isArray(size)) bits.push(`${size[0]} × ${size[1]}`);
       if (cam && cam.health) bits.push(cam.health);
       if (cam && isNum(cam.frame_age_s)) bits.push(`frame age ${fmt(cam.frame_age_s * 1000, 0)} ms`);
@@ -647,6 +647,7 @@
     while (ul.children.length > MAX_EVENTS) ul.lastElementChild.remove();
     ul.dataset.count = String(Number(ul.dataset.count || 0) + 1);
     if (REFRESH_ON.has(type)) refreshState();
+    if (type === "look_done") onLookDone(data);
   }
 
   function connectEvents() {
@@ -688,6 +689,45 @@
     }
   }
 
+  // -- looking where the user clicks ---------------------------------------------------------------------
+  let clickedLook = null;     // the id of the look sent by the last click, its end shown when it comes
+
+  /** A click on the left eye: look at that pixel, the disparity measured there by the daemon
+   *  (`replace`: the newest click wins over a look still running). */
+  async function lookAtClick(event) {
+    const img = event.currentTarget;
+    if (!img.naturalWidth || !img.naturalHeight) return;
+    const rect = img.getBoundingClientRect();
+    // object-fit: contain may letterbox the frame inside the element
+    const scale = Math.min(rect.width / img.naturalWidth, rect.height / img.naturalHeight);
+    const left = rect.left + (rect.width - img.naturalWidth * scale) / 2;
+    const top = rect.top + (rect.height - img.naturalHeight * scale) / 2;
+    // frame pixels to image pixels (the stream may be sent smaller than the cameras' images)
+    const size = lastState && Array.isArray(lastState.image_size) ? lastState.image_size : [img.naturalWidth, img.naturalHeight];
+    const x = ((event.clientX - left) / scale) * (size[0] / img.naturalWidth);
+    const y = ((event.clientY - top) / scale) * (size[1] / img.naturalHeight);
+    if (x < 0 || y < 0 || x > size[0] - 1 || y > size[1] - 1) return;
+    const at = { x: Math.round(x * 10) / 10, y: Math.round(y * 10) / 10 };
+    img.dataset.clickX = String(at.x);
+    img.dataset.clickY = String(at.y);
+    try {
+      const job = await api("/look/target", { method: "POST", body: { ...at, replace: true } });
+      const r = job.request;
+      clickedLook = job.id;
+      img.dataset.look = String(job.id);
+      showMessage(`look ${job.id} at x ${fmt(r.x, 1)}, y ${fmt(r.y, 1)}: d ${fmt(r.d, 2)} px ` +
+                  `(measured, NCC ${fmt(r.d_ncc, 2)}), ${job.state}`);
+    } catch (err) {
+      showMessage(`no look at x ${at.x}, y ${at.y}: ${err.message}`, true);
+    }
+  }
+
+  function onLookDone(data) {
+    if (data.id !== clickedLook) return;
+    const how = [data.outcome, data.detail].filter(Boolean).join(": ");
+    showMessage(`look ${data.id} ${data.state}${how ? ` (${how})` : ""}`, data.state !== "done");
+  }
+
   // -- start ---------------------------------------------------------------------------------------------
   function start() {
     const events = $("events");
@@ -712,6 +752,7 @@
     for (const box of document.querySelectorAll("input[data-log]")) box.addEventListener("change", scheduleDraw);
     window.addEventListener("resize", scheduleDraw);
     watchEyes();
+    $("eye-left").addEventListener("click", lookAtClick);
     // The streams start after the page's load event: an endless multipart image must not keep the
     // page loading (a browser's spinner, or a test waiting for the load to finish).
     if (document.readyState === "complete") connectEyes(false);
