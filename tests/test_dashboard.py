@@ -179,8 +179,8 @@ def test_dashboard_live(daemon, browser):
     assert abs(x - 0.75 * w) <= 2 and abs(y - 3 / 8 * h) <= 2, f"clicked at 3/4, 3/8 of the frame; sent {x}, {y}"
     wait.until(lambda d: eye.get_attribute("data-look") or "no look at" in text("message"),
                "the click gave neither a look nor a reason")
-    print(f"click on the left eye: {text('message')}")
-    if eye.get_attribute("data-look"):
+    refused_click = not eye.get_attribute("data-look")
+    if not refused_click:
         job = daemon.client.look(int(eye.get_attribute("data-look")))
         request = job["request"]
         assert (request["x"], request["y"]) == (x, y) and request["d_measured"] is True, request
@@ -202,4 +202,6 @@ def test_dashboard_live(daemon, browser):
         driver.save_screenshot(str(SCREENSHOT))
 
     severe = _severe(driver)
+    if refused_click:  # the browser logs the refusal the page showed; that one is expected
+        severe = [m for m in severe if not ("/api/v1/look/target" in m and "422" in m)]
     assert not severe, "JavaScript errors in the browser log:\n" + "\n".join(severe)
