@@ -15,7 +15,7 @@ import pytest
 
 from calib_free import GazeMap, GazeMapParams, MapFileError, OutOfRangeError
 from calib_free.experiments import landing_errors_px, landing_targets, map_predictor
-from calib_free.sim import FixationSampler, HeadModel
+from calib_free.sim import FixationSampler, HeadModel, JointLimits, with_perturbation
 
 
 def tiny_paper_map(**overrides) -> GazeMap:
@@ -253,3 +253,57 @@ def test_thousands_of_adaptations_stay_stable():
     assert np.linalg.eigvalsh(cov).min() > 0
     targets = landing_targets(head, 200, (-60, 60), seed=9)
     assert np.median(landing_errors_px(head, targets, map_predictor(gm))) < 5.0
+
+
+def exploring_stream(head: HeadModel, seed: int, false_fraction: float = 0.05):
+    """Endless (position, command) samples as the exploring head teaches them: a random walk of
+    poses (each within a step of the last, as `FixationController.random_command`), fixating
+    mostly far (a room's walls), the correspondence off by ~0.3 px and now and then (a false
+    match) by ~30 px."""
+    rng = np.random.default_rng(seed)
+    low, high = head.limits.low, head.limits.high
+    step = np.array([35.0, 25.0, 20.0])
+    pose = (low + high) / 2
+    while True:
+        reached = rng.uniform(np.maximum(low, pose - step), np.minimum(high, pose + step))
+        reached[2] = min(high[2], low[2] + rng.exponential(2.2))
+        r, seen = head.image_position(head.fixation_point(reached)[None, :], pose)
+        command, pose = reached - pose, reached
+        position = r[0] + rng.normal(0.0, 0.3, 3)
+        if rng.random() < false_fraction:
+            position += rng.normal(0.0, 30.0, 3)
+        if seen[0]:
+            yield position, command
+
+
+def far_fixating_head(**perturbation) -> HeadModel:
+    head = HeadModel.default(limits=JointLimits(vergence=(1.0, 20.0)))
+    return with_perturbation(head, **perturbation) if perturbation else head
+
+
+def test_surprise_does_not_fire_on_a_stationary_stream_of_noisy_samples():
+    """Regression: a few large errors in one window (heavy-tailed, not a change of the head)
+    used to drop the memory to its minimum every few hundred adaptations, and the landing
+    error drifted up over a long run."""
+    gm = GazeMap.for_image(320, 240, seed=0)
+    least_memory = np.inf
+    for n, (position, command) in enumerate(exploring_stream(far_fixating_head(), seed=0)):
+        if n == 3000:
+            break
+        if gm.adapt(position, command).accepted and n >= 500:
+            least_memory = min(least_memory, gm.memory)
+    assert least_memory == gm.params.global_memory
+
+
+def test_surprise_fires_within_two_windows_of_a_change_of_the_head():
+    gm = GazeMap.for_image(320, 240, seed=1)
+    stream = exploring_stream(far_fixating_head(), seed=1)
+    for _ in range(1000):
+        gm.adapt(*next(stream))
+    assert gm.memory == gm.params.global_memory
+    flipped = exploring_stream(far_fixating_head(vertical_prism=True), seed=2)
+    least_memory = np.inf
+    for _ in range(2 * gm.params.error_window):
+        gm.adapt(*next(flipped))
+        least_memory = min(least_memory, gm.memory)
+    assert least_memory == gm.params.global_memory_min
