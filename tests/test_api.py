@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import dataclasses
 import http.client
 import json
 import signal
@@ -36,8 +37,12 @@ pytestmark = pytest.mark.timeout(120)
 TOKEN = "s3cret-token-for-the-tests"
 
 
-def start_daemon(state_dir, **api):
+def start_daemon(state_dir, frame_timeout_s: float | None = None, **api):
     config = load_config().with_state_dir(state_dir).with_api(port=0, **api)
+    if frame_timeout_s is not None:
+        fixation = config.fixation
+        params = dataclasses.replace(fixation.params, frame_timeout_s=frame_timeout_s)
+        config = dataclasses.replace(config, fixation=dataclasses.replace(fixation, params=params))
     daemon = Daemon(config)
     thread = threading.Thread(target=daemon.run, kwargs={"install_signals": False}, name="test-daemon")
     thread.start()
@@ -57,7 +62,9 @@ def stop_daemon(daemon, thread):
 
 @pytest.fixture(scope="module")
 def head(tmp_path_factory):
-    daemon, thread = start_daemon(tmp_path_factory.mktemp("api-state"), max_queued_looks=3)
+    # A look waiting for frames from a stalled camera lasts 10 s (not 2): long enough for a test
+    # to catch it running on a loaded machine, however slowly its client starts.
+    daemon, thread = start_daemon(tmp_path_factory.mktemp("api-state"), frame_timeout_s=10.0, max_queued_looks=3)
     client = ApiClient(daemon.api_url, timeout_s=10.0)
     yield daemon, client
     stop_daemon(daemon, thread)
@@ -304,7 +311,7 @@ def test_unknown_looks_and_cancelling(head):
 @contextlib.contextmanager
 def idle_with_the_left_camera_stalled(client):
     """Exploration off and the head idle, the left camera stalled: a target look then waits
-    for frames (up to the fixation's 2 s frame timeout) and can be caught running."""
+    for frames (up to the module daemon's 10 s frame timeout) and can be caught running."""
     client.set_exploration(False)
     wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)", what="idle")
     client.request("POST", "/api/v1/sim/faults", {"fault": "camera_stall", "camera": "left"})
@@ -317,7 +324,7 @@ def idle_with_the_left_camera_stalled(client):
 
 def test_a_running_look_stops_when_cancelled_or_replaced(head):
     """A look waiting for frames (the left camera stalled) is stopped at once, well before the
-    fixation's 2 s frame timeout: by DELETE, then by a newer look with replace."""
+    fixation's 10 s frame timeout: by DELETE, then by a newer look with replace."""
     daemon, client = head
     with idle_with_the_left_camera_stalled(client):
         seq = client.state()["events_seq"]
