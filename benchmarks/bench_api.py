@@ -14,7 +14,8 @@ Then, in the same run:
    open-loop schedule (request i is due at t0 + i/rate; `--workers` threads, each with its
    own keep-alive `http.client` connection, so one slow answer does not throttle the rate):
    `--mix` percent GET /api/v1/state, the rest POST /api/v1/look/target (random targets
-   inside the 320 x 240 image, d in [-60, 60] px, `replace: true`, `wait_s: 0`), on
+   inside the 320 x 240 image, d in [-60, 60] px, `replace: true`, `wait_s: 0`: each
+   stops the look before it, as a tracker faster than the head would), on
    127.0.0.1 only. It records every request's status and latency (from the send, and from
    the time it was due, so a backlog counts) and stops by itself after its duration.
 
@@ -527,7 +528,8 @@ def report(windows: list[Window], ncpu: int) -> None:
             print(f"    saturated: the daemon answered {load['rate']:.0f} of the {load['rate_asked']:g} requests/s "
                   f"asked "
                   f"with {load['workers']} connections; the backlog makes the latency from the due time grow")
-        print(f"    looks posted {posted}, started {started} (the rest replaced while queued); "
+        print(f"    looks posted {posted}, started {started} (the rest replaced while queued; a started "
+              f"one runs until the next replaces it); "
               f"the load process used {100 * load['cpu_s'] / load['seconds']:.0f}% of a core")
 
 
