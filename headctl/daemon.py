@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import numpy as np
 
@@ -97,7 +97,7 @@ class Interrupt:
             raise LookCancelledError(f"look {look.id} stopped: {look.cancel_detail}")
 
     @contextlib.contextmanager
-    def during(self, job: LookJob):  # type: ignore[no-untyped-def]
+    def during(self, job: LookJob) -> Iterator[None]:
         """Cancelling `job` interrupts what runs inside this block."""
         self._look = job
         try:
