@@ -4,9 +4,9 @@
 from a bounded queue and adapts the map. Readers (`command`, `with_map`) and the thread
 share one lock, held for the milliseconds of a lookup or an adaptation, so the fixation loop
 never waits long on learning; `progress` (adaptations, recent retinal errors) is published
-after each adaptation and read without the lock, so a status reader never waits at all. A full queue drops the oldest sample (counted):
-learning may lag, motion never blocks. An exception in the thread reaches `on_error` and
-`error`; the thread stops through an event.
+after each adaptation and read without the lock, so a status reader never waits at all.
+A full queue drops the oldest sample (counted): learning may lag, motion never blocks. An
+exception in the thread reaches `on_error` and `error`; the thread stops through an event.
 """
 from __future__ import annotations
 
