@@ -57,7 +57,10 @@ case "$job" in
     # learning online until SIGTERM/Ctrl-C; `headctl status` in another shell shows its state.
     run) exec "$venv/bin/headctl" run "$@" ;;
     test)
-        # CI=true: no prompts, no colour; the suite itself never needs hardware.
+        # The types first (strict on calib_free and drivers; pyproject.toml, [tool.mypy]), then
+        # the suite. CI=true: no prompts, no colour; the suite itself never needs hardware.
+        log "type check: mypy calib_free drivers headctl"
+        "$venv/bin/python" -m mypy calib_free drivers headctl
         exec "$venv/bin/python" -m pytest -q "$@" ;;
     *) echo "usage: ./setup.sh [run|test] [args...]" >&2; exit 2 ;;
 esac

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 from drivers.servo_bus import ServoBusConfig  # noqa: E402
 from drivers.sim_servo import SimulatedServoBus  # noqa: E402
 from headctl.config import load_config  # noqa: E402
-from headctl.daemon import ServoLoop  # noqa: E402
+from headctl.service.servo_loop import ServoLoop  # noqa: E402
 from headctl.client import ApiClient, ApiError  # noqa: E402
 
 

@@ -19,7 +19,8 @@ from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.correspondence import CorrespondenceParams, match_fixation
 from calib_free.fixation import FixationController
-from calib_free.sim import HeadModel, joints_of
+from calib_free.kinematics import joints_of
+from calib_free.sim import HeadModel
 from drivers.sim_scene import StereoRenderer, shared_scene
 from headctl.online import SimulatedHeadRig
 

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 
-from drivers.dynamixel import READ_BLOCK_SIZE, DynamixelBus, XAddr
+from drivers.dxl_control_table import READ_BLOCK_SIZE, XAddr
+from drivers.dynamixel import DynamixelBus
 from drivers.servo_bus import JOINTS, ServoBusConfig
 
 IDS = (1, 2, 3, 4)

@@ -15,7 +15,8 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def update_window(grid, centre, target, rate_scale, sigma, reach, shape):
+def update_window(grid: np.ndarray, centre: np.ndarray, target: np.ndarray, rate_scale: float, sigma: np.ndarray,
+                  reach: np.ndarray, shape: np.ndarray) -> int:
     """grid[:, q] += rate_scale * G(q) * (target - grid[:, q]) where G(q) is not negligible.
 
     G is the separable Gaussian of eq. 11 centred at `centre` (continuous node indices) with
@@ -43,11 +44,12 @@ def update_window(grid, centre, target, rate_scale, sigma, reach, shape):
                 grid[0, x, y, d] += w * (t0 - grid[0, x, y, d])
                 grid[1, x, y, d] += w * (t1 - grid[1, x, y, d])
                 grid[2, x, y, d] += w * (t2 - grid[2, x, y, d])
-    return (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2])
+    touched: int = (hi[0] - lo[0]) * (hi[1] - lo[1]) * (hi[2] - lo[2])
+    return touched
 
 
 @njit(cache=True, nogil=True)
-def _powers(value, degree):
+def _powers(value: float, degree: int) -> np.ndarray:
     out = np.empty(degree + 1)
     out[0] = 1.0
     for n in range(1, degree + 1):
@@ -56,7 +58,7 @@ def _powers(value, degree):
 
 
 @njit(cache=True, nogil=True)
-def value_at_node(grid, tensor, half_span, x, y, d):
+def value_at_node(grid: np.ndarray, tensor: np.ndarray, half_span: np.ndarray, x: int, y: int, d: int) -> np.ndarray:
     """W at one node: the grid plus, when `tensor` is not empty, the polynomial."""
     out = np.empty(3)
     for a in range(3):
@@ -78,7 +80,8 @@ def value_at_node(grid, tensor, half_span, x, y, d):
 
 
 @njit(cache=True, nogil=True)
-def nearest_node(grid, tensor, half_span, command, motor_scale, starts, stops):
+def nearest_node(grid: np.ndarray, tensor: np.ndarray, half_span: np.ndarray, command: np.ndarray,
+                 motor_scale: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> tuple[np.ndarray, float]:
     """The node whose W is nearest `command` (metric scaled per motor axis) over boxes of nodes.
 
     `starts`/`stops` (b, 3) are the boxes' first and one-past-last node indices. Returns the
@@ -122,7 +125,8 @@ def nearest_node(grid, tensor, half_span, command, motor_scale, starts, stops):
 
 
 @njit(cache=True, nogil=True)
-def value_and_slopes(grid, tensor, half_span, node, shape):
+def value_and_slopes(grid: np.ndarray, tensor: np.ndarray, half_span: np.ndarray, node: np.ndarray,
+                     shape: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """W at a node and its central-difference slopes dW/d(node index), (3,) and (3 axes of W, 3)."""
     centre = value_at_node(grid, tensor, half_span, node[0], node[1], node[2])
     slopes = np.zeros((3, 3))
@@ -142,7 +146,7 @@ def value_and_slopes(grid, tensor, half_span, node, shape):
 
 
 @njit(cache=True, nogil=True)
-def best_coarse_nodes(coarse, command, motor_scale, count):
+def best_coarse_nodes(coarse: np.ndarray, command: np.ndarray, motor_scale: np.ndarray, count: int) -> np.ndarray:
     """Indices (count, 3) into the coarse table (3, a, b, c) of the `count` nodes nearest `command`."""
     keep_dist = np.full(count, np.inf)
     keep = np.zeros((count, 3), np.int64)

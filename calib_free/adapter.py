@@ -14,13 +14,15 @@ import logging
 import queue
 import threading
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, TypeVar
 
 import numpy as np
 
-from calib_free.gaze_map import AdaptResult, GazeMap
+from calib_free.gaze_map import AdaptResult, GazeMap, Vector
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -103,14 +105,14 @@ class MapAdapter:
         with self._queue.all_tasks_done:
             return self._queue.all_tasks_done.wait_for(lambda: self._queue.unfinished_tasks == 0, timeout_s)
 
-    def command(self, position: Sequence[float]) -> np.ndarray:
+    def command(self, position: Vector) -> np.ndarray:
         with self._lock:
             return self.map.command(position)
 
-    def check_position(self, position: Sequence[float]) -> str:
+    def check_position(self, position: Vector) -> str:
         return self.map.check_position(position)  # the map's range never changes: no lock
 
-    def with_map(self, fn: Callable[[GazeMap], object]) -> object:
+    def with_map(self, fn: Callable[[GazeMap], T]) -> T:
         """Run `fn(map)` under the lock (saving, evaluating) without racing the adapter."""
         with self._lock:
             return fn(self.map)

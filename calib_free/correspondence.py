@@ -153,7 +153,8 @@ def correspondence_map(pre: np.ndarray, patch: np.ndarray, params: Correspondenc
     f1 = 1.0 / (1.0 + np.abs(mean - patch_mean) / params.mean_scale)
     f2 = 2.0 * np.minimum(var, patch_var) / (var + patch_var + 1e-6)
     # A flat region gives NCC = 0 or NaN-like noise in OpenCV; where both are flat, no evidence.
-    return np.nan_to_num(ncc) * f1 * f2
+    cmap: np.ndarray = np.nan_to_num(ncc) * f1 * f2
+    return cmap
 
 
 def _subpixel_peak(values: np.ndarray, iy: int, ix: int) -> tuple[float, float]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -39,9 +39,10 @@ class Change:
     motor_gain: tuple[float, float, float] | None = None
 
     def apply(self, head: HeadModel) -> HeadModel:
-        changes = {k: v for k, v in (("vertical_prism", self.vertical_prism), ("swap_eyes", self.swap_eyes),
-                                     ("motor_offset_deg", self.motor_offset_deg),
-                                     ("motor_gain", self.motor_gain)) if v is not None}
+        changes: dict[str, Any] = {
+            k: v for k, v in (("vertical_prism", self.vertical_prism), ("swap_eyes", self.swap_eyes),
+                              ("motor_offset_deg", self.motor_offset_deg), ("motor_gain", self.motor_gain))
+            if v is not None}
         changes["baseline_delta_m"] = head.perturbation.baseline_delta_m + self.baseline_delta_m
         return with_perturbation(head, **changes)
 
@@ -116,7 +117,8 @@ def running_mean(values: np.ndarray, window: int) -> np.ndarray:
     idx = np.arange(1, len(values) + 1)
     start = np.maximum(idx - window, 0)
     counts = (idx - start).reshape((-1,) + (1,) * (values.ndim - 1))
-    return (csum[idx] - csum[start]) / counts
+    means: np.ndarray = (csum[idx] - csum[start]) / counts
+    return means
 
 
 def landing_targets(head: HeadModel, count: int, disparity_range: tuple[float, float],
@@ -163,9 +165,11 @@ def representation_floor(head: HeadModel, disparity_range: tuple[float, float], 
         def predict(query: np.ndarray, k: int = k) -> np.ndarray:
             dist, idx = tree.query(np.atleast_2d(query) * scale, k=k)
             if k == 1:
-                return commands[idx]
+                nearest: np.ndarray = commands[idx]
+                return nearest
             weights = 1.0 / np.maximum(dist, 1e-9)
-            return (commands[idx] * weights[..., None]).sum(axis=1) / weights.sum(axis=1)[:, None]
+            weighted: np.ndarray = (commands[idx] * weights[..., None]).sum(axis=1) / weights.sum(axis=1)[:, None]
+            return weighted
         median = float(np.median(landing_errors_px(head, targets, predict)))
         best = min(best, (median, k))
     return best

@@ -17,16 +17,19 @@ Poses are absolute (pan, tilt, vergence) in degrees; commands relative; image po
 from __future__ import annotations
 
 import dataclasses
+import enum
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, Sequence
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
 from calib_free.correspondence import (CorrespondenceParams, FixationMatch, as_grey_float, foveal_disparity,
                                        match_fixation, stereo_inconsistency)
+from calib_free.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
+from calib_free.gaze_map import Vector
 
 log = logging.getLogger(__name__)
 
@@ -62,9 +65,9 @@ class GazeHead(Protocol):
 
 
 class MapReader(Protocol):
-    def command(self, position: Sequence[float]) -> np.ndarray: ...
+    def command(self, position: Vector) -> np.ndarray: ...
 
-    def check_position(self, position: Sequence[float]) -> str:
+    def check_position(self, position: Vector) -> str:
         """'' if the map covers `position`, else why not."""
 
 
@@ -102,16 +105,46 @@ class FixationParams:
             raise ValueError(f"executed_command must be 'encoders' or 'commanded', got {self.executed_command!r}")
 
 
-# Why a fixation did not teach.
-REFUSED_TARGET_OUTSIDE = "target outside the map"
-REFUSED_NOT_SETTLED = "head did not settle"
-REFUSED_NO_FRAMES = "no stereo pair in time"
-REFUSED_NO_VERGENCE_MATCH = "foveal patches do not match"
-REFUSED_NOT_CONVERGED = "vergence did not converge"
-REFUSED_LOW_CONFIDENCE = "confidence below the floor"
-REFUSED_POSITION_OUTSIDE = "correspondence outside the map"
-REFUSED_INCONSISTENT = "left and right matches disagree"
-TAUGHT = "taught"
+class FixationOutcome(enum.StrEnum):
+    """How a fixation ended: it taught the map, or why it did not. The values are what the
+    status, the events and the logs show."""
+
+    TAUGHT = "taught"
+    TARGET_OUTSIDE = "target outside the map"
+    NOT_SETTLED = "head did not settle"
+    NO_FRAMES = "no stereo pair in time"
+    NO_VERGENCE_MATCH = "foveal patches do not match"
+    NOT_CONVERGED = "vergence did not converge"
+    LOW_CONFIDENCE = "confidence below the floor"
+    POSITION_OUTSIDE = "correspondence outside the map"
+    INCONSISTENT = "left and right matches disagree"
+    # Interrupted by the head (`FixationInterrupted`): the motion already sent completes,
+    # nothing further is sent, nothing is taught.
+    BUS_DOWN = "servo bus down"
+    SERVO_FAULT = "servo fault"
+    SHUTDOWN = "aborted at shutdown"
+    CANCELLED = "look cancelled"
+
+
+class FixationKind(enum.StrEnum):
+    TARGET = "target"  # a client's image target
+    EXPLORE = "explore"  # an exploratory command
+
+
+class FixationInterrupted(CalibFreeError):
+    """Raised by a head when the fixation in progress must stop: the head is shutting down, a
+    client cancelled the look, the servo bus went down or a servo faulted. `outcome` says
+    which; the fixation ends refused with it."""
+
+    def __init__(self, outcome: FixationOutcome, detail: str) -> None:
+        super().__init__(detail)
+        self.outcome = outcome
+
+
+class SampleSink(Protocol):
+    """Where taught fixations go (a `calib_free.adapter.MapAdapter`)."""
+
+    def submit(self, sample: Sample) -> None: ...
 
 
 @dataclass
@@ -119,7 +152,7 @@ class FixationRecord:
     """Everything about one fixation, taught or refused."""
 
     index: int
-    kind: str  # "target" (a client's image target) or "explore" (a random command)
+    kind: FixationKind
     target: np.ndarray | None = None  # the client's (x, y, d)
     planned: np.ndarray | None = None  # the saccade's relative command
     pose_before: np.ndarray | None = None
@@ -129,13 +162,13 @@ class FixationRecord:
     vergence_steps: int = 0
     converged: bool = False
     match: FixationMatch | None = None
-    outcome: str = ""  # TAUGHT or one of the REFUSED_ reasons
+    outcome: FixationOutcome | None = None  # None while the fixation runs
     detail: str = ""
     duration_s: float = 0.0
 
     @property
     def taught(self) -> bool:
-        return self.outcome == TAUGHT
+        return self.outcome is FixationOutcome.TAUGHT
 
     @property
     def position(self) -> np.ndarray | None:
@@ -164,9 +197,10 @@ class FixationController:
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, learner: SampleSink | None = None) -> None:
         self.head = head
         self.map = gaze_map
+        self.learner = learner  # taught fixations are submitted here
         self.params = params or FixationParams()
         self.image_size = image_size
         self.rng = np.random.default_rng(seed)
@@ -199,29 +233,36 @@ class FixationController:
         step = np.asarray(self.params.exploration_step_deg, dtype=float)
         low = np.maximum(self.head.pose_low, pose - step)
         high = np.minimum(self.head.pose_high, pose + step)
-        return self.rng.uniform(low, np.maximum(low, high)) - pose
+        command: np.ndarray = self.rng.uniform(low, np.maximum(low, high)) - pose
+        return command
 
-    def fixate(self, target: Sequence[float] | None = None,
-               reference_pose: Sequence[float] | None = None) -> FixationRecord:
+    def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None) -> FixationRecord:
         """One fixation: to a client's image target (x, y, d), or exploratory when None.
 
         `reference_pose`: the pose whose view the target was chosen in, when the head may have
         moved since (a queued look); the saccade then goes to that pose plus the map's command
         for the target, which is where the client meant, from wherever the head is now."""
         started = self.clock()
-        record = FixationRecord(index=self.count, kind="explore" if target is None else "target")
+        record = FixationRecord(index=self.count, kind=FixationKind.EXPLORE if target is None else FixationKind.TARGET)
         self.count += 1
+        if target is not None:
+            record.target = np.asarray(target, dtype=float)
         try:
             self._run(record, target, reference_pose)
         except HeadTimeoutError as err:
-            record.outcome = REFUSED_NO_FRAMES if isinstance(err, PairTimeoutError) else REFUSED_NOT_SETTLED
+            record.outcome = FixationOutcome.NO_FRAMES if isinstance(err, PairTimeoutError) \
+                else FixationOutcome.NOT_SETTLED
             record.detail = str(err)
+        except FixationInterrupted as err:
+            record.outcome, record.detail = err.outcome, str(err)
         record.duration_s = self.clock() - started
         log.debug("fixation %d (%s): %s %s", record.index, record.kind, record.outcome, record.detail)
+        if record.taught and self.learner is not None:
+            assert record.position is not None and record.executed is not None
+            self.learner.submit(Sample(record.position, record.executed, record.confidence, tag=record.index))
         return record
 
-    def _run(self, record: FixationRecord, target: Sequence[float] | None,
-             reference_pose: Sequence[float] | None = None) -> None:
+    def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None) -> None:
         p = self.params
         head = self.head
         # The pre-fixation pair, at rest.
@@ -233,13 +274,12 @@ class FixationController:
         if target is None:
             planned = self.random_command(pose_before)
         else:
-            record.target = np.asarray(target, dtype=float)
             try:
-                planned = np.asarray(self.map.command(record.target), dtype=float)
+                planned = np.asarray(self.map.command(target), dtype=float)
                 if reference_pose is not None:
                     planned = np.asarray(reference_pose, dtype=float) + planned - pose_before
             except OutOfRangeError as err:
-                record.outcome, record.detail = REFUSED_TARGET_OUTSIDE, str(err)
+                record.outcome, record.detail = FixationOutcome.TARGET_OUTSIDE, str(err)
                 return
         record.planned = planned
         # Coarse saccade: pan, tilt and vergence together.
@@ -260,7 +300,7 @@ class FixationController:
                 if self.PLAUSIBLE_GAIN[0] <= secant <= self.PLAUSIBLE_GAIN[1]:
                     gain = secant
             if score < p.min_vergence_ncc:
-                record.outcome = REFUSED_NO_VERGENCE_MATCH
+                record.outcome = FixationOutcome.NO_VERGENCE_MATCH
                 record.detail = f"NCC {score:.2f} < {p.min_vergence_ncc} between the foveae"
                 break
             if abs(disparity) <= p.vergence_tolerance_px:
@@ -282,24 +322,24 @@ class FixationController:
         else:  # what was commanded: the saccade and the vergence steps, relative to each reading
             record.executed = commanded
         if not record.converged:
-            if not record.outcome:
-                record.outcome = REFUSED_NOT_CONVERGED
+            if record.outcome is None:
+                record.outcome = FixationOutcome.NOT_CONVERGED
                 record.detail = (f"|disparity| {abs(record.vergence_disparities_px[-1]):.1f} px > "
                                  f"{p.vergence_tolerance_px} px after {record.vergence_steps} steps")
             return
         # Where was what is now on the foveae? (II-B, II-C)
-        record.match = match_fixation(pre_left, pre_right, as_grey_float(left), as_grey_float(right),
-                                      p.correspondence)
-        problem = self.map.check_position(record.position)
+        record.match = match = match_fixation(pre_left, pre_right, as_grey_float(left), as_grey_float(right),
+                                              p.correspondence)
+        problem = self.map.check_position(match.position)
         if problem:
-            record.outcome, record.detail = REFUSED_POSITION_OUTSIDE, problem
+            record.outcome, record.detail = FixationOutcome.POSITION_OUTSIDE, problem
             return
         problem = stereo_inconsistency(record.match, pre_left, pre_right, p.correspondence)
         if problem:
-            record.outcome, record.detail = REFUSED_INCONSISTENT, problem
+            record.outcome, record.detail = FixationOutcome.INCONSISTENT, problem
             return
         if record.confidence < p.confidence_floor:
-            record.outcome = REFUSED_LOW_CONFIDENCE
+            record.outcome = FixationOutcome.LOW_CONFIDENCE
             record.detail = f"c = {record.confidence:.2f} < {p.confidence_floor}"
             return
-        record.outcome = TAUGHT
+        record.outcome = FixationOutcome.TAUGHT

@@ -26,28 +26,25 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import io
 import json
 import logging
 import os
-import tempfile
 import time
-import zipfile
 from collections import deque
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence, TypeAlias
 
 import numpy as np
 
 from calib_free import _kernels
-from calib_free.errors import MapFileError, OutOfRangeError
+from calib_free.errors import OutOfRangeError
 
 log = logging.getLogger(__name__)
 
-FILE_FORMAT = "calib_free.GazeMap/1"
 PROFILES = ("default", "paper")
 _NO_POLYNOMIAL = np.zeros((0, 0, 0, 3))
+
+Vector: TypeAlias = Sequence[float] | np.ndarray
 
 
 @dataclass(frozen=True)
@@ -77,7 +74,8 @@ class GazeMapParams:
     robust_scale: float = 3.0  # > 0: samples this many median residuals off weigh half (Cauchy)
 
     @classmethod
-    def profile_values(cls, profile: str, **overrides) -> "GazeMapParams":
+    def profile_values(cls, profile: str, **overrides: Any) -> "GazeMapParams":
+        base: dict[str, Any]
         if profile == "paper":
             base = dict(profile="paper", interpolate=False, global_degree=0, robust_scale=0.0)
         elif profile == "default":
@@ -166,16 +164,19 @@ class _PolynomialPart:
         self.tensor[tuple(self.terms.T)] = self.coef
 
     def _unit(self, g: np.ndarray) -> np.ndarray:
-        return np.asarray(g, dtype=float) / self.half_span - 1.0
+        unit: np.ndarray = np.asarray(g, dtype=float) / self.half_span - 1.0
+        return unit
 
     def features(self, g: np.ndarray) -> np.ndarray:
         u = self._unit(g)
-        return np.prod(u[None, :] ** self.terms, axis=1)
+        phi: np.ndarray = np.prod(u[None, :] ** self.terms, axis=1)
+        return phi
 
     def at(self, g: np.ndarray) -> np.ndarray:
-        return self.features(g) @ self.coef
+        value: np.ndarray = self.features(g) @ self.coef
+        return value
 
-    def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] = (1, 1, 1)) -> np.ndarray:
+    def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1)) -> np.ndarray:
         """Values at the nodes lo..hi (exclusive) with `stride`: (3, a, b, c)."""
         px, py, pd = (self._powers(a, int(lo[a]), int(hi[a]), int(stride[a])) for a in range(3))
         n = self.degree + 1
@@ -183,7 +184,8 @@ class _PolynomialPart:
         # Contract one axis at a time with plain matmuls (einsum's path search costs more here).
         t = (px @ tensor.reshape(n, -1)).reshape(len(px), n, n * 3)  # (a, j, k*m)
         t = np.matmul(py, t).reshape(len(px), len(py), n, 3)  # (a, b, k, m)
-        return np.matmul(pd, t).transpose(3, 0, 1, 2)  # (m, a, b, c)
+        values: np.ndarray = np.matmul(pd, t).transpose(3, 0, 1, 2)  # (m, a, b, c)
+        return values
 
     def _powers(self, axis: int, lo: int, hi: int, stride: int) -> np.ndarray:
         key = (axis, lo, hi, stride)
@@ -280,7 +282,7 @@ class GazeMap:
 
     @classmethod
     def for_image(cls, width: int, height: int, disparity_range: Sequence[float] = (-60.0, 60.0),
-                  seed: int | None = None, profile: str = "default", **overrides) -> "GazeMap":
+                  seed: int | None = None, profile: str = "default", **overrides: Any) -> "GazeMap":
         """A random map for a `width` x `height` left image and a disparity range in pixels."""
         params = GazeMapParams.profile_values(
             profile, image_size=(int(width), int(height)),
@@ -288,7 +290,7 @@ class GazeMap:
         return cls(params, seed=seed)
 
     # -- positions ---------------------------------------------------------------------
-    def check_position(self, position: Sequence[float]) -> str:
+    def check_position(self, position: Vector) -> str:
         """'' if the map covers `position` (x, y, d), else what is wrong with it."""
         r = np.asarray(position, dtype=float)
         if r.shape != (3,) or not np.all(np.isfinite(r)):
@@ -301,16 +303,18 @@ class GazeMap:
                         f"{self._low[axis]:g} <= {names[axis]} <= {self._high[axis]:g}")
         return ""
 
-    def to_grid(self, position: Sequence[float]) -> np.ndarray:
+    def to_grid(self, position: Vector) -> np.ndarray:
         """Continuous node indices (i, j, k) of an image position (x, y, d)."""
-        return (np.asarray(position, dtype=float) - self._low) * self._cells_per_unit
+        g: np.ndarray = (np.asarray(position, dtype=float) - self._low) * self._cells_per_unit
+        return g
 
-    def to_position(self, grid: Sequence[float]) -> np.ndarray:
+    def to_position(self, grid: Vector) -> np.ndarray:
         """Image position (x, y, d) of continuous node indices."""
-        return np.asarray(grid, dtype=float) / self._cells_per_unit + self._low
+        position: np.ndarray = np.asarray(grid, dtype=float) / self._cells_per_unit + self._low
+        return position
 
     # -- readout -----------------------------------------------------------------------
-    def command(self, position: Sequence[float]) -> np.ndarray:
+    def command(self, position: Vector) -> np.ndarray:
         """The relative command (dpan, dtilt, dverg) in degrees that fixates `position`.
 
         Raises OutOfRangeError for a position outside the image or the disparity range.
@@ -333,7 +337,8 @@ class GazeMap:
                             (1 - fx) * fy * (1 - fd), (1 - fx) * fy * fd,
                             fx * (1 - fy) * (1 - fd), fx * (1 - fy) * fd,
                             fx * fy * (1 - fd), fx * fy * fd])
-        return cube @ weights
+        value: np.ndarray = cube @ weights
+        return value
 
     def _value_at(self, g: np.ndarray) -> np.ndarray:
         value = self._grid_at(g)
@@ -341,7 +346,7 @@ class GazeMap:
             value += self.polynomial.at(g)
         return value
 
-    def _block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] = (1, 1, 1)) -> np.ndarray:
+    def _block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1)) -> np.ndarray:
         """W at the nodes lo..hi (exclusive) with `stride`, planar: (3, a, b, c)."""
         values = self.grid[:, lo[0]:hi[0]:stride[0], lo[1]:hi[1]:stride[1], lo[2]:hi[2]:stride[2]]
         if self.polynomial is not None:
@@ -353,7 +358,7 @@ class GazeMap:
         return np.array(self._block(np.zeros(3, int), self._shape).transpose(1, 2, 3, 0))
 
     # -- inverse lookup (eq. 8) ----------------------------------------------------------
-    def inverse(self, command: Sequence[float]) -> np.ndarray:
+    def inverse(self, command: Vector) -> np.ndarray:
         """The image position (x, y, d) the map associates with `command` (eq. 8's x_d, y_d, d_d).
 
         Nearest node in motor space, the metric scaled by Table I's output resolution; found
@@ -404,7 +409,7 @@ class GazeMap:
         return time.perf_counter() - start_s
 
     # -- learning ----------------------------------------------------------------------
-    def retinal_error(self, found: Sequence[float], expected: Sequence[float]) -> float:
+    def retinal_error(self, found: Vector, expected: Vector) -> float:
         """Eq. 8: the distance between two image positions, as a fraction of the half-ranges."""
         diff = (np.asarray(found, dtype=float) - np.asarray(expected, dtype=float)) / self._error_max
         return float(np.sqrt(np.sum(diff ** 2)))
@@ -418,7 +423,7 @@ class GazeMap:
         """Eq. 9: the neighbourhood widths (grid cells) for a windowed mean retinal error."""
         return self._sigma_max_cells * self._sigmoid(mean_error)
 
-    def adapt(self, position: Sequence[float], command: Sequence[float], confidence: float = 1.0) -> AdaptResult:
+    def adapt(self, position: Vector, command: Vector, confidence: float = 1.0) -> AdaptResult:
         """Learn that `command` fixated what was at `position` (x*, y*, d*), with a confidence.
 
         A position outside the map, a non-finite command or a confidence outside (0, 1] is
@@ -435,8 +440,11 @@ class GazeMap:
             return AdaptResult(accepted=False, reason=problem)
         c = float(confidence)
         g = self.to_grid(position)
-        phi = self.polynomial.features(g) if self.polynomial is not None else None
-        value = self._grid_at(g) + (phi @ self.polynomial.coef if phi is not None else 0.0)
+        polynomial = self.polynomial
+        value = self._grid_at(g)
+        if polynomial is not None:
+            phi = polynomial.features(g)
+            value = value + phi @ polynomial.coef
         # Output error: |dW(x*, y*, d*)| of eq. 11 at the peak of the neighbourhood (G = 1).
         output_error = np.abs(c * (value - m))
         # Eq. 8: where the map, before this adaptation, would have put the target of m.
@@ -453,7 +461,7 @@ class GazeMap:
                                                                             self.params.global_memory)
         sigma = self.sigma_cells(mean_error)
         target = m
-        if phi is not None:
+        if polynomial is not None:
             p = self.params
             # When the windowed error jumps far above its long-run level the head has changed (lens,
             # baseline, offset) and what was learned before is wrong: the memory drops to its
@@ -488,13 +496,13 @@ class GazeMap:
                 # than news: Cauchy weight. The usual distance is tracked as a running median.
                 c *= 1.0 / (1.0 + (residual / (p.robust_scale * self.residual_scale)) ** 2)
                 self.residual_scale *= np.exp(0.05 if residual > self.residual_scale else -0.05)
-            self.polynomial.learn(phi, m, c, memory)
+            polynomial.learn(phi, m, c, memory)
             # The residual grid forgets at the same pace: residuals learned against an old
             # polynomial must not outlive it. Applied in batches (one pass over the grid).
             self._pending_decay *= 1.0 - 1.0 / memory
             if self._pending_decay < 0.95:
                 self.settle()
-            target = m - phi @ self.polynomial.coef  # the grid learns the residual
+            target = m - phi @ polynomial.coef  # the grid learns the residual
         touched = self._update(g, target, c, sigma)
         self.adaptations += 1
         return AdaptResult(accepted=True, retinal_error=error, output_error=output_error,
@@ -519,97 +527,19 @@ class GazeMap:
             self._pending_decay = 1.0
         self._coarse = None
 
-    def state_arrays(self) -> dict[str, np.ndarray]:
-        arrays = {
-            "format": np.array(FILE_FORMAT),
-            "params": np.array(self.params.to_json()),
-            "grid": self.grid,
-            "recent_errors": np.array(list(self.recent_errors), dtype=np.float64),
-            "adaptations": np.array(self.adaptations, dtype=np.int64),
-            "long_run_error": np.array(self.long_run_error, dtype=np.float64),
-            "memory": np.array(self.memory, dtype=np.float64),
-            "residual_scale": np.array(self.residual_scale, dtype=np.float64),
-            "surprised": np.array(self.surprised, dtype=np.float64),
-        }
-        if self.polynomial is not None:
-            arrays["polynomial_coef"] = self.polynomial.coef
-            arrays["polynomial_covariance"] = self.polynomial.covariance
-        return arrays
-
-    def save(self, path: str | os.PathLike, keep_previous: bool = True) -> None:
+    def save(self, path: str | os.PathLike[str], keep_previous: bool = True) -> None:
         """Write the map atomically: temp file, fsync, rename; the previous file kept as `<path>.prev`.
 
         At every instant `path` is either the old complete file or the new complete file.
+        The file format is `calib_free.map_file`'s.
         """
-        path = Path(path)
-        self.settle()
-        buffer = io.BytesIO()
-        np.savez(buffer, **self.state_arrays())
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(buffer.getbuffer())
-                f.flush()
-                os.fsync(f.fileno())
-            if keep_previous and path.exists():
-                # Link, then rename over .prev: `path` itself is never missing.
-                prev_tmp = f"{tmp}.prev"
-                os.link(path, prev_tmp)
-                os.replace(prev_tmp, f"{path}.prev")
-            os.replace(tmp, path)
-        except BaseException:
-            for leftover in (tmp, f"{tmp}.prev"):
-                try:
-                    os.unlink(leftover)
-                except FileNotFoundError:
-                    pass
-            raise
-        dir_fd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
-        log.debug("gaze map saved to %s (%d adaptations)", path, self.adaptations)
+        from calib_free.map_file import write_map  # map_file builds GazeMaps: it imports this module
+
+        write_map(self, path, keep_previous)
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "GazeMap":
+    def load(cls, path: str | os.PathLike[str]) -> "GazeMap":
         """A map saved by `save`. Raises MapFileError naming the file and what is wrong."""
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except FileNotFoundError as err:
-            raise MapFileError(f"{path}: no such gaze map file") from err
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-            raise MapFileError(f"{path}: not a readable gaze map file ({err})") from err
-        fmt = str(arrays.get("format", ""))
-        if fmt != FILE_FORMAT:
-            raise MapFileError(f"{path}: format {fmt!r}, expected {FILE_FORMAT!r}")
-        required = {"params", "grid", "recent_errors", "adaptations", "long_run_error", "memory", "residual_scale"}
-        missing = required - set(arrays)
-        try:
-            params = GazeMapParams.from_json(str(arrays["params"])) if "params" in arrays else None
-            if params is not None and params.global_degree > 0:
-                missing |= {"polynomial_coef", "polynomial_covariance"} - set(arrays)
-            if missing:
-                raise MapFileError(f"{path}: missing {sorted(missing)}")
-            gm = cls(params, grid=arrays["grid"])
-            if gm.polynomial is not None:
-                for name in ("coef", "covariance"):
-                    saved = arrays[f"polynomial_{name}"]
-                    current = getattr(gm.polynomial, name)
-                    if saved.shape != current.shape:
-                        raise ValueError(f"polynomial_{name} has shape {saved.shape}, expected {current.shape}")
-                    setattr(gm.polynomial, name, np.array(saved, dtype=np.float64))
-                gm.polynomial.coefficients_changed()
-        except (ValueError, TypeError, KeyError) as err:
-            if isinstance(err, MapFileError):
-                raise
-            raise MapFileError(f"{path}: invalid map ({err})") from err
-        gm.recent_errors.extend(float(e) for e in arrays["recent_errors"])
-        gm.adaptations = int(arrays["adaptations"])
-        gm.long_run_error = float(arrays["long_run_error"])
-        gm.memory = float(arrays["memory"])
-        gm.residual_scale = float(arrays["residual_scale"])
-        gm.surprised = float(arrays.get("surprised", 0.0))  # files saved before it was kept: none pending
-        return gm
+        from calib_free.map_file import read_map  # map_file builds GazeMaps: it imports this module
+
+        return read_map(path, cls)

@@ -1,7 +1,7 @@
 """A geometric model of the stereo head (paper section III-A), for simulation and experiments.
 
 Frames. World and head: x forward, y to the head's left, z up (metres). Joint angles in
-degrees (the conventions of DESIGN.md):
+degrees (the conventions of `calib_free.kinematics`):
   - pan: + turns the head to its left (about z);
   - tilt: + turns the head up (about the panned y axis);
   - eyes: each yaws about the tilted z axis through its own optical centre; an eye angle is
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -30,18 +31,6 @@ from calib_free.lens import FisheyeLens
 
 # Camera (x right, y down, z forward) from eye (x forward, y left, z up).
 _CAM_FROM_EYE = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-AXES = ("pan", "tilt", "vergence")
-
-
-def joints_of(pose: np.ndarray) -> dict[str, float]:
-    """Joint angles {pan, tilt, left_eye, right_eye} of a pose (pan, tilt, vergence), eyes symmetric."""
-    return {"pan": float(pose[0]), "tilt": float(pose[1]),
-            "left_eye": float(pose[2] / 2), "right_eye": float(-pose[2] / 2)}
-
-
-def pose_of(joints: dict[str, float]) -> np.ndarray:
-    """The pose (pan, tilt, vergence = left_eye - right_eye) of joint angles."""
-    return np.array([joints["pan"], joints["tilt"], joints["left_eye"] - joints["right_eye"]])
 
 
 def _rot_z(angle_rad: float) -> np.ndarray:
@@ -71,7 +60,8 @@ class JointLimits:
         return np.array([self.pan[1], self.tilt[1], self.vergence[1]])
 
     def clamp(self, pose: np.ndarray) -> np.ndarray:
-        return np.clip(pose, self.low, self.high)
+        clamped: np.ndarray = np.clip(pose, self.low, self.high)
+        return clamped
 
     def contains(self, pose: np.ndarray) -> bool:
         return bool(np.all(pose >= self.low - 1e-9) and np.all(pose <= self.high + 1e-9))
@@ -95,11 +85,13 @@ class Perturbation:
 
     def executed(self, command: np.ndarray) -> np.ndarray:
         """The motion the head really makes for a commanded relative move."""
-        return np.asarray(self.motor_gain) * command + np.asarray(self.motor_offset_deg)
+        motion: np.ndarray = np.asarray(self.motor_gain) * command + np.asarray(self.motor_offset_deg)
+        return motion
 
     def command_for(self, motion: np.ndarray) -> np.ndarray:
         """The command that makes the head really move by `motion` (inverse of `executed`)."""
-        return (np.asarray(motion) - np.asarray(self.motor_offset_deg)) / np.asarray(self.motor_gain)
+        command: np.ndarray = (np.asarray(motion) - np.asarray(self.motor_offset_deg)) / np.asarray(self.motor_gain)
+        return command
 
 
 @dataclass
@@ -114,7 +106,7 @@ class HeadModel:
     perturbation: Perturbation = field(default_factory=Perturbation)
 
     @classmethod
-    def default(cls, width: int = 320, height: int = 240, lens: str = "foveated", **kwargs) -> "HeadModel":
+    def default(cls, width: int = 320, height: int = 240, lens: str = "foveated", **kwargs: Any) -> "HeadModel":
         fisheye = FisheyeLens.named(lens, width, height)
         return cls(lens_left=fisheye, lens_right=fisheye, **kwargs)
 
@@ -133,7 +125,8 @@ class HeadModel:
     # -- kinematics --------------------------------------------------------------------
     def head_rotation(self, pose: np.ndarray) -> np.ndarray:
         pan, tilt = np.radians(pose[0]), np.radians(pose[1])
-        return _rot_z(pan) @ _rot_y(-tilt)  # + tilt raises the forward axis
+        rotation: np.ndarray = _rot_z(pan) @ _rot_y(-tilt)  # + tilt raises the forward axis
+        return rotation
 
     def eye_frames(self, pose: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """[(R, c)] for the left and right eye at a symmetric pose (pan, tilt, vergence)."""
@@ -162,7 +155,8 @@ class HeadModel:
             return None
         forward, up = self.eye_offset_m
         distance = (self.effective_baseline_m / 2) / np.tan(half_verg)
-        return self.head_rotation(pose) @ np.array([forward + distance, 0.0, up])
+        point: np.ndarray = self.head_rotation(pose) @ np.array([forward + distance, 0.0, up])
+        return point
 
     # -- optics ------------------------------------------------------------------------
     def project(self, points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -254,6 +248,6 @@ class FixationSampler:
         return self.pose
 
 
-def with_perturbation(head: HeadModel, **changes) -> HeadModel:
+def with_perturbation(head: HeadModel, **changes: Any) -> HeadModel:
     """A copy of `head` with some perturbation fields changed."""
     return dataclasses.replace(head, perturbation=dataclasses.replace(head.perturbation, **changes))

@@ -21,6 +21,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import gi
@@ -29,7 +30,7 @@ import numpy as np
 gi.require_version("Aravis", "0.8")
 from gi.repository import Aravis, GLib  # noqa: E402  (after require_version, as PyGObject requires)
 
-from drivers.camera import Camera, Capabilities, Grab  # noqa: E402
+from drivers.camera import Camera, CameraConfig, Capabilities, Grab  # noqa: E402
 from drivers.errors import CameraConfigError, CameraError, CameraLostError  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -120,7 +121,7 @@ class AravisCamera(Camera):
     CONFIG_KEYS = frozenset({"id", "serial", "pixel_format", "width", "height", "fps", "exposure_us",
                              "gain_db", "buffers", "reconnect_backoff_max_s", "reconnect_give_up_s"})
 
-    def __init__(self, config, **kwargs) -> None:
+    def __init__(self, config: CameraConfig, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
         if config.pixel_format is not None and config.pixel_format not in SUPPORTED_PIXEL_FORMATS:
             raise CameraConfigError(f"{self.name}: pixel_format {config.pixel_format!r}: expected one of "

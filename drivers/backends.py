@@ -48,9 +48,10 @@ def resolve(kind: Kind, name: str) -> type:
     for ep in metadata.entry_points(group=_ENTRY_POINT_GROUPS[kind]):
         if ep.name == name:
             try:
-                return ep.load()
+                loaded: type = ep.load()
             except ImportError as err:
                 raise BackendImportError(f"{kind} backend {name!r} (entry point {ep.value}) failed to import: {err}") from err
+            return loaded
     known = ", ".join(sorted(table))
     raise BackendNotFoundError(
         f"unknown {kind} backend {name!r}: expected one of {known}, or 'package.module:Class'"
@@ -64,6 +65,7 @@ def _import(kind: str, name: str, module_name: str, class_name: str, install: st
         hint = f" (install: {install})" if install else ""
         raise BackendImportError(f"{kind} backend {name!r} failed to import {module_name}: {err}{hint}") from err
     try:
-        return getattr(module, class_name)
+        cls: type = getattr(module, class_name)
     except AttributeError as err:
         raise BackendNotFoundError(f"{kind} backend {name!r}: module {module_name} has no class {class_name}") from err
+    return cls

@@ -1,8 +1,9 @@
-"""The camera interface: typed config, frames, the capture thread, and stereo pairing.
+"""The camera interface: typed config, frames, the capture thread, construction.
 
 This module owns what every camera backend shares, once:
-  - `CameraConfig`: the typed settings of one camera, parsed from a plain mapping (what YAML
-    gives), unknown keys rejected with the key path, the value and what was expected;
+  - `CameraConfig`: the typed settings of one camera, read from a plain mapping (what YAML
+    gives) by `drivers.config`: errors are `CameraConfigError`s naming the key path, the
+    value and what was expected;
   - `Frame`: an image (grey (H, W) or BGR (H, W, 3) uint8, OpenCV's channel order) with its
     frame counter, host monotonic timestamps and the device timestamp where there is one;
   - `Camera(Device)`: the lifecycle plus a named capture thread per camera that holds the
@@ -11,10 +12,9 @@ This module owns what every camera backend shares, once:
     implement only the small hooks `_open_device`, `_close_device`, `_start_stream`,
     `_stop_stream`, `_grab` and, when they declare the capability, `_set_exposure_us` and
     `_set_gain_db`;
-  - `StereoPair`: a left/right pair whose timestamps agree within a tolerance, and the first
-    pair whose exposures both began after a given monotonic time (frames exposed while the
-    head moved are never used);
   - `create_camera`: config -> backend class (`drivers.backends`) -> camera.
+
+Stereo pairs of two cameras: `drivers.stereo`.
 
 Times: `clock.monotonic()` seconds for everything the service compares (`time_s`,
 `exposure_start_s`); device clocks only in `device_time_ns`, never mixed with host time.
@@ -25,21 +25,19 @@ import collections
 import dataclasses
 import enum
 import logging
-import math
 import threading
 import time
 import traceback
-import types
-import typing
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 
 from drivers import backends
 from drivers.base import Device
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.config import check_settings, read_config, setting
 from drivers.errors import (
     CameraConfigError,
     CameraError,
@@ -50,6 +48,8 @@ from drivers.errors import (
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
+
 ImageMode = Literal["grey", "colour"]
 ErrorCallback = Callable[["Camera", BaseException], None]
 # Called on the capture thread with each new frame, and with None when the health changes.
@@ -57,67 +57,6 @@ Listener = Callable[["Frame | None"], None]
 
 
 # --- config ------------------------------------------------------------------------------
-def config_type_name(tp: Any) -> str:
-    if typing.get_origin(tp) is Literal:
-        return " or ".join(repr(a) for a in typing.get_args(tp))
-    if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        return " or ".join(config_type_name(a) for a in typing.get_args(tp) if a is not type(None))
-    return {int: "an integer", float: "a number", str: "a string", bool: "true or false"}.get(tp, str(tp))
-
-
-def coerce_config_value(value: Any, tp: Any, key_path: str) -> Any:
-    """`value` as type `tp` (int, float, str, bool, Literal, unions with None), or raise."""
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        options = typing.get_args(tp)
-        if value is None and type(None) in options:
-            return None
-        for option in options:
-            if option is type(None):
-                continue
-            try:
-                return coerce_config_value(value, option, key_path)
-            except CameraConfigError:
-                continue
-    elif origin is Literal:
-        if value in typing.get_args(tp):
-            return value
-    elif tp is bool:
-        if isinstance(value, bool):
-            return value
-    elif tp is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-    elif tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
-    elif tp is str:
-        if isinstance(value, str) and value:
-            return value
-    raise CameraConfigError(f"{key_path}: got {value!r}, expected {config_type_name(tp)}")
-
-
-def parse_dataclass(cls: type, data: Any, key_path: str) -> Any:
-    """An instance of dataclass `cls` from a mapping, every key checked against its fields.
-
-    Unknown keys, wrongly typed values and failed `validate()` checks raise
-    `CameraConfigError` naming the key path (`cameras.left.fps`), the value and what was
-    expected.
-    """
-    if not isinstance(data, Mapping):
-        raise CameraConfigError(f"{key_path}: got {data!r}, expected a mapping of settings")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise CameraConfigError(
-            f"{key_path}.{unknown[0]}: unknown key (value {data[unknown[0]]!r}); "
-            f"expected one of {', '.join(sorted(fields))}"
-        )
-    values = {name: coerce_config_value(value, hints[name], f"{key_path}.{name}") for name, value in data.items()}
-    return cls(**values)
-
-
 @dataclass(frozen=True)
 class CameraConfig:
     """The settings of one camera. None means "leave the camera's own value".
@@ -135,55 +74,37 @@ class CameraConfig:
     serial: str | None = None
     eye: Literal["left", "right"] | None = None
     pixel_format: str | None = None
-    width: int | None = None
-    height: int | None = None
-    fps: float | None = None
-    exposure_us: float | None = None
+    width: int | None = setting(None, lo=2, expected="at least 2")
+    height: int | None = setting(None, lo=2, expected="at least 2")
+    fps: float | None = setting(None, above=0.0, expected="a positive rate")
+    exposure_us: float | None = setting(None, above=0.0, expected="a positive time")
     gain_db: float | None = None
     image: ImageMode = "grey"
-    history: int = 8
-    buffers: int = 8
+    history: int = setting(8, lo=2, expected="at least 2 frames")
+    buffers: int = setting(8, lo=2, expected="at least 2 buffers")
     seed: int = 0
     # The simulated head's lens; the kinds of calib_free.lens.LENS_KINDS (drivers cannot import it).
     lens: Literal["foveated", "equidistant", "equisolid"] = "foveated"
-    noise_std: float = 0.0
-    grab_timeout_s: float = 1.0
-    reconnect_backoff_max_s: float = 2.0
-    reconnect_give_up_s: float = 600.0
-    # The keys a mapping gave (set by from_mapping): a key given at its default value is still
+    noise_std: float = setting(0.0, lo=0.0, expected="not negative")
+    grab_timeout_s: float = setting(1.0, above=0.0, expected="a positive time")
+    reconnect_backoff_max_s: float = setting(2.0, above=0.0, expected="a positive time")
+    reconnect_give_up_s: float = setting(600.0, above=0.0, expected="a positive time")
+    # The keys a mapping gave (set by the reader): a key given at its default value is still
     # refused by a backend that does not use it.
-    given_keys: frozenset[str] = field(default=frozenset(), init=False, compare=False, repr=False)
+    given_keys: frozenset[str] = setting(frozenset(), source="given_keys", init=False, compare=False, repr=False)
+
+    CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
 
     def __post_init__(self) -> None:
-        checks = (
-            ("width", self.width is None or self.width >= 2, "at least 2"),
-            ("height", self.height is None or self.height >= 2, "at least 2"),
-            ("fps", self.fps is None or self.fps > 0, "a positive rate"),
-            ("exposure_us", self.exposure_us is None or self.exposure_us > 0, "a positive time"),
-            ("history", self.history >= 2, "at least 2 frames"),
-            ("buffers", self.buffers >= 2, "at least 2 buffers"),
-            ("noise_std", self.noise_std >= 0, "not negative"),
-            ("grab_timeout_s", self.grab_timeout_s > 0, "a positive time"),
-            ("reconnect_backoff_max_s", self.reconnect_backoff_max_s > 0, "a positive time"),
-            ("reconnect_give_up_s", self.reconnect_give_up_s > 0, "a positive time"),
-        )
-        for key, ok, expected in checks:
-            if not ok:
-                raise CameraConfigError(f"{key}: got {getattr(self, key)!r}, expected {expected}")
+        check_settings(self)
         if self.id is not None and self.serial is not None:
-            raise CameraConfigError(f"id and serial: got both ({self.id!r}, {self.serial!r}), expected one")
+            raise CameraConfigError(
+                key_path="serial", value=self.serial,
+                expected=f"no serial when id is given (id {self.id!r}): one of them names the camera")
 
     @classmethod
     def from_mapping(cls, data: Any, key_path: str = "camera") -> "CameraConfig":
-        try:
-            config = parse_dataclass(cls, data, key_path)
-            object.__setattr__(config, "given_keys", frozenset(data))
-            return config
-        except CameraConfigError as err:
-            message = str(err)
-            if not message.startswith(key_path):  # a __post_init__ check names the bare key
-                message = f"{key_path}.{message}"
-            raise CameraConfigError(message) from err
+        return read_config(cls, data, key_path)
 
     def set_keys(self) -> set[str]:
         """Keys given in the mapping, or whose value differs from the default."""
@@ -195,9 +116,9 @@ class CameraConfig:
         unused = sorted(self.set_keys() - backend_class.CONFIG_KEYS - _COMMON_KEYS)
         if unused:
             raise CameraConfigError(
-                f"{key_path}.{unused[0]}: not used by the {self.backend!r} backend "
-                f"(value {getattr(self, unused[0])!r}); it uses "
-                f"{', '.join(sorted(backend_class.CONFIG_KEYS | _COMMON_KEYS))}"
+                key_path=f"{key_path}.{unused[0]}", value=getattr(self, unused[0]),
+                expected=f"nothing: {unused[0]} is not used by the {self.backend!r} backend, which uses "
+                         f"{', '.join(sorted(backend_class.CONFIG_KEYS | _COMMON_KEYS))}",
             )
 
 
@@ -211,26 +132,16 @@ class StereoCamerasConfig:
 
     left: CameraConfig
     right: CameraConfig
-    tolerance_s: float | None = None
+    tolerance_s: float | None = setting(None, lo=0.0)
+
+    CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
+
+    def __post_init__(self) -> None:
+        check_settings(self)
 
     @classmethod
     def from_mapping(cls, data: Any, key_path: str = "cameras") -> "StereoCamerasConfig":
-        if not isinstance(data, Mapping):
-            raise CameraConfigError(f"{key_path}: got {data!r}, expected a mapping with left and right")
-        unknown = sorted(set(data) - {"left", "right", "tolerance_s"})
-        if unknown:
-            raise CameraConfigError(f"{key_path}.{unknown[0]}: unknown key (value {data[unknown[0]]!r}); "
-                                    "expected left, right, tolerance_s")
-        for side in ("left", "right"):
-            if side not in data:
-                raise CameraConfigError(f"{key_path}.{side}: missing; expected the {side} camera's settings")
-        tolerance_s = data.get("tolerance_s")
-        if tolerance_s is not None:
-            tolerance_s = coerce_config_value(tolerance_s, float, f"{key_path}.tolerance_s")
-            if tolerance_s < 0:
-                raise CameraConfigError(f"{key_path}.tolerance_s: got {tolerance_s}, expected >= 0")
-        return cls(CameraConfig.from_mapping(data["left"], f"{key_path}.left"),
-                   CameraConfig.from_mapping(data["right"], f"{key_path}.right"), tolerance_s)
+        return read_config(cls, data, key_path)
 
 
 # --- frames ------------------------------------------------------------------------------
@@ -300,8 +211,8 @@ def to_mode(image: np.ndarray, mode: ImageMode, camera: str) -> np.ndarray:
 
 
 # --- the capture thread ------------------------------------------------------------------
-def _wait_for(cond: threading.Condition, find: Callable[[], Any], check: Callable[[], None],
-              timeout_s: float, timeout_message: Callable[[], str]) -> Any:
+def wait_for(cond: threading.Condition, find: Callable[[], T | None], check: Callable[[], None],
+             timeout_s: float, timeout_message: Callable[[], str]) -> T:
     """Wait on `cond` (held by the caller) until `find()` gives something; `check()` raises
     when waiting is pointless (a failed stream); `CameraTimeoutError` after `timeout_s`."""
     deadline = time.monotonic() + timeout_s
@@ -420,7 +331,7 @@ class Camera(Device):
                 return (f"{self.name}: no {what} within {timeout_s} s (health {self._health.value}, "
                         f"{self._counter} frames so far)")
 
-            return _wait_for(self._cond, find, self._raise_if_failed, timeout_s, timeout_message)
+            return wait_for(self._cond, find, self.raise_if_failed, timeout_s, timeout_message)
 
     def add_listener(self, listener: Listener) -> None:
         """Call `listener(frame)` on the capture thread after each frame (None when the health
@@ -594,7 +505,7 @@ class Camera(Device):
             except Exception:
                 log.exception("%s: frame listener %r failed", self.name, listener)
 
-    def _raise_if_failed(self) -> None:
+    def raise_if_failed(self) -> None:
         if self._health is StreamHealth.FAILED:
             raise CameraError(f"{self.name}: the stream has failed: {self._last_error}") from self._last_error
         if self._health is StreamHealth.STOPPED:
@@ -645,105 +556,6 @@ class Camera(Device):
 
     def _backend_stats(self) -> dict[str, int]:
         return {}
-
-
-# --- stereo ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class StereoFrames:
-    left: Frame
-    right: Frame
-
-    @property
-    def skew_s(self) -> float:
-        return abs(self.left.time_s - self.right.time_s)
-
-    @property
-    def exposure_start_s(self) -> float:
-        return min(self.left.exposure_start_s, self.right.exposure_start_s)
-
-
-class StereoPair:
-    """Left and right cameras read as synchronised pairs.
-
-    A pair is two frames whose `time_s` differ by at most `tolerance_s`. `wait_pair(after_s)`
-    gives the FIRST pair whose exposures both began at or after `after_s`, so a caller that
-    passes the time the head came to rest never gets a frame exposed while it moved.
-    """
-
-    def __init__(self, left: Camera, right: Camera, tolerance_s: float | None = None) -> None:
-        if tolerance_s is None:
-            fps = min(c.config.fps or 30.0 for c in (left, right))
-            tolerance_s = 0.5 / fps
-        if tolerance_s < 0:
-            raise CameraConfigError(f"stereo pair tolerance_s {tolerance_s}: expected >= 0")
-        self.left, self.right, self.tolerance_s = left, right, tolerance_s
-        self._cond = threading.Condition()
-        self._closed = False
-        left.add_listener(self._on_frame)
-        right.add_listener(self._on_frame)
-
-    def _on_frame(self, frame: Frame | None) -> None:
-        with self._cond:
-            self._cond.notify_all()
-
-    def _pairs(self, after_s: float | None) -> list[StereoFrames]:
-        """Matching pairs in the histories, oldest first; each left frame at most once."""
-        lefts = self.left.history()
-        rights = self.right.history()
-        if after_s is not None:
-            lefts = [f for f in lefts if f.exposure_start_s >= after_s]
-            rights = [f for f in rights if f.exposure_start_s >= after_s]
-        pairs = []
-        for lf in lefts:
-            if not rights:
-                break
-            best = min(rights, key=lambda rf: abs(rf.time_s - lf.time_s))
-            if abs(best.time_s - lf.time_s) <= self.tolerance_s:
-                pairs.append(StereoFrames(lf, best))
-        return pairs
-
-    def latest(self) -> StereoFrames | None:
-        """The newest synchronised pair held, or None."""
-        pairs = self._pairs(None)
-        return pairs[-1] if pairs else None
-
-    def wait_pair(self, after_s: float | None = None, timeout_s: float = 2.0) -> StereoFrames:
-        """The first pair exposed entirely at or after `after_s` (None: a pair newer than now held)."""
-        if after_s is None:
-            held = self.latest()
-            baseline = (held.left.counter, held.right.counter) if held else (0, 0)
-
-        def find() -> StereoFrames | None:
-            pairs = self._pairs(after_s)
-            if after_s is None:
-                pairs = [p for p in pairs if p.left.counter > baseline[0] and p.right.counter > baseline[1]]
-            return pairs[0] if pairs else None
-
-        def check() -> None:
-            for camera in (self.left, self.right):
-                camera._raise_if_failed()
-
-        def timeout_message() -> str:
-            what = f"pair exposed after t={after_s:.6f} s" if after_s is not None else "new pair"
-            return (f"stereo {self.left.name}/{self.right.name}: no {what} within {timeout_s} s "
-                    f"with timestamps within {self.tolerance_s * 1e3:.1f} ms")
-
-        with self._cond:
-            return _wait_for(self._cond, find, check, timeout_s, timeout_message)
-
-    def close(self) -> None:
-        """Stop listening to the cameras (they stay open: their owner closes them). Idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        self.left.remove_listener(self._on_frame)
-        self.right.remove_listener(self._on_frame)
-
-    def __enter__(self) -> "StereoPair":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 # --- construction ------------------------------------------------------------------------

@@ -1,10 +1,9 @@
 """A Dynamixel Protocol 2.0 servo emulator serving virtual X-series servos on a pseudo-terminal.
 
-This module owns the Protocol 2.0 wire format (framing, byte stuffing, CRC-16 with
-polynomial 0x8005, status packets with the error byte and Alert bit), `EmulatedServo`
-(an X-series control table with a motion model), and `DxlEmulator`, which serves any
-number of them on an `os.openpty()` pseudo-terminal from its own named thread. The real
-dynamixel-sdk, or any other Protocol 2.0 client, talks to it exactly as to a real bus.
+`DxlEmulator` serves any number of `drivers.dxl_servo.EmulatedServo` on an `os.openpty()`
+pseudo-terminal from its own named thread, speaking the wire format of
+`drivers.dxl_protocol`. The real dynamixel-sdk, or any other Protocol 2.0 client, talks to
+it exactly as to a real bus, so the backend is tested byte for byte without a head.
 
 Instructions: Ping (also broadcast), Read, Write, Sync Read, Sync Write, Bulk Read, Bulk
 Write, Reboot; others get an Instruction Error status. Fast Sync Read is not served.
@@ -19,7 +18,6 @@ Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import queue
 import select
@@ -28,331 +26,36 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.dynamixel import (
-    DPS2_PER_ACCELERATION_UNIT,
-    DEG_PER_TICK,
-    DPS_PER_VELOCITY_UNIT,
-    ERRBIT_ALERT,
-    MS_PER_WATCHDOG_UNIT,
-    OPERATING_MODE_POSITION,
-    TICKS_PER_TURN,
-    US_PER_RETURN_DELAY_UNIT,
-    WATCHDOG_FIRED,
-    X_BAUD_CODES,
-    X_MODELS,
-    XAddr,
+from drivers.dxl_control_table import X_BAUD_CODES, XAddr
+from drivers.dxl_protocol import (
+    BROADCAST_ID,
+    ERR_CRC,
+    ERR_DATA_LENGTH,
+    ERR_INSTRUCTION,
+    INST_BULK_READ,
+    INST_BULK_WRITE,
+    INST_PING,
+    INST_READ,
+    INST_REBOOT,
+    INST_SYNC_READ,
+    INST_SYNC_WRITE,
+    INST_WRITE,
+    Packet,
+    PacketParser,
+    build_packet,
+    status_packet,
 )
+from drivers.dxl_servo import EmulatedServo
 from drivers.errors import DeviceStateError, DeviceTimeoutError
 from drivers.servo_bus import TRACE
-from drivers.sim_servo import DEFAULT_SHUTDOWN_BITS, ProfileAxis
 
 log = logging.getLogger(__name__)
 
-# --- the wire format -------------------------------------------------------------------
-HEADER = b"\xff\xff\xfd\x00"
-BROADCAST_ID = 0xFE
-INST_PING, INST_READ, INST_WRITE, INST_REBOOT = 0x01, 0x02, 0x03, 0x08
-INST_STATUS = 0x55
-INST_SYNC_READ, INST_SYNC_WRITE, INST_BULK_READ, INST_BULK_WRITE = 0x82, 0x83, 0x92, 0x93
-ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = range(1, 8)
-MAX_PACKET_LENGTH = 1024
 # Not a Dynamixel instruction: the marker `DxlEmulator.wait_idle` sends itself.
 _INST_BARRIER = 0x7F
-
-
-def _crc_table() -> list[int]:
-    table = []
-    for byte in range(256):
-        crc = byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return table
-
-
-_CRC_TABLE = _crc_table()
-
-
-def crc16(data: bytes | bytearray) -> int:
-    """CRC-16 of Protocol 2.0: polynomial 0x8005, initial 0, not reflected."""
-    crc = 0
-    for byte in data:
-        crc = ((crc << 8) ^ _CRC_TABLE[((crc >> 8) ^ byte) & 0xFF]) & 0xFFFF
-    return crc
-
-
-def stuff(body: bytes) -> bytes:
-    """Insert an 0xFD after every FF FF FD in instruction + parameters."""
-    out = bytearray()
-    for byte in body:
-        out.append(byte)
-        if byte == 0xFD and out[-3:] == b"\xff\xff\xfd":
-            out.append(0xFD)
-    return bytes(out)
-
-
-def unstuff(body: bytes) -> bytes:
-    """Remove the 0xFD that stuffing inserted after every FF FF FD."""
-    out = bytearray()
-    i = 0
-    while i < len(body):
-        out.append(body[i])
-        if body[i] == 0xFD and out[-3:] == b"\xff\xff\xfd" and i + 1 < len(body) and body[i + 1] == 0xFD:
-            i += 1  # skip the stuffed byte
-        i += 1
-    return bytes(out)
-
-
-def build_packet(servo_id: int, instruction: int, params: bytes = b"") -> bytes:
-    """A complete Protocol 2.0 packet: header, id, length, stuffed body, CRC."""
-    body = stuff(bytes([instruction]) + bytes(params))
-    head = HEADER + bytes([servo_id]) + struct.pack("<H", len(body) + 2)
-    packet = head + body
-    return packet + struct.pack("<H", crc16(packet))
-
-
-def status_packet(servo_id: int, error: int, data: bytes = b"") -> bytes:
-    return build_packet(servo_id, INST_STATUS, bytes([error]) + bytes(data))
-
-
-@dataclass(frozen=True)
-class Packet:
-    servo_id: int
-    instruction: int
-    params: bytes
-    crc_ok: bool
-
-
-class PacketParser:
-    """Splits a byte stream into packets, resynchronising on the header after garbage."""
-
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-
-    def reset(self) -> None:
-        self._buffer.clear()
-
-    def feed(self, data: bytes) -> Iterator[Packet]:
-        self._buffer += data
-        buf = self._buffer
-        while True:
-            start = buf.find(HEADER)
-            if start < 0:
-                del buf[: max(0, len(buf) - 3)]  # keep a possible partial header
-                return
-            del buf[:start]
-            if len(buf) < 7:
-                return
-            length = struct.unpack_from("<H", buf, 5)[0]
-            if not 3 <= length <= MAX_PACKET_LENGTH:
-                del buf[:1]
-                continue
-            end = 7 + length
-            if len(buf) < end:
-                return
-            raw = bytes(buf[:end])
-            del buf[:end]
-            crc_ok = crc16(raw[:-2]) == struct.unpack_from("<H", raw, end - 2)[0]
-            body = unstuff(raw[7:-2])
-            yield Packet(raw[4], body[0], body[1:], crc_ok)
-
-
-# --- one servo -------------------------------------------------------------------------
-# Defaults of the control table: address -> (size, value). EEPROM first, then RAM.
-_EEPROM_DEFAULTS: dict[int, tuple[int, int]] = {
-    XAddr.RETURN_DELAY_TIME: (1, 250),
-    XAddr.DRIVE_MODE: (1, 0),
-    XAddr.OPERATING_MODE: (1, OPERATING_MODE_POSITION),
-    12: (1, 255),                        # Secondary ID
-    13: (1, 2),                          # Protocol Type
-    XAddr.MOVING_THRESHOLD: (4, 10),
-    XAddr.TEMPERATURE_LIMIT: (1, 80),
-    XAddr.MAX_VOLTAGE_LIMIT: (2, 160),
-    XAddr.MIN_VOLTAGE_LIMIT: (2, 95),
-    XAddr.VELOCITY_LIMIT: (4, 200),
-    XAddr.MAX_POSITION_LIMIT: (4, TICKS_PER_TURN - 1),
-    XAddr.MIN_POSITION_LIMIT: (4, 0),
-    XAddr.SHUTDOWN: (1, DEFAULT_SHUTDOWN_BITS),
-}
-_RAM_DEFAULTS: dict[int, tuple[int, int]] = {
-    XAddr.STATUS_RETURN_LEVEL: (1, 2),
-    XAddr.PRESENT_INPUT_VOLTAGE: (2, 120),
-    XAddr.PRESENT_TEMPERATURE: (1, 35),
-} | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: (2, XAddr.INDIRECT_DATA_1 + i) for i in range(XAddr.INDIRECT_COUNT)}
-# Writable items: address -> size. Everything else is read-only (Access Error).
-_WRITABLE: dict[int, int] = {
-    XAddr.ID: 1, XAddr.BAUD_RATE: 1, XAddr.RETURN_DELAY_TIME: 1, XAddr.DRIVE_MODE: 1, XAddr.OPERATING_MODE: 1,
-    12: 1, 13: 1, 20: 4, XAddr.MOVING_THRESHOLD: 4, XAddr.TEMPERATURE_LIMIT: 1, XAddr.MAX_VOLTAGE_LIMIT: 2,
-    XAddr.MIN_VOLTAGE_LIMIT: 2, 36: 2, 38: 2, XAddr.VELOCITY_LIMIT: 4, XAddr.MAX_POSITION_LIMIT: 4,
-    XAddr.MIN_POSITION_LIMIT: 4, XAddr.SHUTDOWN: 1, XAddr.TORQUE_ENABLE: 1, XAddr.LED: 1,
-    XAddr.STATUS_RETURN_LEVEL: 1, XAddr.BUS_WATCHDOG: 1, XAddr.GOAL_VELOCITY: 4,
-    XAddr.PROFILE_ACCELERATION: 4, XAddr.PROFILE_VELOCITY: 4, XAddr.GOAL_POSITION: 4,
-} | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: 2 for i in range(XAddr.INDIRECT_COUNT)} | {
-    XAddr.INDIRECT_DATA_1 + i: 1 for i in range(XAddr.INDIRECT_COUNT)}
-_WRITABLE_BYTES = frozenset(addr + i for addr, size in _WRITABLE.items() for i in range(size))
-_INDIRECT_ADDRESS_BYTES = range(XAddr.INDIRECT_ADDRESS_1, XAddr.INDIRECT_ADDRESS_1 + 2 * XAddr.INDIRECT_COUNT)
-_INDIRECT_DATA_BYTES = range(XAddr.INDIRECT_DATA_1, XAddr.INDIRECT_DATA_1 + XAddr.INDIRECT_COUNT)
-
-
-class EmulatedServo:
-    """One X-series servo: its control table and its motion, on `clock`.
-
-    Not thread-safe on its own: `DxlEmulator` serialises access with its lock.
-    """
-
-    BOOT_TIME_S = 0.1
-
-    def __init__(self, servo_id: int, model: str = "XM430-W350", *, clock: Clock = SYSTEM_CLOCK,
-                 baud: int = 1_000_000, firmware: int = 48, position_ticks: int = 2048) -> None:
-        self.model = model
-        self.clock = clock
-        self.table = bytearray(XAddr.TABLE_SIZE)
-        self._set(XAddr.MODEL_NUMBER, 2, X_MODELS[model])
-        self._set(XAddr.FIRMWARE_VERSION, 1, firmware)
-        self._set(XAddr.ID, 1, servo_id)
-        self._set(XAddr.BAUD_RATE, 1, X_BAUD_CODES[baud])
-        for addr, (size, value) in _EEPROM_DEFAULTS.items():
-            self._set(addr, size, value)
-        now = clock.monotonic()
-        self.axis = ProfileAxis(position_ticks, now)
-        self.booting_until_s = -math.inf
-        self.last_contact_s = now
-        self._reset_ram()
-
-    # -- plain table access ----------------------------------------------------------------
-    @property
-    def servo_id(self) -> int:
-        return self.table[XAddr.ID]
-
-    def get(self, addr: int, size: int, signed: bool = False) -> int:
-        return int.from_bytes(self.table[addr: addr + size], "little", signed=signed)
-
-    def _set(self, addr: int, size: int, value: int) -> None:
-        self.table[addr: addr + size] = int(value).to_bytes(size, "little", signed=value < 0)
-
-    @property
-    def torque_on(self) -> bool:
-        return self.table[XAddr.TORQUE_ENABLE] == 1
-
-    @property
-    def return_delay_s(self) -> float:
-        return self.table[XAddr.RETURN_DELAY_TIME] * US_PER_RETURN_DELAY_UNIT / 1e6
-
-    def is_booting(self, now_s: float) -> bool:
-        return now_s < self.booting_until_s
-
-    def _reset_ram(self) -> None:
-        self.table[XAddr.EEPROM_END:] = bytes(XAddr.TABLE_SIZE - XAddr.EEPROM_END)
-        for addr, (size, value) in _RAM_DEFAULTS.items():
-            self._set(addr, size, value)
-        self.axis.hold()
-        self._set(XAddr.GOAL_POSITION, 4, round(self.axis.position))
-        self._publish()
-
-    # -- behaviour -------------------------------------------------------------------------
-    def update(self, now_s: float) -> None:
-        """Advance the motion to `now_s` and refresh the present-value registers."""
-        self.axis.max_velocity = (self.get(XAddr.PROFILE_VELOCITY, 4) or self.get(XAddr.VELOCITY_LIMIT, 4)) \
-            * DPS_PER_VELOCITY_UNIT / DEG_PER_TICK
-        accel_units = self.get(XAddr.PROFILE_ACCELERATION, 4)
-        self.axis.max_acceleration = accel_units * DPS2_PER_ACCELERATION_UNIT / DEG_PER_TICK if accel_units else math.inf
-        watchdog_s = self.table[XAddr.BUS_WATCHDOG] * MS_PER_WATCHDOG_UNIT / 1000.0
-        if (self.torque_on and self.table[XAddr.BUS_WATCHDOG] not in (0, WATCHDOG_FIRED)
-                and now_s - self.last_contact_s > watchdog_s):
-            # The host fell silent: stop where the servo was when the watchdog expired.
-            self.axis.advance_to(self.last_contact_s + watchdog_s)
-            self.axis.hold()
-            self.table[XAddr.BUS_WATCHDOG] = WATCHDOG_FIRED
-            log.info("emulated servo %d: bus watchdog fired", self.servo_id)
-        self.axis.advance_to(now_s)
-        self._publish()
-
-    def _publish(self) -> None:
-        self._set(XAddr.PRESENT_POSITION, 4, round(self.axis.position))
-        self._set(XAddr.PRESENT_VELOCITY, 4, round(self.axis.velocity * DEG_PER_TICK / DPS_PER_VELOCITY_UNIT))
-        self.table[XAddr.MOVING] = 1 if self.axis.moving else 0
-        self.table[XAddr.MOVING_STATUS] = 1 if self.axis.moving else 0
-
-    def contact(self, now_s: float) -> None:
-        """A packet addressed to this servo arrived (feeds the Bus Watchdog)."""
-        self.update(now_s)
-        self.last_contact_s = now_s
-
-    def error_byte(self, error: int = 0) -> int:
-        return error | (ERRBIT_ALERT if self.table[XAddr.HARDWARE_ERROR_STATUS] else 0)
-
-    def read(self, addr: int, length: int) -> tuple[int, bytes]:
-        if length < 1 or addr + length > XAddr.TABLE_SIZE:
-            return ERR_DATA_RANGE, b""
-        out = bytearray()
-        for a in range(addr, addr + length):
-            out.append(self._read_byte(a))
-        return 0, bytes(out)
-
-    def _read_byte(self, addr: int) -> int:
-        if addr in _INDIRECT_DATA_BYTES:
-            target = self.get(XAddr.INDIRECT_ADDRESS_1 + 2 * (addr - XAddr.INDIRECT_DATA_1), 2)
-            if target < XAddr.TABLE_SIZE and target not in _INDIRECT_DATA_BYTES:
-                return self.table[target]
-        return self.table[addr]
-
-    def write(self, addr: int, data: bytes) -> int:
-        """Write `data` at `addr`; returns the status error number (0 = done)."""
-        if not data or addr + len(data) > XAddr.TABLE_SIZE:
-            return ERR_DATA_RANGE
-        # Resolve indirect data to the addresses it stands for.
-        targets = []
-        for i, a in enumerate(range(addr, addr + len(data))):
-            if a in _INDIRECT_DATA_BYTES:
-                a = self.get(XAddr.INDIRECT_ADDRESS_1 + 2 * (a - XAddr.INDIRECT_DATA_1), 2)
-            targets.append((a, data[i]))
-        for a, _value in targets:
-            if a not in _WRITABLE_BYTES:
-                return ERR_ACCESS
-            if self.torque_on and (a < XAddr.EEPROM_END or a in _INDIRECT_ADDRESS_BYTES):
-                return ERR_ACCESS  # EEPROM and the indirect map need torque off
-        if any(a == XAddr.GOAL_POSITION for a, _ in targets) and len(targets) >= 4:
-            goal = int.from_bytes(bytes(v for a, v in targets if XAddr.GOAL_POSITION <= a < XAddr.GOAL_POSITION + 4),
-                                  "little", signed=True)
-            if not self.get(XAddr.MIN_POSITION_LIMIT, 4) <= goal <= self.get(XAddr.MAX_POSITION_LIMIT, 4):
-                return ERR_DATA_LIMIT
-        torque_before = self.torque_on
-        for a, value in targets:
-            if a == XAddr.TORQUE_ENABLE and value and self.table[XAddr.HARDWARE_ERROR_STATUS] & self.table[XAddr.SHUTDOWN]:
-                continue  # a servo in shutdown refuses torque until rebooted
-            if a == XAddr.GOAL_POSITION and self.table[XAddr.BUS_WATCHDOG] == WATCHDOG_FIRED:
-                return ERR_DATA_RANGE  # a fired watchdog blocks goals until it is cleared
-            self.table[a] = value
-        if self.torque_on and not torque_before:
-            # Torque on drives toward the Goal Position register, stale or not.
-            self.axis.set_goal(self.get(XAddr.GOAL_POSITION, 4, signed=True))
-        elif not self.torque_on:
-            self.axis.hold()
-        elif any(XAddr.GOAL_POSITION <= a < XAddr.GOAL_POSITION + 4 for a, _ in targets):
-            self.axis.set_goal(self.get(XAddr.GOAL_POSITION, 4, signed=True))
-        self._publish()
-        return 0
-
-    def reboot(self, now_s: float) -> None:
-        """RAM back to defaults (torque off, hardware error cleared); silent while booting."""
-        self.update(now_s)
-        self._reset_ram()
-        self.booting_until_s = now_s + self.BOOT_TIME_S
-
-    def set_hardware_error(self, bits: int) -> None:
-        self.update(self.clock.monotonic())
-        self.table[XAddr.HARDWARE_ERROR_STATUS] |= bits
-        if bits & self.table[XAddr.SHUTDOWN]:
-            self.table[XAddr.TORQUE_ENABLE] = 0
-            self.axis.hold()
-            self._publish()
-
-
-# --- the emulator ----------------------------------------------------------------------
 _TERMIOS_SPEEDS = {baud: getattr(termios, f"B{baud}") for baud in X_BAUD_CODES if hasattr(termios, f"B{baud}")}
 
 
@@ -610,9 +313,12 @@ class DxlEmulator:
 
     def _client_baud_matches(self) -> bool:
         want = _TERMIOS_SPEEDS.get(self.baud)
+        master = self._master
+        if master is None:
+            return True
         try:
             # On Linux the master reports the slave's termios: the client's baud rate.
-            speed = termios.tcgetattr(self._master)[5]
+            speed = termios.tcgetattr(master)[5]
         except (termios.error, TypeError):
             return True
         return want is None or speed == want

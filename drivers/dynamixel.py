@@ -1,8 +1,8 @@
 """The Dynamixel backend: Protocol 2.0 X-series servos through dynamixel-sdk 4.1.0.
 
-This module owns the X-series control-table knowledge (addresses, models, units), the
-`DynamixelBus` backend of `drivers.servo_bus.ServoBus`, and `scan()`, which finds servos
-on a port. The emulator (`drivers.dxl_emulator`) serves the same control table.
+This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` and `scan()`,
+which finds servos on a port. The control table it drives by is `drivers.dxl_control_table`,
+which the emulator's servos (`drivers.dxl_servo`) serve too.
 
 How the known pitfalls of dynamixel-sdk 4.1.0 are handled here:
 
@@ -37,10 +37,29 @@ import termios
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any, NoReturn, TypeVar
 
 from dynamixel_sdk import COMM_PORT_BUSY, COMM_RX_CORRUPT, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.dxl_control_table import (
+    DPS2_PER_ACCELERATION_UNIT,
+    DPS_PER_VELOCITY_UNIT,
+    KNOWN_MODEL_NAMES,
+    MS_PER_WATCHDOG_UNIT,
+    OPERATING_MODE_POSITION,
+    READ_BLOCK_ADDRESSES,
+    READ_BLOCK_FORMAT,
+    READ_BLOCK_SIZE,
+    US_PER_RETURN_DELAY_UNIT,
+    VOLTS_PER_VOLTAGE_UNIT,
+    WATCHDOG_FIRED,
+    X_MODELS,
+    XAddr,
+    deg_to_ticks,
+    ticks_to_deg,
+)
+from drivers.dxl_protocol import ERRBIT_ALERT
 from drivers.errors import (
     BusDownError,
     ServoCommError,
@@ -54,106 +73,10 @@ from drivers.servo_bus import JOINTS, TRACE, JointState, ServoBus, ServoBusConfi
 
 log = logging.getLogger(__name__)
 
-
-# --- the X-series control table (Protocol 2.0) -----------------------------------------
-class XAddr:
-    """Control-table addresses of X-series servos (ROBOTIS e-Manual)."""
-
-    MODEL_NUMBER = 0            # 2 bytes
-    FIRMWARE_VERSION = 6
-    ID = 7
-    BAUD_RATE = 8
-    RETURN_DELAY_TIME = 9       # 2 us units
-    DRIVE_MODE = 10             # bit 0 reverse, bit 2 time-based profile
-    OPERATING_MODE = 11         # 3 = position
-    MOVING_THRESHOLD = 24       # 4 bytes
-    TEMPERATURE_LIMIT = 31
-    MAX_VOLTAGE_LIMIT = 32      # 2 bytes
-    MIN_VOLTAGE_LIMIT = 34      # 2 bytes
-    VELOCITY_LIMIT = 44         # 4 bytes
-    MAX_POSITION_LIMIT = 48     # 4 bytes
-    MIN_POSITION_LIMIT = 52     # 4 bytes
-    SHUTDOWN = 63
-    EEPROM_END = 64             # addresses below are writable only with torque off
-    TORQUE_ENABLE = 64
-    LED = 65
-    STATUS_RETURN_LEVEL = 68
-    HARDWARE_ERROR_STATUS = 70
-    BUS_WATCHDOG = 98           # 20 ms units; 0 off; reads 255 after it fired
-    GOAL_VELOCITY = 104         # 4 bytes
-    PROFILE_ACCELERATION = 108  # 4 bytes, 214.577 rev/min^2 units
-    PROFILE_VELOCITY = 112      # 4 bytes, 0.229 rev/min units
-    GOAL_POSITION = 116         # 4 bytes
-    MOVING = 122
-    MOVING_STATUS = 123
-    PRESENT_CURRENT = 126       # 2 bytes (Present Load on XL430)
-    PRESENT_VELOCITY = 128      # 4 bytes, signed, 0.229 rev/min units
-    PRESENT_POSITION = 132      # 4 bytes, signed
-    PRESENT_INPUT_VOLTAGE = 144  # 2 bytes, 0.1 V units
-    PRESENT_TEMPERATURE = 146
-    INDIRECT_ADDRESS_1 = 168    # 2 bytes each, 28 of them
-    INDIRECT_DATA_1 = 224       # 1 byte each, 28 of them
-    INDIRECT_COUNT = 28
-    TABLE_SIZE = 256            # what the emulator serves (indirect 1-28 end at 251)
+_T = TypeVar("_T")
 
 
-OPERATING_MODE_POSITION = 3
-# Model name -> model number (ping reply), Protocol 2.0 X-series.
-X_MODELS: dict[str, int] = {
-    "XM430-W350": 1020,
-    "XL430-W250": 1060,
-    "XM540-W270": 1120,
-    "XM540-W150": 1130,
-}
-# Model numbers a scan can name, including Protocol 1.0 servos this bus does not drive.
-KNOWN_MODEL_NAMES: dict[int, str] = {number: name for name, number in X_MODELS.items()} | {
-    12: "AX-12A",
-    29: "MX-28",
-}
-# X-series baud rate register values.
-X_BAUD_CODES: dict[int, int] = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4,
-                                3_000_000: 5, 4_000_000: 6, 4_500_000: 7}
-
-# Units of the X-series control table.
-TICKS_PER_TURN = 4096
-CENTER_TICK = 2048
-DEG_PER_TICK = 360.0 / TICKS_PER_TURN
-DPS_PER_VELOCITY_UNIT = 0.229 * 360.0 / 60.0          # 0.229 rev/min
-DPS2_PER_ACCELERATION_UNIT = 214.577 * 360.0 / 3600.0  # 214.577 rev/min^2
-VOLTS_PER_VOLTAGE_UNIT = 0.1
-US_PER_RETURN_DELAY_UNIT = 2
-MS_PER_WATCHDOG_UNIT = 20
-WATCHDOG_FIRED = 0xFF                                  # -1 as a signed byte
-ERRBIT_ALERT = 0x80
-
-
-def deg_to_ticks(servo_deg: float) -> int:
-    """Servo angle (degrees from centre) -> Goal Position ticks, within one turn."""
-    return min(max(round(servo_deg / DEG_PER_TICK) + CENTER_TICK, 0), TICKS_PER_TURN - 1)
-
-
-def ticks_to_deg(ticks: int) -> float:
-    return (ticks - CENTER_TICK) * DEG_PER_TICK
-
-
-# The sync-read block, gathered with indirect addressing: (address, size) in order.
-READ_BLOCK: tuple[tuple[int, int], ...] = (
-    (XAddr.ID, 1),                      # checks that the indirect mapping is in place
-    (XAddr.HARDWARE_ERROR_STATUS, 1),
-    (XAddr.TORQUE_ENABLE, 1),
-    (XAddr.BUS_WATCHDOG, 1),
-    (XAddr.MOVING, 1),
-    (XAddr.PRESENT_VELOCITY, 4),
-    (XAddr.PRESENT_POSITION, 4),
-    (XAddr.PRESENT_INPUT_VOLTAGE, 2),
-    (XAddr.PRESENT_TEMPERATURE, 1),
-)
-_READ_BLOCK_FORMAT = struct.Struct("<BBBBBiiHB")
-READ_BLOCK_SIZE = _READ_BLOCK_FORMAT.size
-# Indirect Address n points at one byte each: the addresses the block's bytes come from.
-READ_BLOCK_ADDRESSES: tuple[int, ...] = tuple(addr + i for addr, size in READ_BLOCK for i in range(size))
-assert len(READ_BLOCK_ADDRESSES) == READ_BLOCK_SIZE <= XAddr.INDIRECT_COUNT
-
+# --- the port --------------------------------------------------------------------------
 _COMM_TIMEOUT_RESULTS = {-3001}  # COMM_RX_TIMEOUT
 # What a vanished adapter raises out of the SDK: pyserial's SerialException is an OSError,
 # but tcflush() on a dead tty raises termios.error, which is not.
@@ -205,7 +128,7 @@ class _BlockingPortHandler(PortHandler):
         self.reply_slack_ms = reply_slack_ms
 
     def setupPort(self, cflag_baud: int) -> bool:
-        opened = super().setupPort(cflag_baud)
+        opened: bool = super().setupPort(cflag_baud)
         try:
             # FTDI adapters (U2D2) hold short replies for their latency timer; ask for 1 ms.
             # A pseudo-terminal or a non-FTDI adapter refuses, which is harmless.
@@ -228,7 +151,8 @@ class _BlockingPortHandler(PortHandler):
         if remaining_s > 0.0:
             # Sleep until a byte arrives or the deadline passes (the SDK loops on us).
             select.select([self.ser.fileno()], [], [], remaining_s)
-        return self.ser.read(length)
+        data: bytes = self.ser.read(length)
+        return data
 
     def drain_late_replies(self) -> int:
         """Discard replies still arriving after a timeout; returns how many bytes.
@@ -254,7 +178,7 @@ class _SyncRead(GroupSyncRead):
         self.last_result = False
         self.errors: dict[int, int] = {}
         self.failed_id: int | None = None
-        result = COMM_SUCCESS
+        result: int = COMM_SUCCESS
         for dxl_id in self.data_dict:
             data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
             self.data_dict[dxl_id] = data
@@ -346,7 +270,7 @@ class DynamixelBus(ServoBus):
             bad = [j for j, s in states.items() if s is None]
             if bad:
                 raise ServoCommError(f"{self.describe(bad[0])}: sync-read block still inconsistent after reconfiguring")
-        return states  # type: ignore[return-value]
+        return {joint: state for joint, state in states.items() if state is not None}
 
     def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
         sync_write = self._require(self._sync_write)
@@ -464,12 +388,13 @@ class DynamixelBus(ServoBus):
                       sync_read.failed_id, self._packet.getTxRxResult(result))
             self._drain()
         else:
-            self._raise_comm(self._joint_of.get(sync_read.failed_id), "sync read", result)
+            failed_id = sync_read.failed_id
+            self._raise_comm(self._joint_of.get(failed_id) if failed_id is not None else None, "sync read", result)
         states: dict[str, JointState | None] = {}
         watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
         for joint, servo_id in self._ids.items():
             (mapped_id, hw_error, torque, watchdog, moving, velocity, position, voltage,
-             temperature) = _READ_BLOCK_FORMAT.unpack(bytes(sync_read.data_dict[servo_id]))
+             temperature) = READ_BLOCK_FORMAT.unpack(bytes(sync_read.data_dict[servo_id]))
             if mapped_id != servo_id:
                 states[joint] = None
                 continue
@@ -497,7 +422,7 @@ class DynamixelBus(ServoBus):
 
     def _read_bytes(self, joint: str, address: int, size: int) -> bytes:
         servo_id = self._ids[joint]
-        def read() -> tuple:
+        def read() -> tuple[Any, int, int]:
             data, result, error = self._packet.readTxRx(self._port, servo_id, address, size)
             if result == COMM_SUCCESS and len(data) != size:
                 result = COMM_RX_CORRUPT  # a stray reply of another request: try again
@@ -514,7 +439,7 @@ class DynamixelBus(ServoBus):
                                       lambda: (None, *self._packet.writeTxRx(self._port, servo_id, address, size, data)))
         return error
 
-    def _transact(self, joint: str, what: str, call: Callable[[], tuple]) -> tuple:
+    def _transact(self, joint: str, what: str, call: Callable[[], tuple[Any, int, int]]) -> tuple[Any, int]:
         """One request/reply with bounded retries; returns (value, status error byte).
 
         The Alert bit only says a hardware error is present (read_state reports it); any
@@ -540,7 +465,7 @@ class DynamixelBus(ServoBus):
             return value, error
         self._raise_comm(joint, what, result)
 
-    def _raise_comm(self, joint: str | None, what: str, result: int) -> None:
+    def _raise_comm(self, joint: str | None, what: str, result: int) -> NoReturn:
         where = self.describe(joint) if joint else self.name
         message = (f"{where}: {what} failed after {self.config.retries + 1} attempt(s): "
                    f"{self._packet.getTxRxResult(result)}")
@@ -556,7 +481,7 @@ class DynamixelBus(ServoBus):
         if discarded:
             log.debug("%s: discarded %d bytes of late replies before retrying", self.name, discarded)
 
-    def _require(self, thing):
+    def _require(self, thing: _T | None) -> _T:
         if thing is None:
             raise BusDownError(f"{self.name}: the port is not open")
         return thing
@@ -615,8 +540,9 @@ def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterabl
     return found
 
 
-def _scan_unicast(handler: PortHandler, packet, ids: list[int], baud: int, protocol: float) -> list[ScanResult]:
-    found = []
+def _scan_unicast(handler: PortHandler, packet: PacketHandler, ids: list[int], baud: int,
+                  protocol: float) -> list[ScanResult]:
+    found: list[ScanResult] = []
     for servo_id in ids:
         model, result, _error = packet.ping(handler, servo_id)
         if result != COMM_SUCCESS:

@@ -180,27 +180,27 @@ class OpenCVCamera(Camera):
         if not cap.isOpened():
             raise CameraLostError(f"{self.name}: OpenCV cannot open {source.label}")
         if source.is_file:
-            self._open_file(cap)
+            self._open_file(cap, source)
         else:
-            self._configure_device(cap)
+            self._configure_device(cap, source)
 
-    def _open_file(self, cap: Any) -> None:
+    def _open_file(self, cap: Any, source: Source) -> None:
         file_fps = cap.get(cv2.CAP_PROP_FPS)
         fps = self.config.fps or (file_fps if file_fps > 0 else _DEFAULT_FPS)
         self._period_s = 1.0 / fps
         width, height = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         for key, wanted, actual in (("width", self.config.width, width), ("height", self.config.height, height)):
             if wanted is not None and wanted != actual:
-                raise CameraConfigError(f"{self.name}: {key} {wanted} asked but the file {self._source.label} is "
+                raise CameraConfigError(f"{self.name}: {key} {wanted} asked but the file {source.label} is "
                                         f"{actual} px")
         log.info("%s: video file %s, %d x %d, %d frames, played at %.2f fps in a loop", self.name,
-                 self._source.label, width, height, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), fps)
+                 source.label, width, height, int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), fps)
 
-    def _configure_device(self, cap: Any) -> None:
+    def _configure_device(self, cap: Any, source: Source) -> None:
         config = self.config
         # FourCC first: V4L2 picks the sizes and rates offered by the format.
         if config.pixel_format is not None:
-            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*config.pixel_format))
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*config.pixel_format))
         if config.width is not None:
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, config.width)
         if config.height is not None:
@@ -216,13 +216,13 @@ class OpenCVCamera(Camera):
         if granted["fps"] > 0:
             self._period_s = 1.0 / granted["fps"]
         log.info("%s: %s: asked %s %s x %s at %s fps; granted %s %d x %d at %.2f fps", self.name,
-                 self._source.label, config.pixel_format, config.width, config.height, config.fps,
+                 source.label, config.pixel_format, config.width, config.height, config.fps,
                  granted["pixel_format"], granted["width"], granted["height"], granted["fps"])
         for key in ("pixel_format", "width", "height"):
             wanted = getattr(config, key)
             if wanted is not None and wanted != granted[key]:
                 log.warning("%s: %s %s asked, %s granted by %s", self.name, key, wanted, granted[key],
-                            self._source.label)
+                            source.label)
 
     def _set_exposure_us(self, exposure_us: float) -> None:
         cap = self._require_cap()
@@ -253,12 +253,13 @@ class OpenCVCamera(Camera):
 
     def _grab(self, timeout_s: float) -> Grab | None:
         cap = self._require_cap()
-        assert self._source is not None
-        if self._source.is_file:
-            return self._grab_file(cap, timeout_s)
-        return self._grab_device(cap)
+        source = self._source
+        assert source is not None
+        if source.is_file:
+            return self._grab_file(cap, source, timeout_s)
+        return self._grab_device(cap, source)
 
-    def _grab_file(self, cap: Any, timeout_s: float) -> Grab | None:
+    def _grab_file(self, cap: Any, source: Source, timeout_s: float) -> Grab | None:
         deadline_s = time.monotonic() + timeout_s
         while self.clock.monotonic() < self._next_due_s:
             if time.monotonic() >= deadline_s or self.wait_stop(0.0):
@@ -269,17 +270,17 @@ class OpenCVCamera(Camera):
             cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
             ok, image = cap.read()
             if not ok:
-                raise CameraError(f"{self.name}: cannot read a frame from {self._source.label}")
+                raise CameraError(f"{self.name}: cannot read a frame from {source.label}")
         due_s = self._next_due_s
         self._next_due_s = due_s + self._period_s
         return Grab(image, due_s, due_s)
 
-    def _grab_device(self, cap: Any) -> Grab | None:
+    def _grab_device(self, cap: Any, source: Source) -> Grab | None:
         queued_limit = max(self.config.buffers, 4)
         for drained in range(queued_limit + 1):
             before_s = self.clock.monotonic()
             if not cap.grab():
-                raise CameraLostError(f"{self.name}: {self._source.label} stopped delivering frames")
+                raise CameraLostError(f"{self.name}: {source.label} stopped delivering frames")
             after_s = self.clock.monotonic()
             stamp_s = self._driver_time_s(cap, after_s)
             age_s = after_s - stamp_s if stamp_s is not None else None
@@ -290,7 +291,7 @@ class OpenCVCamera(Camera):
             self._stale_dropped += 1
         ok, image = cap.retrieve()
         if not ok or image is None:
-            raise CameraError(f"{self.name}: a frame from {self._source.label} did not decode")
+            raise CameraError(f"{self.name}: a frame from {source.label} did not decode")
         time_s = stamp_s if stamp_s is not None else after_s
         device_ns = int(cap.get(cv2.CAP_PROP_POS_MSEC) * 1e6) or None
         return Grab(np.asarray(image), time_s, time_s - self._exposure_s - self._period_s, device_ns)
@@ -301,7 +302,7 @@ class OpenCVCamera(Camera):
         uvcvideo stamps buffers with CLOCK_MONOTONIC, which OpenCV reports as POS_MSEC; a
         driver stamping otherwise (or none) gives a value far from now, and is not used.
         """
-        stamp_s = cap.get(cv2.CAP_PROP_POS_MSEC) * 1e-3
+        stamp_s: float = cap.get(cv2.CAP_PROP_POS_MSEC) * 1e-3
         if stamp_s > 0 and 0 <= now_s - stamp_s < 5.0:
             return stamp_s
         return None

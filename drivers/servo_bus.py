@@ -4,8 +4,9 @@ This module owns everything a servo backend shares:
 
 * the four joint names (`JOINTS`); vergence (left_eye = +v/2, right_eye = -v/2) is
   composed above this layer;
-* the typed configuration (`JointConfig`, `ServoBusConfig`) parsed from plain mappings
-  (what YAML gives), unknown keys rejected with the key path, value and what was expected;
+* the typed configuration (`JointConfig`, `ServoBusConfig`), read from plain mappings (what
+  YAML gives) by `drivers.config`: errors are `ServoConfigError`s naming the key path, the
+  value and what was expected;
 * the abstract `ServoBus`, whose public methods are template methods working in joint
   units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
   zero offset), limits (clamp or refuse), logging, the lifecycle, reboot recovery and
@@ -20,14 +21,17 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, TypeVar
 
 from drivers.base import Device
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.servo_recovery import Fault, FaultRecovery
+from drivers.config import check_settings, config_meta, read_config, setting
 from drivers.errors import (
     BusDownError,
     DriverError,
@@ -57,9 +61,6 @@ HARDWARE_ERROR_BITS: dict[int, str] = {
 # whitelist stops at 4 Mbps, so the servo's 4.5 Mbps is out of reach).
 SUPPORTED_BAUDS: tuple[int, ...] = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
-# A hardware error that comes back this soon after an automatic reboot is reported, not
-# rebooted again: an overheating servo would otherwise reboot in a loop.
-AUTO_REBOOT_HOLDOFF_S = 10.0
 # Reopening a bus that went down: first retry after this, doubling up to the maximum.
 REOPEN_BACKOFF_FIRST_S = 0.1
 REOPEN_BACKOFF_MAX_S = 5.0
@@ -77,72 +78,12 @@ def decode_hardware_error(bits: int) -> tuple[str, ...]:
 
 
 # --- configuration ---------------------------------------------------------------------
-_REQUIRED = object()
-
-
-class _MappingReader:
-    """Reads typed values out of one mapping of a config, naming key paths in errors."""
-
-    def __init__(self, data: Any, key_path: str, allowed: Iterable[str]) -> None:
-        self.allowed = tuple(allowed)
-        if not isinstance(data, Mapping):
-            raise ServoConfigError(f"{key_path}: expected a mapping with keys {', '.join(self.allowed)}, got {data!r}")
-        for key in data:
-            if key not in self.allowed:
-                raise ServoConfigError(
-                    f"{self.path(key_path, key)}: unknown key (value {data[key]!r}); "
-                    f"expected one of: {', '.join(self.allowed)}"
-                )
-        self.data = data
-        self.key_path = key_path
-
-    @staticmethod
-    def path(key_path: str, key: object) -> str:
-        return f"{key_path}.{key}" if key_path else str(key)
-
-    def _raw(self, key: str, default: Any) -> Any:
-        if key in self.data:
-            return self.data[key]
-        if default is _REQUIRED:
-            raise ServoConfigError(f"{self.path(self.key_path, key)}: missing (required)")
-        return default
-
-    def fail(self, key: str, value: object, expected: str) -> ServoConfigError:
-        return ServoConfigError(f"{self.path(self.key_path, key)}: got {value!r}, expected {expected}")
-
-    def number(self, key: str, default: Any = _REQUIRED, *, lo: float = -math.inf, hi: float = math.inf) -> float:
-        value = self._raw(key, default)
-        # bool is an int in Python; `true` for an angle is a config mistake, not 1.0.
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.fail(key, value, f"a number in [{lo}, {hi}]")
-        if not lo <= value <= hi:
-            raise self.fail(key, value, f"a number in [{lo}, {hi}]")
-        return float(value)
-
-    def integer(self, key: str, default: Any = _REQUIRED, *, lo: int, hi: int) -> int:
-        value = self._raw(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-            raise self.fail(key, value, f"an integer in [{lo}, {hi}]")
-        return value
-
-    def boolean(self, key: str, default: Any = _REQUIRED) -> bool:
-        value = self._raw(key, default)
-        if not isinstance(value, bool):
-            raise self.fail(key, value, "true or false")
-        return value
-
-    def text(self, key: str, default: Any = _REQUIRED) -> str:
-        value = self._raw(key, default)
-        if not isinstance(value, str) or not value:
-            raise self.fail(key, value, "a non-empty string")
-        return value
-
-    def choice(self, key: str, default: Any, choices: Iterable[Any]) -> Any:
-        value = self._raw(key, default)
-        choices = tuple(choices)
-        if value not in choices:
-            raise self.fail(key, value, f"one of {', '.join(map(str, choices))}")
-        return value
+# Why Protocol 2.0 only: 1.0 has no Sync Read, so the state of four servos cannot be read in
+# one transaction (AX-12A has no Bulk Read either).
+_PROTOCOL_1_REFUSED = (
+    "2.0: Protocol 1.0 (AX-12A, MX-28) is not supported because it cannot read all joints "
+    "in one transaction; MX-28 can be switched to Protocol 2.0 firmware with DYNAMIXEL Wizard"
+)
 
 
 @dataclass(frozen=True)
@@ -153,49 +94,39 @@ class JointConfig:
     on an X-series servo) at which the joint reads 0; `direction` -1 flips the joint's
     sign. So servo_angle = zero_offset + direction * joint_angle.
     A profile velocity or acceleration of 0 means "as fast as the servo can".
+    The YAML key of `servo_id` is `id`.
     """
 
-    servo_id: int
+    servo_id: int = field(metadata=config_meta(key="id", lo=0, hi=252))
     model: str = "XM430-W350"
-    direction: int = 1
-    zero_offset: float = 0.0
-    min_angle: float = -90.0
-    max_angle: float = 90.0
-    profile_velocity: float = 120.0
-    profile_acceleration: float = 600.0
+    direction: int = setting(1, choices=(1, -1))
+    zero_offset: float = setting(0.0, lo=-180.0, hi=180.0)
+    min_angle: float = setting(-90.0, lo=-360.0, hi=360.0)
+    max_angle: float = setting(90.0, lo=-360.0, hi=360.0)
+    profile_velocity: float = setting(120.0, lo=0.0, hi=10_000.0)
+    profile_acceleration: float = setting(600.0, lo=0.0, hi=1e6)
 
-    KEYS: ClassVar[tuple[str, ...]] = (
-        "id", "model", "direction", "zero_offset", "min_angle", "max_angle",
-        "profile_velocity", "profile_acceleration",
-    )
+    CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
 
-    @classmethod
-    def from_mapping(cls, data: Any, key_path: str) -> "JointConfig":
-        r = _MappingReader(data, key_path, cls.KEYS)
-        default = cls(servo_id=0)
-        config = cls(
-            servo_id=r.integer("id", lo=0, hi=252),
-            model=r.text("model", default.model),
-            direction=r.choice("direction", default.direction, (1, -1)),
-            zero_offset=r.number("zero_offset", default.zero_offset, lo=-180.0, hi=180.0),
-            min_angle=r.number("min_angle", default.min_angle, lo=-360.0, hi=360.0),
-            max_angle=r.number("max_angle", default.max_angle, lo=-360.0, hi=360.0),
-            profile_velocity=r.number("profile_velocity", default.profile_velocity, lo=0.0, hi=10_000.0),
-            profile_acceleration=r.number("profile_acceleration", default.profile_acceleration, lo=0.0, hi=1e6),
-        )
-        if config.min_angle >= config.max_angle:
-            raise r.fail("min_angle", config.min_angle, f"less than max_angle ({config.max_angle})")
-        for key, angle in (("min_angle", config.min_angle), ("max_angle", config.max_angle)):
-            servo_deg = config.servo_angle(angle)
+    def __post_init__(self) -> None:
+        check_settings(self)
+        if self.min_angle >= self.max_angle:
+            raise ServoConfigError(key_path="min_angle", value=self.min_angle,
+                                   expected=f"less than max_angle ({self.max_angle})")
+        for key, angle in (("min_angle", self.min_angle), ("max_angle", self.max_angle)):
+            servo_deg = self.servo_angle(angle)
             # Position mode covers one turn around the centre: a limit beyond it can
             # never be reached and would wrap around on the servo.
             if not -180.0 <= servo_deg <= 180.0:
-                raise r.fail(
-                    key, angle,
-                    f"an angle whose servo angle (zero_offset + direction * angle = {servo_deg:g}) "
-                    "lies within [-180, 180]",
+                raise ServoConfigError(
+                    key_path=key, value=angle,
+                    expected=f"an angle whose servo angle (zero_offset + direction * angle = {servo_deg:g}) "
+                             "lies within [-180, 180]",
                 )
-        return config
+
+    @classmethod
+    def from_mapping(cls, data: Any, key_path: str) -> "JointConfig":
+        return read_config(cls, data, key_path)
 
     def servo_angle(self, joint_angle: float) -> float:
         return self.zero_offset + self.direction * joint_angle
@@ -211,81 +142,43 @@ class ServoBusConfig:
     `watchdog_ms` arms the servos' Bus Watchdog while torque is on (0 = off; 20 ms steps):
     a host that falls silent that long stops the head. `latency_timer_ms` is the USB
     adapter's latency timer (the udev rule sets 1 ms); reply timeouts are computed from it.
+    `key_path` is where the section was read (`servo_bus`), for messages.
     """
 
-    joints: Mapping[str, JointConfig]
+    joints: Mapping[str, JointConfig] = field(metadata=config_meta(keys=JOINTS))
     backend: str = "dynamixel"
     port: str = "/dev/head-servos"
-    baud: int = 1_000_000
+    baud: int = setting(1_000_000, choices=SUPPORTED_BAUDS)
     protocol: float = 2.0
-    retries: int = 2
-    limit_policy: str = "clamp"
+    retries: int = setting(2, lo=0, hi=10)
+    limit_policy: str = setting("clamp", choices=LIMIT_POLICIES)
     reboot_on_hardware_error: bool = True
     torque_on_close: bool = False
-    watchdog_ms: int = 0
-    return_delay_us: int = 0
-    latency_timer_ms: float = 1.0
-    reboot_timeout_s: float = 2.0
-    key_path: str = "servo_bus"
+    watchdog_ms: int = setting(0, lo=0, hi=127 * 20, check=lambda ms: ms % 20 == 0,
+                               expected="a multiple of 20 in [0, 2540] (the servo counts in 20 ms steps), 0 = off")
+    return_delay_us: int = setting(0, lo=0, hi=508, check=lambda us: us % 2 == 0,
+                                   expected="an even number in [0, 508] (the servo counts in 2 us steps)")
+    latency_timer_ms: float = setting(1.0, lo=0.0, hi=255.0)
+    reboot_timeout_s: float = setting(2.0, lo=0.1, hi=60.0)
+    key_path: str = setting("servo_bus", source="key_path")
 
-    KEYS: ClassVar[tuple[str, ...]] = (
-        "backend", "port", "baud", "protocol", "retries", "limit_policy",
-        "reboot_on_hardware_error", "torque_on_close", "watchdog_ms", "return_delay_us",
-        "latency_timer_ms", "reboot_timeout_s", "joints",
-    )
+    CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        if self.protocol != 2.0:
+            raise ServoConfigError(key_path="protocol", value=self.protocol,
+                                   expected=_PROTOCOL_1_REFUSED if self.protocol == 1.0 else "2.0")
+        seen: dict[int, str] = {}
+        for joint, jc in self.joints.items():
+            if jc.servo_id in seen:
+                raise ServoConfigError(key_path=f"joints.{joint}.id", value=jc.servo_id,
+                                       expected=f"an id not already used by joint {seen[jc.servo_id]}")
+            seen[jc.servo_id] = joint
 
     @classmethod
     def from_mapping(cls, data: Any, key_path: str = "servo_bus") -> "ServoBusConfig":
-        r = _MappingReader(data, key_path, cls.KEYS)
-        joints_path = r.path(key_path, "joints")
-        joints_data = r._raw("joints", _REQUIRED)
-        jr = _MappingReader(joints_data, joints_path, JOINTS)
-        missing = [j for j in JOINTS if j not in jr.data]
-        if missing:
-            raise ServoConfigError(f"{joints_path}: missing joint(s) {', '.join(missing)}; all of {', '.join(JOINTS)} are needed")
-        joints = {j: JointConfig.from_mapping(jr.data[j], r.path(joints_path, j)) for j in JOINTS}
-        seen: dict[int, str] = {}
-        for joint, jc in joints.items():
-            if jc.servo_id in seen:
-                raise ServoConfigError(
-                    f"{r.path(joints_path, joint)}.id: got {jc.servo_id}, expected an id not already used by joint {seen[jc.servo_id]}"
-                )
-            seen[jc.servo_id] = joint
-        protocol = r._raw("protocol", 2.0)
-        if protocol in ("2.0", "2"):
-            protocol = 2.0
-        if protocol in (1, 1.0, "1.0", "1"):
-            # Why not 1.0: it has no Sync Read, so the state of four servos cannot be read
-            # in one transaction (AX-12A has no Bulk Read either).
-            raise r.fail(
-                "protocol", protocol,
-                "2.0: Protocol 1.0 (AX-12A, MX-28) is not supported because it cannot read all joints "
-                "in one transaction; MX-28 can be switched to Protocol 2.0 firmware with DYNAMIXEL Wizard",
-            )
-        if protocol != 2.0:
-            raise r.fail("protocol", protocol, "2.0")
-        watchdog_ms = r.integer("watchdog_ms", cls.watchdog_ms, lo=0, hi=127 * 20)
-        if watchdog_ms % 20:
-            raise r.fail("watchdog_ms", watchdog_ms, "a multiple of 20 (the servo counts in 20 ms steps), 0 = off")
-        return_delay_us = r.integer("return_delay_us", cls.return_delay_us, lo=0, hi=508)
-        if return_delay_us % 2:
-            raise r.fail("return_delay_us", return_delay_us, "an even number (the servo counts in 2 us steps)")
-        return cls(
-            joints=joints,
-            backend=r.text("backend", cls.backend),
-            port=r.text("port", cls.port),
-            baud=r.choice("baud", cls.baud, SUPPORTED_BAUDS),
-            protocol=2.0,
-            retries=r.integer("retries", cls.retries, lo=0, hi=10),
-            limit_policy=r.choice("limit_policy", cls.limit_policy, LIMIT_POLICIES),
-            reboot_on_hardware_error=r.boolean("reboot_on_hardware_error", cls.reboot_on_hardware_error),
-            torque_on_close=r.boolean("torque_on_close", cls.torque_on_close),
-            watchdog_ms=watchdog_ms,
-            return_delay_us=return_delay_us,
-            latency_timer_ms=r.number("latency_timer_ms", cls.latency_timer_ms, lo=0.0, hi=255.0),
-            reboot_timeout_s=r.number("reboot_timeout_s", cls.reboot_timeout_s, lo=0.1, hi=60.0),
-            key_path=key_path,
-        )
+        return read_config(cls, data, key_path)
 
     def joint_path(self, joint: str) -> str:
         return f"{self.key_path}.joints.{joint}"
@@ -361,7 +254,7 @@ class ServoBus(Device, abc.ABC):
         self._reopen_attempts = 0
         self._faults: dict[str, int] = {}        # joint -> hardware error bits, last read
         self._shut_down: set[str] = set()          # faulted joints whose torque is off
-        self._last_auto_reboot_s: dict[str, float] = {}
+        self.recovery = FaultRecovery()  # the one owner of automatic reboots
         self._clamping: set[str] = set()
         self._torque_off_pending = False  # disable() failed while the bus was down
 
@@ -409,6 +302,7 @@ class ServoBus(Device, abc.ABC):
             self.require_open()
             self._check_joint(joint)
             self._io(lambda: self._reboot_and_restore(joint, "requested"))
+            self.recovery.rebooted_by_hand(joint)
 
     # -- lifecycle hooks of Device, as templates over the servo hooks --------------------
     def _open(self) -> None:
@@ -427,7 +321,9 @@ class ServoBus(Device, abc.ABC):
         state = self._read_state_once()
         if self.config.reboot_on_hardware_error:
             for joint, joint_state in state.joints.items():
-                if joint_state.hardware_error_bits:
+                if joint_state.hardware_error_bits and joint not in self.recovery.given_up:
+                    self.recovery.note_reboot(joint, "at enable: " + ", ".join(joint_state.hardware_errors),
+                                              self.clock.monotonic())
                     self._reboot_and_restore(joint, "hardware error at enable")
         try:
             # A servo whose error cut its torque refuses it: the backend raises
@@ -529,12 +425,8 @@ class ServoBus(Device, abc.ABC):
         return BusState(time_s=(start_s + end_s) / 2.0, joints=joints)
 
     def _after_read(self, state: BusState) -> BusState:
-        """Log hardware errors once per change; reboot when configured; restore lost torque.
-
-        Only a hardware error that cut a servo's torque (its Shutdown setting) is rebooted
-        away: one that leaves torque on (by default, input voltage) is reported, since a
-        reboot would drop the joint for nothing.
-        """
+        """Log hardware errors once per change; reboot as the recovery policy says
+        (`drivers.servo_recovery`); restore torque lost without an error."""
         for joint, joint_state in state.joints.items():
             bits = joint_state.hardware_error_bits
             if bits and self._faults.get(joint) != bits:
@@ -543,13 +435,10 @@ class ServoBus(Device, abc.ABC):
                 log.info("%s: hardware error cleared", self.describe(joint))
         self._note_faults(state)
         acted = False
-        now = self.clock.monotonic()
         if self.config.reboot_on_hardware_error:
-            for joint in [j for j in self._faults if not state[j].torque_on]:
-                if now - self._last_auto_reboot_s.get(joint, -math.inf) < AUTO_REBOOT_HOLDOFF_S:
-                    continue  # came back right after a reboot: report, do not loop
-                self._last_auto_reboot_s[joint] = now
-                self._io(lambda joint=joint: self._reboot_and_restore(joint, "hardware error"))
+            faults = {j: Fault(decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
+            for joint, reason in self.recovery.due(faults, self.clock.monotonic()):
+                self._io(functools.partial(self._reboot_and_restore, joint, reason))
                 acted = True
         if self.is_enabled:
             # Torque found off without a hardware error: the servo lost power and came
@@ -653,11 +542,14 @@ class ServoBus(Device, abc.ABC):
         """Reboot one servo and return once it answers again."""
 
 
-def create_servo_bus(config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK) -> ServoBus:
-    """Construct (not open) the backend `config.backend` names."""
+def create_servo_bus(config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, **resources: Any) -> ServoBus:
+    """Construct (not open) the backend `config.backend` names.
+
+    `resources` are what a backend needs beyond its config and cannot read from YAML (the
+    simulated head's starting pose); a backend not taking them refuses them."""
     from drivers.backends import resolve
 
     cls = resolve("servo_bus", config.backend)
     if not (isinstance(cls, type) and issubclass(cls, ServoBus)):
         raise ServoConfigError(f"{config.key_path}.backend: {config.backend!r} is not a ServoBus backend")
-    return cls(config, clock=clock)
+    return cls(config, clock=clock, **resources)

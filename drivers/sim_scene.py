@@ -111,8 +111,8 @@ def _texture(kind: TextureKind, rng: np.random.Generator, height: int, width: in
     # Rich: value noise over several octaves plus random rectangles (edges and corners).
     out = np.zeros((height, width), np.float32)
     for cell_m, amplitude in ((0.4, 50.0), (0.15, 40.0), (0.05, 30.0), (0.015, 20.0)):
-        cell = max(1.0, cell_m * texels_per_m)
-        small = rng.standard_normal((int(height / cell) + 2, int(width / cell) + 2)).astype(np.float32)
+        cell_texels = max(1.0, cell_m * texels_per_m)
+        small = rng.standard_normal((int(height / cell_texels) + 2, int(width / cell_texels) + 2)).astype(np.float32)
         out += amplitude * cv2.resize(small, (width, height), interpolation=cv2.INTER_CUBIC)
     for _ in range(max(4, int(height * width / (0.1 * texels_per_m) ** 2 / 4))):
         x0, y0 = int(rng.integers(0, width)), int(rng.integers(0, height))
@@ -370,7 +370,7 @@ class EyeRenderer:
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR) if image.ndim == 3 else image
 
-    def _hit_box(self, b: int, window: tuple[slice, slice], o: np.ndarray, d: list[np.ndarray],
+    def _hit_box(self, b: int, window: tuple[slice, slice], o: np.ndarray, d: Sequence[np.ndarray],
                  inv: list[np.ndarray], best: np.ndarray, face: np.ndarray) -> None:
         """Slab entry into box `b` within `window`: where nearer, update depth and face id."""
         lo, hi = self.scene.lo[b], self.scene.hi[b]

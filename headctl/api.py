@@ -1,6 +1,6 @@
 """The daemon's HTTP control API and dashboard (FastAPI on uvicorn, on its own thread).
 
-Routes (README, "The control API"); all JSON, under /api/v1:
+Routes (docs/api.md); all JSON, under /api/v1:
 
     GET  /state                     joints, pose, fixation, learning, faults, servo loop, cameras
     GET  /learning?since=N          learning-curve points after point N
@@ -51,8 +51,11 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from headctl.control import ControlError, LookJob, LookRequest, UnavailableError, plain
-from headctl.errors import HeadctlError
+from headctl.errors import (ControlError, HeadctlError, InvalidRequestError, NotFoundError, QueueFullError,
+                            UnavailableError)
+from headctl.service.control import HeadService, SimFault
+from headctl.service.events import plain
+from headctl.service.looks import LookJob, LookKind, LookRequest
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +114,7 @@ class MapReset(_Body):
 
 
 class Fault(_Body):
-    fault: Literal["bus_down", "restore_bus", "hardware_error", "camera_stall", "camera_resume"]
+    fault: SimFault
     joint: str | None = None
     camera: Literal["left", "right"] | None = None
     bits: int = Field(0, ge=0, le=255)
@@ -144,20 +147,33 @@ def _field_of(loc: tuple[Any, ...]) -> str | None:
     return ".".join(parts) or (str(loc[0]) if loc else None)
 
 
-async def _on_invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
-    errors = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": e.get("msg", "invalid")}
-              for e in exc.errors()]
-    first = errors[0] if errors else {"field": None, "reason": "invalid request"}
+async def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors: list[dict[str, Any]] = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": str(e.get("msg", "invalid"))}
+                                    for e in exc.errors()]
+    first: dict[str, Any] = errors[0] if errors else {"field": None, "reason": "invalid request"}
     if any(e.get("type") == "json_invalid" for e in exc.errors()):
         first = {"field": "body", "reason": "the body is not valid JSON"}
     return _error(422, first["field"], first["reason"], errors=errors)
 
 
-async def _on_control(request: Request, exc: ControlError) -> JSONResponse:
-    return _error(exc.status, exc.field, str(exc))
+# What each refusal of the service becomes; a ControlError of no other kind is a conflict.
+CONTROL_STATUS: tuple[tuple[type[ControlError], int], ...] = (
+    (InvalidRequestError, 422), (QueueFullError, 429), (NotFoundError, 404), (UnavailableError, 503),
+    (ControlError, 409))
 
 
-async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+def control_status(exc: ControlError) -> int:
+    return next(status for kind, status in CONTROL_STATUS if isinstance(exc, kind))
+
+
+async def _on_control(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ControlError)
+    return _error(control_status(exc), exc.field, str(exc))
+
+
+async def _on_http(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
     headers = getattr(exc, "headers", None)
     response = _error(exc.status_code, None, str(exc.detail))
     if headers:
@@ -181,15 +197,14 @@ class EyeImages:
     matched point of the last fixation, yellow circle, with its confidence) marked; one encoding
     per camera frame, shared by every client."""
 
-    def __init__(self, daemon: Any, quality: int) -> None:
-        self.daemon = daemon
+    def __init__(self, service: HeadService, quality: int) -> None:
+        self.service = service
         self.quality = quality
         self._lock = threading.Lock()
         self._cache: dict[str, tuple[int, bytes]] = {}
 
     def jpeg(self, side: str) -> tuple[int, bytes] | None:
-        camera = self.daemon.cameras.get(side)
-        frame = camera.latest() if camera is not None else None
+        frame = self.service.latest_frame(side)
         if frame is None:
             return None
         with self._lock:
@@ -212,8 +227,7 @@ class EyeImages:
         cx, cy = int(round((width - 1) / 2)), int(round((height - 1) / 2))
         arm = max(6, width // 40)
         cv2.drawMarker(image, (cx, cy), (0, 255, 0), cv2.MARKER_CROSS, 2 * arm, 2)  # 2 px: survives JPEG
-        fixation = self.daemon.fixation
-        last = fixation.last if fixation is not None else None
+        last = self.service.last_fixation()
         if last is None or last.match is None:
             return
         eye = last.match.left if side == "left" else last.match.right
@@ -224,14 +238,14 @@ class EyeImages:
 
 
 # --- the app ---------------------------------------------------------------------------------
-def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
+def create_app(service: HeadService, token: str | None = None, stream_fps: float = 10.0,
                jpeg_quality: int = 80) -> FastAPI:
-    """The API over `daemon` (a `headctl.daemon.Daemon`, or anything with its control methods)."""
+    """The API over `service` (a `headctl.service.control.ServiceControl`)."""
     app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None, responses=ERROR_RESPONSES,
                   description="Control API of a calibration-free stereo camera head.")
     app.state.closing = threading.Event()
     app.state.streams = set()  # (loop, asyncio.Queue) of the open event streams
-    eyes = EyeImages(daemon, jpeg_quality)
+    eyes = EyeImages(service, jpeg_quality)
 
     def authorize(request: Request) -> None:
         if token is None:
@@ -261,7 +275,7 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
         app.mount("/dashboard", StaticFiles(directory=DASHBOARD_DIR), name="dashboard")
 
     # -- state ------------------------------------------------------------------------
-    state_cache = StateCache(daemon)
+    state_cache = StateCache(service)
 
     @app.get("/api/v1/state", dependencies=guarded)
     async def state() -> Response:
@@ -270,7 +284,7 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
 
     @app.get("/api/v1/learning", dependencies=guarded)
     def learning(since: int = Query(0, ge=0), limit: int = Query(5000, ge=0, le=5000)) -> Response:
-        return _json(daemon.learning_since(since, limit))
+        return _json(service.learning_since(since, limit))
 
     # -- looks ------------------------------------------------------------------------
     async def answer_look(job: LookJob, wait_s: float) -> Response:
@@ -281,55 +295,51 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
 
     @app.post("/api/v1/look/target", dependencies=guarded)
     async def look_target(body: TargetLook) -> Response:
-        job = await run_in_threadpool(daemon.look, LookRequest("target", (body.x, body.y, body.d)), body.replace)
+        job = await run_in_threadpool(service.look, LookRequest(LookKind.TARGET, (body.x, body.y, body.d)),  # type: ignore[arg-type]
+                                      body.replace)
         return await answer_look(job, body.wait_s)
 
     @app.post("/api/v1/look/angles", dependencies=guarded)
     async def look_angles(body: AnglesLook) -> Response:
         values = tuple(float(getattr(body, k) or 0.0) for k in ("pan", "tilt", "vergence"))
-        job = await run_in_threadpool(daemon.look, LookRequest("angles", values, body.relative),  # type: ignore[arg-type]
+        job = await run_in_threadpool(service.look, LookRequest(LookKind.ANGLES, values, body.relative),  # type: ignore[arg-type]
                                       body.replace)
         return await answer_look(job, body.wait_s)
 
     @app.get("/api/v1/looks/{look_id}", dependencies=guarded)
     async def get_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
-        return await answer_look(daemon.looks.get(look_id), wait_s)
+        return await answer_look(service.get_look(look_id), wait_s)
 
     @app.delete("/api/v1/looks/{look_id}", dependencies=guarded)
     async def cancel_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
         # A queued look ends at once; a running one stops at its next servo cycle or frame wait.
-        return await answer_look(daemon.looks.cancel(look_id), wait_s)
+        return await answer_look(service.cancel_look(look_id), wait_s)
 
     # -- switches and the map ---------------------------------------------------------
     @app.post("/api/v1/exploration", dependencies=guarded)
     def exploration(body: Switch) -> Response:
-        return _json({"enabled": daemon.set_exploration(body.enabled)})
+        return _json({"enabled": service.set_exploration(body.enabled)})
 
     @app.post("/api/v1/torque", dependencies=guarded)
     def torque(body: Switch) -> Response:
-        return _json({"enabled": daemon.set_torque(body.enabled)})
+        return _json({"enabled": service.set_torque(body.enabled)})
 
     @app.post("/api/v1/map/save", dependencies=guarded)
     def map_save(body: MapFile | None = None) -> Response:
-        return _json(daemon.save_map(body.name if body else None))
+        return _json(service.save_map(body.name if body else None))
 
     @app.post("/api/v1/map/load", dependencies=guarded)
     def map_load(body: MapFile | None = None) -> Response:
-        return _json(daemon.load_map(body.name if body else None))
+        return _json(service.load_map(body.name if body else None))
 
     @app.post("/api/v1/map/reset", dependencies=guarded)
     def map_reset(body: MapReset | None = None) -> Response:
-        return _json(daemon.reset_map(body.seed if body else None))
+        return _json(service.reset_map(body.seed if body else None))
 
     @app.post("/api/v1/sim/faults", dependencies=guarded)
     def inject(body: Fault) -> Response:
-        try:
-            done = daemon.inject(body.fault, joint=body.joint, camera=body.camera, bits=body.bits)
-        except ControlError:
-            raise
-        except HeadctlError as err:
-            raise ControlError(str(err), "fault") from err
-        return _json({"injected": done})
+        return _json({"injected": service.inject_fault(body.fault, joint=body.joint, camera=body.camera,
+                                                       bits=body.bits)})
 
     # -- streams ----------------------------------------------------------------------
     @app.get("/api/v1/events", dependencies=guarded)
@@ -337,7 +347,7 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
         last_id = request.headers.get("last-event-id")
         if after is None and last_id is not None and last_id.isdigit():
             after = int(last_id)
-        return StreamingResponse(_event_stream(app, daemon, after), media_type="text/event-stream",
+        return StreamingResponse(_event_stream(app, service, after), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
     @app.get("/api/v1/eyes/{side}.jpg", dependencies=guarded)
@@ -360,7 +370,7 @@ def create_app(daemon: Any, token: str | None = None, stream_fps: float = 10.0,
         return Response(generate_latest(app.state.registry), media_type=CONTENT_TYPE_LATEST)
 
     from headctl.metrics import registry_for
-    app.state.registry = registry_for(daemon)
+    app.state.registry = registry_for(service)
     return app
 
 
@@ -368,16 +378,16 @@ class StateCache:
     """The state's JSON, built again only once something happened (an event was published) or
     `max_age_s` passed: a hundred clients polling cost the daemon what ten would."""
 
-    def __init__(self, daemon: Any, max_age_s: float = 0.1) -> None:
-        self.daemon = daemon
+    def __init__(self, service: HeadService, max_age_s: float = 0.1) -> None:
+        self.service = service
         self.max_age_s = max_age_s
         self._cached: tuple[int, float, bytes] | None = None
 
     def body(self) -> bytes:
-        seq, now = self.daemon.hub.seq, time.monotonic()
+        seq, now = self.service.events.seq, time.monotonic()
         cached = self._cached
         if cached is None or cached[0] != seq or now - cached[1] > self.max_age_s:
-            body = json.dumps(self.daemon.status(), default=_default, allow_nan=False).encode()
+            body = json.dumps(self.service.snapshot().as_dict(), default=_default, allow_nan=False).encode()
             self._cached = cached = (seq, now, body)
         return cached[2]
 
@@ -399,14 +409,17 @@ async def _wait_done(job: LookJob, wait_s: float) -> None:
     """Wait for `job` to finish without holding a worker thread (its done callback wakes us)."""
     loop = asyncio.get_running_loop()
     finished = asyncio.Event()
-    job.add_done_callback(lambda _job: loop.call_soon_threadsafe(finished.set))
+    def wake(_job: LookJob) -> None:
+        loop.call_soon_threadsafe(finished.set)
+
+    job.add_done_callback(wake)
     try:
         await asyncio.wait_for(finished.wait(), wait_s)
     except asyncio.TimeoutError:
         pass
 
 
-async def _event_stream(app: FastAPI, daemon: Any, after: int | None) -> AsyncIterator[bytes]:
+async def _event_stream(app: FastAPI, service: HeadService, after: int | None) -> AsyncIterator[bytes]:
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(maxsize=1024)
     lost = 0
@@ -420,7 +433,10 @@ async def _event_stream(app: FastAPI, daemon: Any, after: int | None) -> AsyncIt
 
     entry = (loop, put)
     app.state.streams.add(entry)
-    unsubscribe = daemon.hub.subscribe(lambda e: loop.call_soon_threadsafe(put, e), after_seq=after)
+    def deliver(event: dict[str, Any]) -> None:
+        loop.call_soon_threadsafe(put, event)
+
+    unsubscribe = service.events.subscribe(deliver, after_seq=after)
     try:
         yield b"retry: 2000\n: headctl events\n\n"
         while not app.state.closing.is_set():
@@ -456,19 +472,19 @@ async def _mjpeg(app: FastAPI, eyes: EyeImages, side: str, fps: float) -> AsyncI
 
 # --- the server thread -------------------------------------------------------------------------
 class ApiServer(threading.Thread):
-    """uvicorn serving `create_app(daemon)` on its own thread and event loop; a context manager.
+    """uvicorn serving `create_app(service)` on its own thread and event loop; a context manager.
 
     `__enter__` returns once the socket listens (the port is taken, or the address is wrong:
     HeadctlError naming it); `url` is then the address clients use (with port 0, the port
     the kernel chose)."""
 
-    def __init__(self, daemon: Any, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
+    def __init__(self, service: HeadService, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
                  stream_fps: float = 10.0, jpeg_quality: int = 80, tls_cert: str | None = None,
                  tls_key: str | None = None) -> None:
         super().__init__(name="api-server", daemon=True)
         self.host, self.port = host, port
         self.tls_cert, self.tls_key = tls_cert, tls_key
-        self.app = create_app(daemon, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
+        self.app = create_app(service, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
         self._sock: socket.socket | None = None
         self._server: uvicorn.Server | None = None
         self._loop: asyncio.AbstractEventLoop | None = None

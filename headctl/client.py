@@ -109,8 +109,9 @@ class ApiClient:
         """The event stream, one event (its JSON data) at a time, until the server closes it."""
         path = "/api/v1/events" + (f"?after={after}" if after is not None else "")
         parts = urllib.parse.urlsplit(self.url)
-        conn = (http.client.HTTPSConnection(parts.hostname, parts.port, timeout=timeout_s, context=self.tls)
-                if self.tls is not None else http.client.HTTPConnection(parts.hostname, parts.port, timeout=timeout_s))
+        host = parts.hostname or "127.0.0.1"
+        conn = (http.client.HTTPSConnection(host, parts.port, timeout=timeout_s, context=self.tls)
+                if self.tls is not None else http.client.HTTPConnection(host, parts.port, timeout=timeout_s))
         try:
             conn.request("GET", path, headers=self._headers())
             response = conn.getresponse()

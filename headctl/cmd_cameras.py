@@ -1,10 +1,11 @@
 """Subcommands of `headctl` for the cameras: `cameras` (list them) and `snapshot` (save a pair).
 
 `cameras` lists the V4L2 devices and the GenICam (Aravis) devices with their ids, serials
-and formats. `snapshot --config F --out DIR` opens the left and right cameras a config's
-`cameras:` section describes (simulated ones included: they render the simulated head at
-`--pose`), waits for the first synchronised pair taken after the cameras started, and saves
-it as DIR/left.png and DIR/right.png.
+and formats. `snapshot --config F --out DIR` opens the left and right cameras the `cameras:`
+section of a head's config (or of a file holding only that section) describes (simulated
+ones included: they render the simulated head at `--pose`), waits for the first
+synchronised pair taken after the cameras started, and saves it as DIR/left.png and
+DIR/right.png.
 """
 from __future__ import annotations
 
@@ -14,11 +15,13 @@ import logging
 import os
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
-from drivers.camera import CameraConfig, StereoCamerasConfig, StereoPair, create_camera
-from drivers.errors import BackendImportError, CameraConfigError, CameraError
-from headctl.errors import ConfigError
+from drivers.camera import CameraConfig, StereoCamerasConfig, create_camera
+from drivers.stereo import StereoPair
+from drivers.config import read_config
+from drivers.errors import BackendImportError, CameraError, ConfigError
 
 log = logging.getLogger(__name__)
 _ARAVIS_INSTALL = "apt-get install gir1.2-aravis-0.8 && pip install 'PyGObject<3.51' (./setup.sh does both)"
@@ -42,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Open the cameras of a config's `cameras:` section (left and right), wait for the "
                     "first pair taken after they started, and save DIR/left.png and DIR/right.png.",
     )
-    snapshot.add_argument("--config", required=True, metavar="FILE", help="YAML file with a cameras: section")
+    snapshot.add_argument("--config", required=True, metavar="FILE",
+                          help="a head's YAML file (or one with only a cameras: section)")
     snapshot.add_argument("--out", required=True, metavar="DIR", help="directory for left.png and right.png")
     snapshot.add_argument("--pose", nargs=4, type=float, default=[0.0, 0.0, 0.0, 0.0],
                           metavar=("PAN", "TILT", "LEFT_EYE", "RIGHT_EYE"),
@@ -84,36 +88,36 @@ def _list_cameras(args: argparse.Namespace) -> int:
 
 # --- snapshot ----------------------------------------------------------------------------
 def load_cameras_config(path: str) -> StereoCamerasConfig:
-    """The `cameras:` section of a YAML file, typed; any other top-level key is refused."""
-    from headctl.config import read_yaml
+    """The `cameras:` section of a YAML file, typed: a whole head config (every section
+    validated) or a file holding only `cameras:`."""
+    from headctl.config import check_cameras, parse_config, read_yaml
 
     data = read_yaml(path)
-    if not isinstance(data, dict) or "cameras" not in data:
-        raise ConfigError(f"{path}: expected a mapping with a cameras: section (cameras: {{left: ..., right: ...}})")
-    unknown = sorted(set(data) - {"cameras"})
-    if unknown:
-        raise ConfigError(f"{path}: {unknown[0]}: unknown key; this command reads only cameras:")
+    if isinstance(data, dict) and set(data) != {"cameras"}:
+        return parse_config(data, Path(path)).cameras
+    if not isinstance(data, dict):
+        raise ConfigError(key_path="", value=data, file=path,
+                          expected="a head config, or a mapping with a cameras: section "
+                                   "(cameras: {left: ..., right: ...})")
     try:
-        return StereoCamerasConfig.from_mapping(data["cameras"], "cameras")
-    except CameraConfigError as err:
-        raise ConfigError(f"{path}: {err}") from err
+        cameras = read_config(StereoCamerasConfig, data["cameras"], "cameras", file=path)
+        check_cameras(cameras)
+    except ConfigError as err:
+        if err.file is None:
+            err.file = path
+        raise
+    return cameras
 
 
 def sim_resources(config: StereoCamerasConfig, pose: list[float]) -> dict[str, dict[str, Any]]:
-    """The head model and pose source the simulated cameras need (one head for both eyes)."""
+    """The head model and pose source the simulated cameras need (one head for both eyes;
+    `load_cameras_config` has checked that the eyes agree)."""
     from calib_free.sim import HeadModel
     from drivers.sim_camera import fixed_pose
 
     sims = {side: c for side, c in (("left", config.left), ("right", config.right)) if c.backend == "sim"}
     if not sims:
         return {}
-    if len(sims) == 2:
-        for key in ("width", "height", "lens", "seed", "image"):
-            if getattr(config.left, key) != getattr(config.right, key):
-                raise CameraConfigError(
-                    f"cameras.right.{key}: {getattr(config.right, key)!r} differs from cameras.left.{key} "
-                    f"{getattr(config.left, key)!r}: both eyes of the simulated head see one scene through one lens"
-                )
     first: CameraConfig = next(iter(sims.values()))
     head = HeadModel.default(first.width or 320, first.height or 240, lens=first.lens)
     source = fixed_pose(*pose)
@@ -130,10 +134,12 @@ def _snapshot(args: argparse.Namespace) -> int:
             create_camera(c, name=side, key_path=f"cameras.{side}", **resources.get(side, {}))
             for side, c in (("left", config.left), ("right", config.right))
         ]
-    except ConfigError as err:  # already names the file
+    except ConfigError as err:  # the file's, or a camera's that refuses a setting
+        if err.file is None:
+            err.file = args.config
         print(f"headctl snapshot: {err}", file=sys.stderr)
         return 2
-    except (CameraConfigError, BackendImportError) as err:
+    except BackendImportError as err:
         print(f"headctl snapshot: {args.config}: {err}", file=sys.stderr)
         return 2
     os.makedirs(args.out, exist_ok=True)

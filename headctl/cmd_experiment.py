@@ -17,18 +17,19 @@ import json
 import logging
 import sys
 import time
+from typing import Any
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from calib_free import GazeMap
-from calib_free.experiments import (EXPERIMENTS, ExperimentResult, final_head, landing_targets,
+from calib_free.experiments import (EXPERIMENTS, ExperimentResult, ExperimentSpec, final_head, landing_targets,
                                     representation_floor, run_experiment)
 from calib_free.gaze_map import PROFILES, GazeMapParams
 from calib_free.lens import LENS_KINDS
 from calib_free.sim import HeadModel
-from headctl.online import ONLINE_EXPERIMENTS, OnlineResult, SimulatedHeadRig, run_online
+from headctl.online import ONLINE_EXPERIMENTS, OnlineResult, OnlineSpec, run_online
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     online = args.name in ONLINE_EXPERIMENTS
-    spec = ONLINE_EXPERIMENTS[args.name] if online else EXPERIMENTS[args.name]
+    spec: ExperimentSpec = ONLINE_EXPERIMENTS[args.name] if online else EXPERIMENTS[args.name]
     if args.fixations is not None:
         if args.fixations < 1:
             print(f"--fixations must be at least 1, got {args.fixations}", file=sys.stderr)
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
                                    changes=tuple(c for c in spec.changes if c.at < args.fixations))
     args.out.mkdir(parents=True, exist_ok=True)
     stem = args.out / f"{spec.name}-{args.profile}"
-    extra: dict = {}
+    extra: dict[str, Any] = {}
     started = time.monotonic()
     with tqdm(total=spec.fixations, desc=f"{spec.name} ({args.profile})", unit="fix",
               disable=None, file=sys.stderr) as bar:
@@ -86,16 +87,18 @@ def run(args: argparse.Namespace) -> int:
                 bar.update(1)
                 bar.set_postfix(taught=taught, refresh=False)
 
+            assert isinstance(spec, OnlineSpec)
             online_result = run_online(spec, args.profile, seed=args.seed, width=args.width, height=args.height,
                                        landing_every=args.landing_every, progress=progress)
             result = online_result.as_experiment_result()
-            head = SimulatedHeadRig.geometry(args.width, args.height)
+            assert online_result.model is not None
+            head = online_result.model
             extra = online_summary(online_result)
         else:
             head = HeadModel.default(args.width, args.height, lens=args.lens)
             gm = GazeMap.for_image(args.width, args.height, seed=args.seed, profile=args.profile)
             result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
-                                    progress=bar.update)
+                                    progress=lambda n: None if bar.update(n) else None)
     learn_s = time.monotonic() - started
     drange = GazeMapParams().disparity_range  # both kinds of run use the default range
 
@@ -160,7 +163,7 @@ def summarise(result: ExperimentResult, floor_px: float | None, profile: str, le
         summary["landing_over_floor"] = summary["landing_error_px"] / floor_px
     changes = []
     for change in spec.changes:
-        entry = {"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
+        entry: dict[str, Any] = {"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
                  "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at)}
         before = [px for at, px in result.landing if at <= change.at]
         after = [px for at, px in result.landing if change.at < at <= change.at + 700]

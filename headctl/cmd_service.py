@@ -1,6 +1,6 @@
 """Subcommands of `headctl` for the service: `run` (the daemon), `check` (a config), `status`.
 
-`run [--config F]` runs the daemon (`headctl.daemon`) until SIGTERM/SIGINT; without
+`run [--config F]` runs the daemon (`headctl.service.Daemon`) until SIGTERM/SIGINT; without
 `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a
 config and connects to the servos and cameras it names, reporting each. `status` and `look`
 are clients of the running daemon's HTTP API (`headctl.client`).
@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Any
 
-from drivers.errors import BackendImportError, CameraConfigError, DriverError
+from drivers.errors import BackendImportError, CameraConfigError, DriverError, ServoConfigError
 from headctl.config import HeadConfig, load_config
 from headctl.errors import ConfigError, HeadctlError
 
@@ -120,7 +120,7 @@ def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
 
 # --- run -------------------------------------------------------------------------------------
 def _run(args: argparse.Namespace) -> int:
-    from headctl.daemon import Daemon
+    from headctl.service import Daemon
 
     config = _load(args, "run")
     if config is None:
@@ -160,15 +160,19 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
-    from drivers.camera import create_camera
     from drivers.servo_bus import JOINTS
-    from headctl.daemon import Daemon
+    from headctl.service.build import HeadDevices
 
-    daemon = Daemon(config)  # builds devices as `run` does (the simulated head's wiring too)
     failures = 0
+    try:
+        devices = HeadDevices.build(config)  # as `run` builds them (the simulated head's too)
+    except (CameraConfigError, BackendImportError, ServoConfigError) as err:
+        print(f"  FAILED: {config.path}: {err}")
+        return 1
     with contextlib.ExitStack() as stack:
         try:
-            bus = stack.enter_context(daemon._build_bus())
+            stack.enter_context(devices.bus)
+            bus = devices.bus
             state = bus.read_state()
             for joint in JOINTS:
                 jc, js = config.servo_bus.joints[joint], state[joint]
@@ -180,11 +184,8 @@ def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
         except (DriverError, OSError) as err:
             print(f"  servo bus: FAILED: {err}")
             return 1
-        resources = daemon._camera_resources(bus)
-        for side in ("left", "right"):
+        for side, camera in devices.cameras.items():
             try:
-                camera = create_camera(getattr(config.cameras, side), name=side, key_path=f"cameras.{side}",
-                                       **resources.get(side, {}))
                 stack.enter_context(camera)
                 started = time.monotonic()
                 camera.enable()

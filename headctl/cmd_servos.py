@@ -26,7 +26,7 @@ def _int_list(text: str) -> list[int]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to `sub`."""
-    from drivers.dynamixel import X_BAUD_CODES, X_MODELS
+    from drivers.dxl_control_table import X_BAUD_CODES, X_MODELS
 
     emulate = sub.add_parser(
         "emulate-servos",

@@ -1,9 +1,9 @@
 """The paper's method end to end on images: the online experiments on the simulated head.
 
-`run_online` builds the simulated head the way the service would -- a `SimulatedServoBus`
-(motion model, joint limits) driven through the `ServoBus` interface, fish-eye images
-rendered by `drivers.sim_scene` from the joints' true positions, a `MapAdapter` learning
-on its own thread -- and runs exploratory fixations (`calib_free.fixation`): saccade, fine
+`run_online` builds the simulated head from its config the way the service does
+(`headctl.service.build`: the simulated servo bus with its motion model and joint limits,
+the simulated cameras rendering the fish-eye views of the room from the joints' true
+positions), with a `MapAdapter` learning on its own thread, and runs exploratory fixations (`calib_free.fixation`): saccade, fine
 vergence, correspondence and confidence, and only converged, confident fixations teach.
 Time is a `ManualClock`: waiting for the servos advances it, so nothing sleeps.
 
@@ -26,14 +26,15 @@ from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.experiments import (Change, ExperimentResult, ExperimentSpec, landing_errors_px, landing_targets,
                                     map_predictor)
-from calib_free.fixation import REFUSED_NO_VERGENCE_MATCH, FixationController, FixationParams, FixationRecord
+from calib_free.fixation import FixationController, FixationOutcome, FixationParams, FixationRecord
 from calib_free.gaze_map import AdaptResult
-from calib_free.sim import HeadModel, JointLimits
+from calib_free.sim import HeadModel
 from drivers.clock import ManualClock
-from drivers.servo_bus import ServoBusConfig
-from drivers.sim_scene import StereoRenderer, shared_scene
-from drivers.sim_servo import SimulatedServoBus
-from headctl.head import DriverHead, RenderedPairSource
+from drivers.sim_camera import SimulatedCamera
+from headctl.config import HeadConfig, load_config
+from headctl.errors import HeadctlError
+from headctl.head import RenderedPairSource
+from headctl.service.build import HeadDevices, build_head
 
 log = logging.getLogger(__name__)
 
@@ -55,20 +56,6 @@ ONLINE_EXPERIMENTS = {
         executed_command="commanded"),
 }
 
-SIM_SERVO_CONFIG = {
-    "backend": "sim",
-    "port": "sim:head",
-    "joints": {
-        "pan": {"id": 1, "min_angle": -40, "max_angle": 40, "profile_velocity": 240, "profile_acceleration": 2400},
-        "tilt": {"id": 2, "min_angle": -25, "max_angle": 25, "profile_velocity": 240, "profile_acceleration": 2400},
-        "left_eye": {"id": 3, "min_angle": -15, "max_angle": 15, "profile_velocity": 240,
-                     "profile_acceleration": 2400},
-        "right_eye": {"id": 4, "min_angle": -15, "max_angle": 15, "profile_velocity": 240,
-                      "profile_acceleration": 2400},
-    },
-}
-
-
 @dataclass
 class OnlineResult:
     spec: OnlineSpec
@@ -77,6 +64,7 @@ class OnlineResult:
     landing: list[tuple[int, float]] = field(default_factory=list)  # (adaptations done, median px)
     landing_fixations: list[int] = field(default_factory=list)  # fixations done at each landing check
     seconds: float = 0.0
+    model: HeadModel | None = None  # the simulated head's geometry before any change
 
     @property
     def retinal_error(self) -> np.ndarray:
@@ -87,7 +75,7 @@ class OnlineResult:
         return np.array([r.output_error for _, r in self.adaptations if r.accepted]).reshape(-1, 3)
 
     def outcomes(self) -> dict[str, int]:
-        return dict(collections.Counter(r.outcome for r in self.records))
+        return dict(collections.Counter(str(r.outcome) for r in self.records))
 
     def final(self, over: int = 10) -> dict[str, float]:
         ret, out = self.retinal_error[-over:], self.output_error[-over:]
@@ -109,7 +97,7 @@ class OnlineResult:
 
     def vergence_convergence(self) -> dict[str, float]:
         """Of the fixations whose foveae matched, how many converged, and in how many steps."""
-        matched = [r for r in self.records if r.vergence_disparities_px and r.outcome != REFUSED_NO_VERGENCE_MATCH]
+        matched = [r for r in self.records if r.vergence_disparities_px and r.outcome is not FixationOutcome.NO_VERGENCE_MATCH]
         converged = [r for r in matched if r.converged]
         steps = [r.vergence_steps for r in converged]
         return {"matched": len(matched), "converged": len(converged),
@@ -117,37 +105,48 @@ class OnlineResult:
                 "median_steps": float(np.median(steps)) if steps else float("nan")}
 
 
+def sim_config(width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
+               base: HeadConfig | None = None) -> HeadConfig:
+    """The simulated head's config (default: the packaged one) with grey cameras of this size
+    and lens, papered with the room of `seed`."""
+    config = base if base is not None else load_config()
+    if not config.simulated:
+        raise HeadctlError(f"{config.path}: the online experiments need the simulated head (servo_bus.backend: sim)")
+    cameras = {side: dataclasses.replace(getattr(config.cameras, side), width=width, height=height, lens=lens,
+                                         seed=seed, image="grey") for side in ("left", "right")}
+    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, **cameras))
+
+
 class SimulatedHeadRig:
-    """The simulated head, wired as the service wires a real one; a context manager."""
+    """The simulated head built from its config as the service builds it (`headctl.service.build`),
+    on a `ManualClock`, with pairs rendered on demand instead of streamed; a context manager."""
 
     def __init__(self, width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
-                 fixation: FixationParams | None = None, noise_std: float = 2.0) -> None:
+                 fixation: FixationParams | None = None, noise_std: float | None = None,
+                 config: HeadConfig | None = None) -> None:
         self.clock = ManualClock()
-        self.model = self.geometry(width, height, lens)
-        self.bus = SimulatedServoBus(ServoBusConfig.from_mapping(SIM_SERVO_CONFIG), clock=self.clock,
-                                     initial_positions={"pan": 0.0, "tilt": 0.0, "left_eye": 5.0, "right_eye": -5.0})
-        self.renderer = StereoRenderer(self.model, shared_scene(seed, False))
-        self.pairs = RenderedPairSource(self.renderer.render, self._true_joints, self.clock,
-                                        noise_std=noise_std, seed=seed)
-        self.head = DriverHead(self.bus, self.pairs, clock=self.clock, vergence_range=self.model.limits.vergence)
+        self.config = sim_config(width, height, seed, lens, config)
+        self.devices = HeadDevices.build(self.config, self.clock)
+        world = self.devices.world
+        assert world is not None  # sim_config checked that the head is simulated
+        self.model = world.model
+        self.bus = self.devices.bus
+        left, right = self.devices.cameras["left"], self.devices.cameras["right"]
+        if not (isinstance(left, SimulatedCamera) and isinstance(right, SimulatedCamera)):
+            raise HeadctlError(f"{self.config.path}: the online experiments need simulated cameras (backend: sim)")
+        noise = self.config.cameras.left.noise_std if noise_std is None else noise_std
+        self.pairs = RenderedPairSource(lambda joints: (left.render(joints), right.render(joints)),
+                                        world.true_joints, self.clock, noise_std=noise, seed=seed)
+        self.head = build_head(self.config, self.bus, self.pairs, self.clock)
         self.fixation = fixation or FixationParams()
 
-    @staticmethod
-    def geometry(width: int = 320, height: int = 240, lens: str = "foveated") -> HeadModel:
-        """The rig's head model: vergence from 1 deg, as the room's far walls (3 m) need with 60 mm."""
-        return HeadModel.default(width, height, lens=lens, limits=JointLimits(vergence=(1.0, 20.0)))
-
-    def _true_joints(self) -> dict[str, float]:
-        return {j: self.bus.true_position(j) for j in ("pan", "tilt", "left_eye", "right_eye")}
-
     def __enter__(self) -> "SimulatedHeadRig":
-        self.bus.open()
+        self.devices.open()
         self.bus.enable()
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.bus.close()
-        self.renderer.close()
+        self.devices.close()
 
 
 def apply_change(change: Change, rig: SimulatedHeadRig, model: HeadModel) -> HeadModel:
@@ -178,17 +177,16 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
     changes = {c.at: c for c in spec.changes}
     with SimulatedHeadRig(width, height, seed, fixation=fixation) as rig, \
             MapAdapter(gm, on_adapted=on_adapted) as adapter:
-        model = rig.model
+        model = result.model = rig.model
         targets = landing_targets(model, landing_count, gm.params.disparity_range, seed=seed + 7919)
-        controller = FixationController(rig.head, adapter, fixation, seed=seed, clock=rig.clock.monotonic)
+        controller = FixationController(rig.head, adapter, fixation, seed=seed, clock=rig.clock.monotonic,
+                                        learner=adapter)
         for n in range(spec.fixations):
             if n in changes:
                 model = apply_change(changes[n], rig, model)
                 targets = landing_targets(model, landing_count, gm.params.disparity_range, seed=seed + 7919 + n)
                 log.info("fixation %d: %s", n, spec.description)
             record = controller.fixate()
-            if record.taught:
-                adapter.submit(Sample(record.position, record.executed, record.confidence, tag=n))
             result.records.append(record)
             if progress is not None:
                 progress(record)

@@ -1,22 +1,17 @@
-"""What clients ask of the daemon, apart from HTTP: gaze requests ("looks") and events.
+"""Clients' gaze requests ("looks"): what they ask, the jobs that carry them out, their queue.
 
-- `LookRequest` / `LookJob`: look at an image target (x, y, d), or at joint angles (pan, tilt,
-  vergence; absolute or relative). A job is queued, taken by the fixation thread between two
-  fixations, and ends `done` (the fixation converged, or the angles were reached), `failed`
-  (refused: the reason says why) or `cancelled`. `done` is a `threading.Event` to wait on; the
-  job's id is what an HTTP client waits on later. A running look is cancelled by request
-  (`cancel_requested`): the fixation thread stops it at its next bus access or frame wait.
+- `LookRequest`: look at an image target (x, y, d px in the left image), or at joint angles
+  (pan, tilt, vergence deg; absolute or relative to the pose when the look starts).
+- `LookJob`: a request queued, taken by the fixation thread between two fixations, and ending
+  `done`, `failed` (the outcome and detail say why) or `cancelled` (`LookState`). `done` is a
+  `threading.Event` to wait on; a running look is cancelled by request (`cancel_requested`):
+  the fixation thread stops it at its next bus access or frame wait.
 - `LookQueue`: the bounded queue of jobs and the record of the last finished ones.
-- `EventHub`: saccade onset/done, fixation converged/refused, faults, look started/done, ...
-  published by the daemon's threads to any number of subscribers (the HTTP event stream),
-  each a callback that must not block; the last events are kept so that a client that
-  reconnects (SSE `Last-Event-ID`) misses none.
-
-The HTTP layer (`headctl.api`) only translates; everything here is usable and tested without it.
 """
 from __future__ import annotations
 
 import collections
+import enum
 import itertools
 import logging
 import threading
@@ -24,45 +19,26 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-import numpy as np
-
-from headctl.errors import HeadctlError
+from headctl.errors import ControlError, NotFoundError, QueueFullError
 
 log = logging.getLogger(__name__)
 
-# The states of a look.
-QUEUED, RUNNING, DONE, FAILED, CANCELLED = "queued", "running", "done", "failed", "cancelled"
-FINISHED = (DONE, FAILED, CANCELLED)
+
+class LookKind(enum.StrEnum):
+    TARGET = "target"  # an image target (x, y, d)
+    ANGLES = "angles"  # joint angles (pan, tilt, vergence)
 
 
-class ControlError(HeadctlError):
-    """A client's request that cannot be carried out; `field` names what is wrong."""
+class LookState(enum.StrEnum):
+    QUEUED = "queued"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
 
-    status = 409
-
-    def __init__(self, message: str, field: str | None = None) -> None:
-        super().__init__(message)
-        self.field = field
-
-
-class InvalidRequestError(ControlError):
-    """A request whose value is out of range (outside the image, the joint limits...)."""
-
-    status = 422
-
-
-class QueueFullError(ControlError):
-    status = 429
-
-
-class NotFoundError(ControlError):
-    status = 404
-
-
-class UnavailableError(ControlError):
-    """The daemon cannot do it now (starting, stopping, not a simulated head...)."""
-
-    status = 503
+    @property
+    def finished(self) -> bool:
+        return self in (LookState.DONE, LookState.FAILED, LookState.CANCELLED)
 
 
 @dataclass(frozen=True)
@@ -71,7 +47,7 @@ class LookRequest:
     angles (`kind` "angles": pan, tilt, vergence deg, absolute or `relative` to the pose when
     the look starts)."""
 
-    kind: str
+    kind: LookKind
     values: tuple[float, float, float]
     relative: bool = False
     # A target's: the pose whose view it was chosen in (the head's when it was queued).
@@ -80,9 +56,9 @@ class LookRequest:
     d_ncc: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        names = ("x", "y", "d") if self.kind == "target" else ("pan", "tilt", "vergence")
+        names = ("x", "y", "d") if self.kind is LookKind.TARGET else ("pan", "tilt", "vergence")
         out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
-        if self.kind == "angles":
+        if self.kind is LookKind.ANGLES:
             out["relative"] = self.relative
         else:
             if self.reference_pose is not None:
@@ -97,7 +73,7 @@ class LookRequest:
 class LookJob:
     id: int
     request: LookRequest
-    state: str = QUEUED
+    state: LookState = LookState.QUEUED
     outcome: str = ""  # the fixation's outcome ("taught" or why it did not teach), or why it failed
     detail: str = ""
     result: dict[str, Any] = field(default_factory=dict)
@@ -160,7 +136,7 @@ class LookQueue:
         with self._cond:
             if replace:
                 while self._queued:
-                    self._finish_locked(self._queued.popleft(), CANCELLED, "replaced", "a newer look replaced it")
+                    self._finish_locked(self._queued.popleft(), LookState.CANCELLED, "replaced", "a newer look replaced it")
                 if self._running is not None:
                     self._running.request_cancel("replaced", "a newer look replaced it")
             if len(self._queued) >= self.size:
@@ -181,7 +157,7 @@ class LookQueue:
             if not self._queued:
                 return None
             job = self._queued.popleft()
-            job.state, job.started_s = RUNNING, time.time()
+            job.state, job.started_s = LookState.RUNNING, time.time()
             self._running = job
             return job
 
@@ -190,7 +166,7 @@ class LookQueue:
         with self._cond:
             return bool(self._queued) or self._cond.wait_for(lambda: bool(self._queued), timeout_s)
 
-    def finish(self, job: LookJob, state: str, outcome: str, detail: str = "",
+    def finish(self, job: LookJob, state: LookState, outcome: str, detail: str = "",
                result: dict[str, Any] | None = None) -> None:
         with self._cond:
             self._finish_locked(job, state, outcome, detail, result)
@@ -200,19 +176,19 @@ class LookQueue:
         `cancelled` once the fixation thread has stopped it: wait on `done`)."""
         with self._cond:
             job = self.get(job_id)
-            if job.state == RUNNING:
+            if job.state is LookState.RUNNING:
                 job.request_cancel("cancelled", "cancelled by a client")
                 return job
-            if job.state != QUEUED:
+            if job.state is not LookState.QUEUED:
                 raise ControlError(f"look {job_id} is {job.state} already: there is nothing to cancel", "id")
             self._queued.remove(job)
-            self._finish_locked(job, CANCELLED, "cancelled", "cancelled by a client")
+            self._finish_locked(job, LookState.CANCELLED, "cancelled", "cancelled by a client")
             return job
 
     def cancel_all(self, reason: str) -> None:
         with self._cond:
             while self._queued:
-                self._finish_locked(self._queued.popleft(), CANCELLED, "cancelled", reason)
+                self._finish_locked(self._queued.popleft(), LookState.CANCELLED, "cancelled", reason)
 
     def get(self, job_id: int) -> LookJob:
         with self._cond:
@@ -225,7 +201,7 @@ class LookQueue:
         with self._cond:
             return len(self._queued)
 
-    def _finish_locked(self, job: LookJob, state: str, outcome: str, detail: str = "",
+    def _finish_locked(self, job: LookJob, state: LookState, outcome: str, detail: str = "",
                        result: dict[str, Any] | None = None) -> None:
         job.state, job.outcome, job.detail = state, outcome, detail
         job.result = result or {}
@@ -237,82 +213,6 @@ class LookQueue:
     def _trim_locked(self) -> None:
         while len(self._jobs) > self._keep + self.size:
             oldest_id, oldest = next(iter(self._jobs.items()))
-            if oldest.state not in FINISHED:
+            if not oldest.state.finished:
                 break
             del self._jobs[oldest_id]
-
-
-Subscriber = Callable[[dict[str, Any]], None]
-
-
-class EventHub:
-    """Publish events to subscribers (callbacks that must not block); keeps the last `history`."""
-
-    def __init__(self, history: int = 512) -> None:
-        self._lock = threading.Lock()
-        self._seq = 0
-        self._history: collections.deque[dict[str, Any]] = collections.deque(maxlen=history)
-        self._subscribers: list[Subscriber] = []
-        self.counts: collections.Counter[str] = collections.Counter()
-
-    def publish(self, type_: str, **fields: Any) -> dict[str, Any]:
-        with self._lock:
-            self._seq += 1
-            event = {"seq": self._seq, "time": time.time(), "type": type_,
-                     **{k: plain(v) for k, v in fields.items()}}
-            self._history.append(event)
-            self.counts[type_] += 1
-            subscribers = list(self._subscribers)
-        for deliver in subscribers:
-            try:
-                deliver(event)
-            except Exception:  # one broken subscriber must not stop the publisher (a servo thread)
-                log.exception("event subscriber failed on %s", type_)
-        return event
-
-    def subscribe(self, deliver: Subscriber, after_seq: int | None = None) -> Callable[[], None]:
-        """Call `deliver(event)` for every event from now on (and first for those kept after
-        `after_seq`, if given); returns the function that unsubscribes."""
-        with self._lock:
-            backlog = [e for e in self._history if after_seq is not None and e["seq"] > after_seq]
-            self._subscribers.append(deliver)
-        for event in backlog:
-            deliver(event)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if deliver in self._subscribers:
-                    self._subscribers.remove(deliver)
-        return unsubscribe
-
-    @property
-    def seq(self) -> int:
-        """The last event's number (stream from here with `after`)."""
-        with self._lock:
-            return self._seq
-
-    def recent(self, count: int = 50) -> list[dict[str, Any]]:
-        with self._lock:
-            return list(self._history)[-count:]
-
-    @property
-    def subscribers(self) -> int:
-        with self._lock:
-            return len(self._subscribers)
-
-
-def plain(value: Any) -> Any:
-    """JSON-ready: numpy arrays and scalars as lists and floats, NaN as None."""
-    if isinstance(value, np.ndarray):
-        return [plain(v) for v in value.tolist()]
-    if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
-    if isinstance(value, dict):
-        return {k: plain(v) for k, v in value.items()}
-    if isinstance(value, (np.floating, float)):
-        f = float(value)
-        return None if f != f else round(f, 4)
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-

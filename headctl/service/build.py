@@ -1,0 +1,133 @@
+"""Building a head from its config: the servo bus, the two cameras and the `Head` over them.
+
+Every backend, the simulated head's included, is reached through the backend table
+(`drivers.backends`) by the name its config gives. What the simulated backends need beyond
+their config -- a geometric head model and the servos' true positions for the cameras to
+render from, the pose the servos start at -- is the simulated world (`SimulatedWorld`), made
+here from the same config. `headctl run`, `headctl check` and the online experiments all
+build their head with these functions.
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from calib_free.kinematics import JOINTS
+from calib_free.sim import HeadModel, JointLimits
+from drivers.camera import Camera, CameraConfig, create_camera
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import CameraError
+from drivers.servo_bus import ServoBus, create_servo_bus
+from drivers.sim_servo import SimulatedServoBus
+from headctl.config import HeadConfig
+from headctl.head import Head, HeadObserver, JointBus, PairSource
+
+log = logging.getLogger(__name__)
+
+SIDES = ("left", "right")
+# The simulated head starts with the eyes slightly converged: within the vergence range that
+# the room's far walls need (1 deg at 3 m with a 60 mm baseline).
+SIM_START_JOINTS: Mapping[str, float] = {"pan": 0.0, "tilt": 0.0, "left_eye": 5.0, "right_eye": -5.0}
+SIM_VERGENCE_RANGE = (1.0, 20.0)
+
+
+class SimulatedWorld:
+    """What the simulated backends share: the head model the cameras render through, the
+    servos' true positions they render from, and the camera stalls a test may inject."""
+
+    def __init__(self, config: HeadConfig, bus: ServoBus) -> None:
+        if not isinstance(bus, SimulatedServoBus):
+            raise CameraError(f"{config.servo_bus.key_path}.backend: the simulated cameras need the simulated "
+                              f"servo bus, got {type(bus).__name__}")
+        self.model = sim_head_model(config.cameras.left, config.fixation.vergence_range)
+        self.bus = bus
+        self.stalled: set[str] = set()
+
+    def true_joints(self) -> dict[str, float]:
+        return {joint: self.bus.true_position(joint) for joint in JOINTS}
+
+    def pose_source(self, side: str) -> Callable[[], dict[str, float]]:
+        def pose() -> dict[str, float]:
+            if side in self.stalled:
+                raise CameraError(f"camera {side}: stalled (injected fault)")
+            return self.true_joints()
+        return pose
+
+
+def sim_head_model(camera: CameraConfig, vergence_range: tuple[float, float] | None = None) -> HeadModel:
+    """The simulated head's geometry for cameras of this size and lens; its vergence range is
+    the config's (default: from 1 deg, as the room's far walls need)."""
+    limits = JointLimits(vergence=vergence_range or SIM_VERGENCE_RANGE)
+    return HeadModel.default(int(camera.width or 320), int(camera.height or 240), lens=camera.lens, limits=limits)
+
+
+def build_servo_bus(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> ServoBus:
+    """The servo bus the config names (not opened)."""
+    resources: dict[str, Any] = {}
+    if config.simulated:
+        resources["initial_positions"] = SIM_START_JOINTS
+    return create_servo_bus(config.servo_bus, clock=clock, **resources)
+
+
+def build_cameras(config: HeadConfig, world: SimulatedWorld | None, clock: Clock = SYSTEM_CLOCK,
+                  ) -> dict[str, Camera]:
+    """The left and right cameras the config names (not opened); simulated ones render `world`."""
+    cameras: dict[str, Camera] = {}
+    for side in SIDES:
+        camera_config: CameraConfig = getattr(config.cameras, side)
+        resources: dict[str, Any] = {}
+        if camera_config.backend == "sim":
+            if world is None:
+                raise CameraError(f"camera {side}: a simulated camera needs the simulated servo bus")
+            resources = {"head": world.model, "pose_source": world.pose_source(side)}
+        cameras[side] = create_camera(camera_config, name=side, key_path=f"cameras.{side}", clock=clock,
+                                      **resources)
+    return cameras
+
+
+@dataclasses.dataclass
+class HeadDevices:
+    """A head's devices, built from its config; `open()` opens the bus and the cameras (states
+    readable, nothing moves), `close()` closes what was opened, in reverse order."""
+
+    bus: ServoBus
+    cameras: dict[str, Camera]
+    world: SimulatedWorld | None
+    _stack: contextlib.ExitStack = dataclasses.field(default_factory=contextlib.ExitStack, repr=False)
+
+    @classmethod
+    def build(cls, config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> "HeadDevices":
+        bus = build_servo_bus(config, clock)
+        world = SimulatedWorld(config, bus) if config.simulated else None
+        return cls(bus, build_cameras(config, world, clock), world)
+
+    def open(self, cameras: bool = True) -> "HeadDevices":
+        try:
+            self._stack.enter_context(self.bus)
+            if cameras:
+                for camera in self.cameras.values():
+                    self._stack.enter_context(camera)
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        self._stack.close()
+
+    def __enter__(self) -> "HeadDevices":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def build_head(config: HeadConfig, bus: JointBus, pairs: PairSource, clock: Clock = SYSTEM_CLOCK, *,
+               interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
+               goals_in_force: Callable[[], Mapping[str, float]] | None = None) -> Head:
+    """The `Head` over `bus` and `pairs`, with the config's joint and vergence limits."""
+    return Head(bus, pairs, config.servo_bus.joints, clock=clock, vergence_range=config.fixation.vergence_range,
+                interrupt=interrupt, observer=observer, goals_in_force=goals_in_force)

@@ -1,0 +1,293 @@
+"""What clients may ask of a running service, and the interface the API and metrics use.
+
+`HeadService` is the small typed interface the HTTP layer (`headctl.api`) and the metrics
+(`headctl.metrics`) depend on: one status snapshot, the event hub, the looks, the switches,
+the map actions and fault injection on the simulated head. `ServiceControl` implements it
+over the service's parts. Every refusal is a `headctl.errors.ControlError` naming the field
+at fault; what HTTP answer each kind becomes is the API's business.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import logging
+import re
+from pathlib import Path
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from calib_free import GazeMap
+from calib_free.correspondence import as_grey_float, horizontal_offset
+from calib_free.errors import MapFileError
+from calib_free.fixation import FixationRecord
+from calib_free.kinematics import JOINTS
+from drivers.camera import Frame
+from drivers.errors import DriverError
+from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
+from headctl.service.events import EventHub
+from headctl.service.looks import LookJob, LookKind, LookRequest
+from headctl.service.parts import RunningParts, ServiceParts, ServicePhase
+from headctl.service.status import StatusSnapshot, status_snapshot
+
+log = logging.getLogger(__name__)
+
+PAIR_MAX_AGE_S = 0.5  # a target's disparity is measured only in a pair this recent
+# A match this good or better gives a target's disparity; below, the patch is likely matched to
+# something else (a distinctly textured patch scores 0.8-1 on the simulated head).
+MIN_DISPARITY_NCC = 0.6
+MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
+
+
+class SimFault(enum.StrEnum):
+    """Faults the simulated head can be given (tests, demonstrations)."""
+
+    BUS_DOWN = "bus_down"
+    RESTORE_BUS = "restore_bus"
+    HARDWARE_ERROR = "hardware_error"
+    CAMERA_STALL = "camera_stall"
+    CAMERA_RESUME = "camera_resume"
+
+
+class HeadService(Protocol):
+    """What the API and the metrics may ask of the service."""
+
+    @property
+    def events(self) -> EventHub: ...
+
+    def snapshot(self) -> StatusSnapshot: ...
+
+    def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]: ...
+
+    def look(self, request: LookRequest, replace: bool = False) -> LookJob: ...
+
+    def get_look(self, look_id: int) -> LookJob: ...
+
+    def cancel_look(self, look_id: int) -> LookJob: ...
+
+    def set_exploration(self, enabled: bool) -> bool: ...
+
+    def set_torque(self, enabled: bool) -> bool: ...
+
+    def save_map(self, name: str | None = None) -> dict[str, Any]: ...
+
+    def load_map(self, name: str | None = None) -> dict[str, Any]: ...
+
+    def reset_map(self, seed: int | None = None) -> dict[str, Any]: ...
+
+    def inject_fault(self, fault: SimFault, joint: str | None = None, camera: str | None = None,
+                     bits: int = 0) -> str: ...
+
+    def latest_frame(self, side: str) -> Frame | None: ...
+
+    def last_fixation(self) -> FixationRecord | None: ...
+
+
+class ServiceControl:
+    """`HeadService` over the parts of a service (thread-safe; ControlError names the field at fault)."""
+
+    def __init__(self, parts: ServiceParts, more_faults: Callable[[], dict[str, str]] | None = None) -> None:
+        self.parts = parts
+        self.more_faults = more_faults
+
+    @property
+    def events(self) -> EventHub:
+        return self.parts.hub
+
+    def snapshot(self) -> StatusSnapshot:
+        return status_snapshot(self.parts, self.more_faults() if self.more_faults is not None else None)
+
+    def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]:
+        return self.parts.learning.since(since, limit)
+
+    def latest_frame(self, side: str) -> Frame | None:
+        devices = self.parts.devices
+        camera = devices.cameras.get(side) if devices is not None else None
+        return camera.latest() if camera is not None else None
+
+    def last_fixation(self) -> FixationRecord | None:
+        running = self.parts.running
+        return running.fixation.last if running is not None else None
+
+    def _running(self) -> RunningParts:
+        running = self.parts.running
+        if self.parts.phase is not ServicePhase.RUNNING or running is None:
+            raise UnavailableError(f"the service is {self.parts.phase}, not running")
+        return running
+
+    def _pose_now(self, running: RunningParts) -> np.ndarray:
+        """The pose of the servo loop's latest state, without waiting for a fresh one."""
+        state = running.loop.latest_state()
+        if state is None:
+            raise UnavailableError("no servo state read yet")
+        return running.head.pose_from(state.positions)
+
+    # -- looks ------------------------------------------------------------------------------
+    def look(self, request: LookRequest, replace: bool = False) -> LookJob:
+        """Queue a look after checking it against the image, the map and the joint limits."""
+        running = self._running()
+        head = running.head
+        if request.kind is LookKind.TARGET:
+            width, height = self.parts.config.image_size
+            d_low, d_high = running.adapter.map.params.disparity_range
+            x, y, d = request.values
+            checks = [("x", x, 0, width - 1, "the image's columns"), ("y", y, 0, height - 1, "the image's rows")]
+            for name, value, low, high, what in checks:
+                if not low <= value <= high:
+                    raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [{low:g}, {high:g}]", name)
+            if d is None:  # sent without a disparity: measured where the client pointed
+                d, ncc = self.measure_disparity(x, y)
+                request = dataclasses.replace(request, values=(x, y, d), d_ncc=ncc)
+            if not d_low <= d <= d_high:
+                raise InvalidRequestError(f"d = {d:g} is outside the map's disparity range "
+                                          f"(gaze_map.disparity_range), [{d_low:g}, {d_high:g}]", "d")
+            # The target is in the view of the pose now; the head may move before the look runs.
+            request = dataclasses.replace(request, reference_pose=tuple(self._pose_now(running).tolist()))
+        else:
+            pose = self._pose_now(running) if request.relative else np.zeros(3)
+            goal = pose + np.asarray(request.values, dtype=float)
+            for i, name in enumerate(("pan", "tilt", "vergence")):
+                low, high = head.pose_low[i], head.pose_high[i]
+                if not low - 1e-9 <= goal[i] <= high + 1e-9:
+                    where = f"{pose[i]:.2f} + {request.values[i]:g} = {goal[i]:.2f}" if request.relative \
+                        else f"{goal[i]:g}"
+                    raise InvalidRequestError(f"{name}: {where} deg is outside the limits [{low:g}, {high:g}] deg "
+                                              "(servo_bus.joints, fixation.vergence_range)", name)
+        job = self.parts.looks.submit(request, replace=replace)
+        log.info("look %d queued: %s", job.id, request.as_dict())
+        return job
+
+    def get_look(self, look_id: int) -> LookJob:
+        return self.parts.looks.get(look_id)
+
+    def cancel_look(self, look_id: int) -> LookJob:
+        return self.parts.looks.cancel(look_id)
+
+    def measure_disparity(self, x: float, y: float) -> tuple[float, float]:
+        """The disparity (px, x_right - x_left) at (x, y) of the left image in the latest stereo
+        pair, and the NCC of the match: where the patch around it lies in the right image, along
+        the same rows, within the map's disparity range (what fine vergence measures at the
+        fovea, measured off-centre)."""
+        running = self._running()
+        pair = running.pair.latest()
+        now = self.parts.clock.monotonic()
+        age_s = None if pair is None else now - min(pair.left.time_s, pair.right.time_s)
+        if pair is None or age_s is None or age_s > PAIR_MAX_AGE_S:
+            raise UnavailableError(f"d: no stereo pair from the last {PAIR_MAX_AGE_S:g} s to measure the "
+                                   f"disparity at ({x:g}, {y:g}) in; send d", "d")
+        params = running.fixation.controller.params
+        d, ncc = horizontal_offset(as_grey_float(pair.left.image), as_grey_float(pair.right.image), (x, y),
+                                   params.vergence_patch_size, running.adapter.map.params.disparity_range)
+        if ncc < MIN_DISPARITY_NCC:
+            raise InvalidRequestError(
+                f"d: the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "
+                f"scores NCC {ncc:.2f} < {MIN_DISPARITY_NCC}: too near the border, no texture there, or "
+                "seen by one eye only); send d", "d")
+        return d, ncc
+
+    # -- switches -----------------------------------------------------------------------------
+    def set_exploration(self, enabled: bool) -> bool:
+        fix = self._running().fixation
+        if fix.explore != enabled:
+            fix.explore = enabled
+            log.info("exploration %s (requested)", "on" if enabled else "off")
+            self.parts.hub.publish("exploration", enabled=enabled)
+        return fix.explore
+
+    def set_torque(self, enabled: bool) -> bool:
+        loop = self._running().loop
+        if loop.down_reason is not None:
+            raise UnavailableError(f"servo bus down ({loop.down_reason}): torque cannot be switched now")
+        try:
+            loop.set_torque(enabled)
+        except DriverError as err:
+            raise ControlError(f"torque {'on' if enabled else 'off'} failed: {err}", "enabled") from err
+        self.parts.hub.publish("torque", enabled=enabled)
+        return enabled
+
+    # -- the map ------------------------------------------------------------------------------
+    def _map_path(self, name: str | None) -> Path:
+        if name is None:
+            return self.parts.config.map_path
+        if not MAP_NAME.fullmatch(name):
+            raise InvalidRequestError(f"name {name!r}: expected a file name in the state directory, such as "
+                                      "'before-lens-swap.npz' (letters, digits, . _ -; ending .npz)", "name")
+        return self.parts.config.state_dir / name
+
+    def save_map(self, name: str | None = None) -> dict[str, Any]:
+        """Save the map (default: the checkpoint file, atomically, keeping .prev)."""
+        running = self._running()
+        path = self._map_path(name)
+        if name is None:
+            checkpointer = running.checkpointer
+            checkpointer.save()
+            if checkpointer.error:
+                raise ControlError(checkpointer.error, "name")
+            adaptations = checkpointer.last_adaptations
+        else:
+            def save(gm: GazeMap) -> int:
+                gm.save(path)
+                return gm.adaptations
+
+            try:
+                adaptations = running.adapter.with_map(save)
+            except OSError as err:
+                raise ControlError(f"{path}: cannot save: {err}", "name") from err
+        self.parts.hub.publish("map", action="saved", path=str(path), adaptations=adaptations)
+        return {"path": str(path), "adaptations": adaptations}
+
+    def load_map(self, name: str | None = None) -> dict[str, Any]:
+        """Replace the map being learned by a saved one (made for the same map parameters)."""
+        running = self._running()
+        path = self._map_path(name)
+        if not path.exists():
+            raise NotFoundError(f"{path}: no such map file", "name")
+        try:
+            gm = GazeMap.load(path)
+        except MapFileError as err:
+            raise ControlError(str(err), "name") from err
+        if gm.params != self.parts.config.map_params():
+            raise ControlError(f"{path}: saved for other map parameters (image size {gm.params.image_size}, "
+                               f"grid {gm.params.grid_shape}, profile {gm.params.profile}) than this head's",
+                               "name")
+        running.adapter.replace_map(gm)
+        log.warning("gaze map replaced by %s (%d adaptations)", path, gm.adaptations)
+        self.parts.hub.publish("map", action="loaded", path=str(path), adaptations=gm.adaptations)
+        return {"path": str(path), "adaptations": gm.adaptations}
+
+    def reset_map(self, seed: int | None = None) -> dict[str, Any]:
+        """Start learning again from a random map; the map before is saved as `before-reset.npz`."""
+        running = self._running()
+        config = self.parts.config
+        backup = config.state_dir / "before-reset.npz"
+        running.adapter.with_map(lambda gm: gm.save(backup, keep_previous=False))
+        seed = config.gaze_map.seed if seed is None else seed
+        running.adapter.replace_map(GazeMap(config.map_params(), seed=seed))
+        log.warning("gaze map reset to a random map (seed %d); the previous one is in %s", seed, backup)
+        self.parts.hub.publish("map", action="reset", seed=seed, backup=str(backup), adaptations=0)
+        return {"path": str(config.map_path), "adaptations": 0, "backup": str(backup)}
+
+    # -- fault injection (simulated head only) ---------------------------------------------------
+    def inject_fault(self, fault: SimFault, joint: str | None = None, camera: str | None = None,
+                     bits: int = 0) -> str:
+        devices = self.parts.devices
+        world = devices.world if devices is not None else None
+        if world is None:
+            raise UnavailableError("fault injection needs the simulated head (servo_bus.backend: sim)", "fault")
+        if fault is SimFault.BUS_DOWN:
+            world.bus.inject_bus_down()
+        elif fault is SimFault.RESTORE_BUS:
+            world.bus.restore_bus()
+        elif fault is SimFault.HARDWARE_ERROR:
+            if joint not in JOINTS:
+                raise InvalidRequestError(f"hardware_error needs joint: one of {', '.join(JOINTS)}, got {joint!r}",
+                                          "joint")
+            world.bus.inject_hardware_error(joint, bits or 0b0010_0000)
+        elif camera not in ("left", "right"):
+            raise InvalidRequestError(f"{fault} needs camera: left or right, got {camera!r}", "camera")
+        elif fault is SimFault.CAMERA_STALL:
+            world.stalled.add(camera)
+        else:
+            world.stalled.discard(camera)
+        log.warning("injected fault: %s %s", fault, joint or camera or "")
+        return str(fault)

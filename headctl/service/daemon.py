@@ -1,0 +1,262 @@
+"""The service for one head: `Daemon(config).run()` is `headctl run`.
+
+`start()` builds the head from its config and starts its threads, each with one job:
+
+- `camera-left`, `camera-right`: the cameras' capture threads (latest frame + history);
+- `servo-io` (`servo_loop.ServoLoop`): one read and one write of the bus per period;
+- `fixation` (`fixation_thread.FixationThread`): clients' looks, else exploratory fixations
+  on the `Head` (whose bus is the servo loop and whose pairs come from the capture threads);
+- `gaze-adapter` (`calib_free.adapter.MapAdapter`): learns from the taught fixations, with
+  atomic checkpoints (`persistence.Checkpointer`);
+- `api-server` (`headctl.api.ApiServer`): the HTTP control API and dashboard, over
+  `control.ServiceControl`;
+- `supervisor` (`supervisor.Supervisor`): systemd's status and watchdog, fault events,
+  stalled cameras.
+
+`stop()` finishes the fixation in progress, saves the map, leaves the servos in the
+configured safe state and closes every device; it is idempotent. `run()` starts, waits for
+SIGTERM/SIGINT (or `request_stop()`), and stops. A `Daemon` is also a context manager.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import threading
+import time
+from typing import Any
+
+from calib_free.adapter import MapAdapter, Sample
+from calib_free.fixation import FixationController
+from calib_free.gaze_map import AdaptResult
+from calib_free.kinematics import JOINTS
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import DriverError
+from drivers.stereo import StereoPair
+from headctl.config import HeadConfig, is_loopback
+from headctl.errors import HeadctlError
+from headctl.head import StereoPairSource
+from headctl.service.build import HeadDevices, build_head
+from headctl.service.control import ServiceControl
+from headctl.service.events import EventHub, EventLog
+from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
+from headctl.service.looks import LookQueue
+from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
+from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
+from headctl.service.servo_loop import ServoLoop
+from headctl.service.status import FaultWatcher
+from headctl.service.supervisor import Supervisor, status_line
+from headctl.service.systemd import SystemdNotifier
+
+log = logging.getLogger(__name__)
+
+
+class Daemon:
+    """The service for one head; see the module docstring."""
+
+    def __init__(self, config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> None:
+        self.config = config
+        self.clock = clock
+        self.parts = ServiceParts(config=config, clock=clock, hub=EventHub(), warnings=EventLog(),
+                                  looks=LookQueue(config.api.max_queued_looks), learning=LearningLog(clock),
+                                  started_s=clock.monotonic())
+        self.notifier = SystemdNotifier()
+        self.api_server: Any = None  # headctl.api.ApiServer once listening
+        self.control = ServiceControl(self.parts, self._api_faults)
+        self.faults = FaultWatcher(self.parts, self.parts.hub, self._api_faults)
+        self.stop_requested = threading.Event()
+        self._abort = threading.Event()  # stops the fixation in progress, for good
+        self._stack = contextlib.ExitStack()
+        self._supervisor: Supervisor | None = None
+        self._lifecycle = threading.Lock()
+
+    @property
+    def phase(self) -> ServicePhase:
+        return self.parts.phase
+
+    @property
+    def api_url(self) -> str | None:
+        return self.parts.api_url
+
+    def _api_faults(self) -> dict[str, str]:
+        api = self.api_server
+        if api is not None and self.parts.phase is ServicePhase.RUNNING and (api.error is not None
+                                                                            or not api.is_alive()):
+            return {"api": f"control API stopped: {api.error!r}"}
+        return {}
+
+    # -- lifecycle ----------------------------------------------------------------------------
+    def __enter__(self) -> "Daemon":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def start(self) -> "Daemon":
+        """Build the head and start every thread; returns once the service runs. On failure
+        whatever was started is stopped again and the error raised."""
+        with self._lifecycle:
+            if self.parts.phase is not ServicePhase.STARTING:
+                raise HeadctlError(f"the service is {self.parts.phase}: a Daemon starts once")
+            try:
+                self._start()
+            except BaseException:
+                self._stop()
+                raise
+        return self
+
+    def _start(self) -> None:
+        cfg, clock, parts, stack = self.config, self.clock, self.parts, self._stack
+        # A thread waiting for the GIL gets it after this long (CPython's default is 5 ms): the
+        # servo loop's timer would otherwise wait behind Python-level work of the other threads.
+        sys.setswitchinterval(cfg.service.switch_interval_ms / 1000.0)
+        cfg.state_dir.mkdir(parents=True, exist_ok=True)
+        stack.callback(self.notifier.close)
+        logging.getLogger().addHandler(parts.warnings)
+        stack.callback(logging.getLogger().removeHandler, parts.warnings)
+        stack.enter_context(StateDirLock(cfg.lock_path))
+        if cfg.api.enabled:
+            self._start_api()
+        self.notifier.notify(status="starting: restoring the gaze map")
+        gm, source, problems = restore_map(cfg)
+        parts.map_origin = MapOrigin(source, problems, gm.adaptations, list(gm.recent_errors))
+        self.notifier.notify(status="starting: compiling the gaze map's inner loops")
+        compile_s = gm.warm_up()
+        (log.info if compile_s > 1.0 else log.debug)("gaze map inner loops ready in %.1f s", compile_s)
+
+        devices = stack.enter_context(HeadDevices.build(cfg, clock))
+        parts.devices = devices
+        devices.bus.enable()
+        pair = stack.enter_context(StereoPair(devices.cameras["left"], devices.cameras["right"],
+                                              cfg.cameras.tolerance_s))
+        for camera in devices.cameras.values():
+            camera.enable()
+        loop = ServoLoop(devices.bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s,
+                         realtime_priority=cfg.service.realtime_priority, on_fault_change=self._fault_changed,
+                         clock=clock)
+        loop.start()
+        stack.callback(loop.stop)
+        adapter = MapAdapter(gm, on_adapted=self._on_adapted)
+        checkpointer = Checkpointer(adapter, cfg.map_path, cfg.service.checkpoint_every, clock=clock)
+        adapter.start()
+        stack.callback(adapter.stop)
+        interrupt = Interrupt(self._abort)
+        head_events = HeadEvents(parts.hub)
+        head = build_head(cfg, loop, StereoPairSource(pair, clock=clock, interrupt=interrupt), clock,
+                          interrupt=interrupt, observer=head_events, goals_in_force=loop.goals)
+        controller = FixationController(head, adapter, cfg.fixation.params,
+                                        seed=None if not cfg.simulated else cfg.gaze_map.seed,
+                                        clock=clock.monotonic, learner=adapter)
+        fixation = FixationThread(controller, head, interrupt, parts.looks, parts.hub, self._paused_reason,
+                                  explore=cfg.fixation.explore, rate_hz=cfg.fixation.rate_hz, clock=clock)
+        parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
+        fixation.start()
+        stack.callback(fixation.stop)
+        parts.phase = ServicePhase.RUNNING
+        self._supervisor = Supervisor(parts, self.notifier, self.faults)
+        self._supervisor.start()
+        log.info("headctl running: %s, state in %s, API %s", cfg.path, cfg.state_dir,
+                 parts.api_url or "off (api.enabled: false)")
+        self.notifier.notify(ready=1, status=status_line(parts, self.faults.check()))
+
+    def _start_api(self) -> None:
+        from headctl.api import ApiServer  # FastAPI and uvicorn: only when the API is on
+
+        cfg, api = self.config, self.config.api
+        self.api_server = self._stack.enter_context(ApiServer(
+            self.control, api.host, api.port, api.token, api.stream_fps, api.jpeg_quality, api.tls_cert,
+            api.tls_key))
+        if not api.tls_cert and not is_loopback(api.host):
+            log.warning("api: %s is served without TLS: the token crosses the network in clear text "
+                        "(set api.tls_cert and api.tls_key, or reach it through an SSH tunnel)", api.host)
+        self.parts.api_url = self.api_server.url
+        write_atomically(cfg.api_url_path, self.api_server.url + "\n")
+        self._stack.callback(cfg.api_url_path.unlink, missing_ok=True)
+
+    def _fault_changed(self) -> None:
+        self.faults.check()  # the servo loop's bus went down or came back, a joint faulted or cleared
+
+    def _paused_reason(self) -> str | None:
+        running = self.parts.running
+        if running is None:
+            return "starting"
+        if running.loop.down_reason is not None:
+            return "servo bus down"
+        if not running.loop.torque_enabled:
+            return "torque off"
+        return None
+
+    def _on_adapted(self, sample: Sample, result: AdaptResult) -> None:
+        running = self.parts.running
+        if running is None:
+            return
+        adaptations = running.adapter.progress.adaptations
+        self.parts.learning.add(adaptations, sample, result, time.time())
+        running.checkpointer.maybe(adaptations)
+
+    def stop(self) -> None:
+        """Stop every thread, save the map, leave the servos in the safe state, close the devices.
+        Idempotent."""
+        with self._lifecycle:
+            self._stop()
+
+    def _stop(self) -> None:
+        if self.parts.phase is ServicePhase.STOPPED:
+            return
+        started = time.monotonic()
+        self.parts.phase = ServicePhase.STOPPING
+        self.notifier.notify(stopping=1, status="stopping: finishing the fixation, saving the gaze map")
+        if self._supervisor is not None:
+            self._supervisor.stop()
+        running = self.parts.running
+        try:
+            if running is not None:
+                budget_s = self.config.service.shutdown_timeout_s
+                running.fixation.stop(timeout_s=min(2.0, budget_s / 2))
+                running.adapter.wait_idle(timeout_s=0.5)
+                running.adapter.stop(timeout_s=0.5)
+                running.checkpointer.save()
+                self._safe_state(running)
+        finally:
+            self._stack.close()
+            self.parts.running = None
+            self.parts.phase = ServicePhase.STOPPED
+        log.info("shutdown took %.2f s", time.monotonic() - started)
+
+    def _safe_state(self, running: RunningParts) -> None:
+        loop, bus = running.loop, running.devices.bus
+        state = loop.latest_state()
+        if state is not None and loop.down_reason is None and loop.is_alive():
+            try:
+                loop.request_goals({j: state[j].position for j in JOINTS if state[j].torque_on}, timeout_s=0.5)
+            except (DriverError, HeadctlError) as err:
+                log.warning("could not hold the present position at shutdown: %s", err)
+        loop.stop()
+        if self.config.service.safe_state == "torque_off":
+            try:
+                bus.disable()
+            except DriverError as err:
+                log.warning("could not turn torque off at shutdown: %s", err)
+
+    # -- running as a process -------------------------------------------------------------------
+    def request_stop(self, signum: int | None = None, frame: Any = None) -> None:
+        if signum is not None:
+            log.info("signal %d: stopping", signum)
+        self.stop_requested.set()
+
+    def run(self, install_signals: bool = True) -> int:
+        """Start, run until SIGTERM/SIGINT or `request_stop()`, stop; the exit code."""
+        if install_signals:
+            import signal
+
+            signal.signal(signal.SIGTERM, self.request_stop)
+            signal.signal(signal.SIGINT, self.request_stop)
+        self.start()
+        try:
+            while not self.stop_requested.wait(0.5):
+                pass
+        finally:
+            self.stop()
+        log.info("headctl stopped")
+        return 0

@@ -1,0 +1,253 @@
+"""The fixation thread: clients' looks first, else exploratory fixations that teach the map.
+
+Each fixation is `calib_free.fixation.FixationController.fixate()` on the service's `Head`;
+taught ones go to the map adapter (the controller submits them). The thread is paused while
+the servo bus is down or torque is off. `Interrupt` is what the head calls before every bus
+access and frame wait: it stops the fixation in progress when the service stops (for good)
+or when a client cancels the look in progress (that look only). `HeadEvents` turns what the
+head tells into events and figures (phase, saccade onset and end, vergence latency).
+"""
+from __future__ import annotations
+
+import collections
+import contextlib
+import logging
+import threading
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from calib_free.fixation import (FixationController, FixationInterrupted, FixationOutcome,
+                                 FixationRecord, HeadTimeoutError)
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import DriverError
+from headctl.head import Head
+from headctl.service.events import EventHub, plain
+from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
+from headctl.service.servo_loop import join_thread
+
+log = logging.getLogger(__name__)
+
+
+class Interrupt:
+    """Why the head's work in progress must stop: the service stopping (for good), or a client
+    cancelling the look in progress. Called by the head before every bus access and every
+    slice of waiting for frames, so a fixation stops within one servo cycle or one frame
+    slice; the motion already sent is completed, no further saccade or vergence step is sent."""
+
+    def __init__(self, stop: threading.Event) -> None:
+        self.stop = stop
+        self._look: LookJob | None = None
+
+    def __call__(self) -> None:
+        if self.stop.is_set():
+            raise FixationInterrupted(FixationOutcome.SHUTDOWN, "the service is stopping")
+        look = self._look
+        if look is not None and look.cancel_requested.is_set():
+            raise FixationInterrupted(FixationOutcome.CANCELLED, f"look {look.id} stopped: {look.cancel_detail}")
+
+    @contextlib.contextmanager
+    def during(self, job: LookJob) -> Iterator[None]:
+        """Cancelling `job` interrupts what runs inside this block."""
+        self._look = job
+        try:
+            yield
+        finally:
+            self._look = None
+
+
+class HeadEvents:
+    """A `headctl.head.HeadObserver` publishing saccade onset and end, and keeping the phase and
+    the vergence steps' frame-to-command latencies for the status."""
+
+    def __init__(self, hub: EventHub) -> None:
+        self.hub = hub
+        self.current_phase = "starting"
+        self.vergence_latency_s: collections.deque[float] = collections.deque(maxlen=2000)
+
+    def phase(self, phase: str) -> None:
+        self.current_phase = phase
+
+    def saccade_onset(self, pose_before: np.ndarray, goal: np.ndarray) -> None:
+        self.hub.publish("saccade_onset", pose_before=pose_before, goal=goal)
+
+    def saccade_done(self, pose: np.ndarray, goal: np.ndarray, duration_s: float) -> None:
+        self.hub.publish("saccade_done", pose=pose, goal=goal, duration_s=duration_s)
+
+    def vergence_commanded(self, frame_to_command_s: float) -> None:
+        self.vergence_latency_s.append(frame_to_command_s)
+
+
+class FixationThread(threading.Thread):
+    """Clients' looks first, else exploratory fixations (back to back or at `rate_hz`) while
+    exploration is on; paused while `paused_reason()` says why."""
+
+    SAME_VIEW_DEG = 0.25  # the head moved less than this on every axis: the same view
+
+    def __init__(self, controller: FixationController, head: Head, interrupt: Interrupt, looks: LookQueue,
+                 events: EventHub, paused_reason: Callable[[], str | None], *, explore: bool = True,
+                 rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK) -> None:
+        super().__init__(name="fixation", daemon=True)
+        self.controller = controller
+        self.head = head
+        self.interrupt = interrupt
+        self.abort = interrupt.stop
+        self.looks = looks
+        self.events = events
+        self.paused_reason = paused_reason
+        self.explore = explore
+        self.min_interval_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self.clock = clock
+        self.done = 0
+        self.taught = 0
+        self.refused: collections.Counter[str] = collections.Counter()
+        self.last: FixationRecord | None = None
+        self.landing_errors_px: collections.deque[float] = collections.deque(maxlen=200)  # target looks'
+        self.error: BaseException | None = None
+        self._lock = threading.Lock()
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        self.abort.set()
+        join_thread(self, timeout_s)
+
+    def counts(self) -> dict[str, Any]:
+        with self._lock:
+            return {"done": self.done, "taught": self.taught, "refused": dict(self.refused)}
+
+    def run(self) -> None:
+        next_explore_s = 0.0
+        try:
+            while not self.abort.is_set():
+                job = self.looks.take()
+                if job is not None:
+                    self._look(job)
+                    continue
+                paused = self.paused_reason()
+                now = self.clock.monotonic()
+                if paused is not None or not self.explore or now < next_explore_s:
+                    self.head.set_phase(f"paused ({paused})" if paused else
+                                        "idle" if self.explore else "idle (exploration off)")
+                    wait_s = 0.05 if paused or self.explore else 0.2
+                    if self.explore and not paused:
+                        wait_s = min(wait_s, next_explore_s - now)
+                    self.looks.wait_for_work(max(wait_s, 0.001))  # a look wakes it at once
+                    continue
+                self._fixate(None)
+                next_explore_s = now + self.min_interval_s
+        except Exception as err:  # reported through the status, never lost
+            self.error = err
+            log.exception("%s: the fixation controller failed", self.name)
+        finally:
+            self.head.set_phase("stopped")
+            self.looks.cancel_all("the fixation controller stopped")
+
+    def _fixate(self, target: np.ndarray | None, reference_pose: np.ndarray | None = None) -> FixationRecord:
+        """One fixation, taught or refused (an interrupted one is refused with the reason)."""
+        self.head.set_phase("choosing target")
+        try:
+            record = self.controller.fixate(target, reference_pose)
+        finally:
+            self.head.set_phase("idle")
+        if record.outcome is FixationOutcome.SERVO_FAULT:
+            log.warning("fixation aborted: %s", record.detail)
+            self.abort.wait(0.2)
+        elif record.outcome in (FixationOutcome.BUS_DOWN, FixationOutcome.CANCELLED):
+            log.info("fixation aborted: %s", record.detail)
+        self._count(record)
+        return record
+
+    def _look(self, job: LookJob) -> None:
+        request = job.request
+        self.events.publish("look_started", id=job.id, **request.as_dict())
+        paused = self.paused_reason()
+        try:
+            if paused is not None:
+                self.looks.finish(job, LookState.FAILED, paused, f"cannot look: {paused}")
+            else:
+                with self.interrupt.during(job):
+                    if request.kind is LookKind.TARGET:
+                        self._look_at_target(job)
+                    else:
+                        self._look_at_angles(job)
+        except BaseException as err:  # a client waiting on it hears of it before the thread reports it
+            if not job.done.is_set():
+                self.looks.finish(job, LookState.FAILED, "internal error", repr(err))
+            raise
+        finally:
+            self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
+
+    def _look_at_target(self, job: LookJob) -> None:
+        target = np.asarray(job.request.values, dtype=float)
+        reference = job.request.reference_pose
+        record = self._fixate(target, None if reference is None else np.asarray(reference))
+        result: dict[str, Any] = {"converged": record.converged, "taught": record.taught,
+                                  "vergence_steps": record.vergence_steps, "duration_s": record.duration_s,
+                                  "pose_before": record.pose_before, "pose_after": record.pose_after,
+                                  "planned": record.planned, "position": None, "confidence": None,
+                                  "landing_error_px": None}
+        moved = (None if reference is None or record.pose_before is None
+                 else float(np.max(np.abs(record.pose_before - np.asarray(reference)))))
+        result["head_moved_deg"] = moved
+        if record.match is not None and record.position is not None:
+            result.update(position=record.position, confidence=record.confidence)
+            # Where the head landed, in the image the target was chosen in: measurable only
+            # when the pre-fixation images are that view (the head has not moved since).
+            if moved is None or moved <= self.SAME_VIEW_DEG:
+                landing = float(np.hypot(*(record.position[:2] - target[:2])))
+                result["landing_error_px"] = landing
+                self.landing_errors_px.append(landing)
+        outcome = str(record.outcome)
+        if record.outcome is FixationOutcome.CANCELLED:
+            self.looks.finish(job, LookState.CANCELLED, job.cancel_outcome, job.cancel_detail, plain(result))
+        else:
+            self.looks.finish(job, LookState.DONE if record.converged else LookState.FAILED, outcome,
+                              record.detail, plain(result))
+
+    def _look_at_angles(self, job: LookJob) -> None:
+        request = job.request
+        self.head.set_phase("look at angles")
+        try:
+            before = self.head.read_pose()
+            goal = before + request.values if request.relative else np.asarray(request.values, dtype=float)
+            outside = [f"{name} {value:.2f} outside [{lo:g}, {hi:g}]" for name, value, lo, hi in
+                       zip(("pan", "tilt", "vergence"), goal, self.head.pose_low, self.head.pose_high)
+                       if not lo - 1e-9 <= value <= hi + 1e-9]
+            if outside:  # never clamped silently: the client asked for somewhere the head cannot go
+                self.looks.finish(job, LookState.FAILED, "outside the joint limits", "; ".join(outside))
+                return
+            self.head.move_to(goal)
+            self.head.wait_settled(self.controller.params.settle_timeout_s)
+            after = self.head.read_pose()
+        except FixationInterrupted as err:
+            if err.outcome is FixationOutcome.CANCELLED:
+                self.looks.finish(job, LookState.CANCELLED, job.cancel_outcome, job.cancel_detail)
+            else:
+                self.looks.finish(job, LookState.FAILED, str(err.outcome), str(err))
+            return
+        except (DriverError, HeadTimeoutError) as err:
+            self.looks.finish(job, LookState.FAILED, type(err).__name__, str(err))
+            return
+        finally:
+            self.head.set_phase("idle")
+        self.looks.finish(job, LookState.DONE, "reached", "", plain({"pose_before": before, "pose_after": after,
+                                                                       "goal": goal}))
+
+    def _count(self, record: FixationRecord) -> None:
+        with self._lock:
+            self.done += 1
+            if record.taught:
+                self.taught += 1
+            else:
+                self.refused[str(record.outcome)] += 1
+            self.last = record
+        # One event a fixation: converged (taught, or refused after converging: the outcome
+        # says why), or refused before converging.
+        kind = str(record.kind)
+        if record.converged:
+            self.events.publish("fixation_converged", index=record.index, kind=kind, taught=record.taught,
+                                outcome=str(record.outcome), detail=record.detail, confidence=record.confidence,
+                                position=record.position)
+        else:
+            self.events.publish("fixation_refused", index=record.index, kind=kind, reason=str(record.outcome),
+                                detail=record.detail)
+
