@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_free.sim import HeadModel, joints_of as joints  # noqa: F401 (re-exported for the tests)
+from calib_free.kinematics import joints_of as joints  # noqa: F401 (re-exported for the tests)
+from calib_free.sim import HeadModel
 from drivers.sim_scene import Scene
 
 

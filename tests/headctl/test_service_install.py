@@ -10,8 +10,8 @@ import subprocess
 import pytest
 
 from headctl.config import load_config
+from tests.support import ROOT
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
 RULES = sorted((ROOT / "udev").glob("*.rules"))
 UNIT = ROOT / "systemd" / "headctl@.service"
 EXAMPLES = ["sim.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]

@@ -10,7 +10,7 @@ from calib_free.correspondence import (CorrespondenceError, CorrespondenceParams
                                        stereo_inconsistency)
 from calib_free.sim import HeadModel, JointLimits
 from drivers.sim_scene import StereoRenderer, shared_scene
-from sim_truth import first_surface, foveal_point, joints
+from tests.support.sim_truth import first_surface, foveal_point, joints
 
 W, H = 320, 240
 

@@ -20,8 +20,9 @@ except ImportError as err:  # no silent skips: name the install step
     raise ImportError(f"{err}: run ./setup.sh (pip install -e '.[test]' installs dynamixel-sdk and pyyaml)") from err
 
 from drivers.clock import ManualClock, MonotonicClock
+from drivers.dxl_control_table import DEG_PER_TICK, XAddr, ticks_to_deg
 from drivers.dxl_emulator import DxlEmulator
-from drivers.dynamixel import DEG_PER_TICK, DynamixelBus, XAddr, ticks_to_deg
+from drivers.dynamixel import DynamixelBus
 from drivers.servo_bus import JOINTS, ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 

@@ -20,7 +20,7 @@ from drivers.errors import (
     ServoHardwareError,
 )
 from drivers.servo_bus import JOINTS, REOPEN_BACKOFF_MAX_S, BusState
-from servo_rigs import make_rig
+from tests.support.servo_rigs import make_rig
 
 BACKENDS = ["sim", "dynamixel-emulator", pytest.param("hardware", marks=pytest.mark.hardware)]
 FAULT_BACKENDS = ["sim", "dynamixel-emulator"]
@@ -250,7 +250,7 @@ class TestFaultContract:
             assert state["tilt"].position == pytest.approx(-15.0, abs=TICK_DEG)
 
     @pytest.mark.parametrize("auto_reboot", [False, True])
-    def test_an_error_that_keeps_torque_is_reported_not_rebooted(self, make, auto_reboot):
+    def test_an_error_that_keeps_torque_is_rebooted_only_once_it_lasts(self, make, auto_reboot):
         rig = make(reboot_on_hardware_error=auto_reboot)
         with rig.bus as bus:
             bus.enable()
@@ -259,16 +259,33 @@ class TestFaultContract:
             assert state.torque_on and state.hardware_errors == ("input voltage out of range",)
             bus.write_goals({"tilt": 5.0})  # the servo still works: goals go through
             assert _settle(rig, bus)["tilt"].position == pytest.approx(5.0, abs=TICK_DEG)
-            assert bus.read_state()["tilt"].hardware_error_bits == 0x01
+            rig.advance(0.5)
+            assert bus.read_state()["tilt"].hardware_error_bits == 0x01  # not yet: it may pass
+            rig.advance(bus.recovery.limits.persist_s)
+            state = bus.read_state()["tilt"]
+            # Lasting: rebooted (the error is latched until then), torque back where it was.
+            assert state.hardware_error_bits == (0 if auto_reboot else 0x01)
+            assert state.torque_on and state.position == pytest.approx(5.0, abs=TICK_DEG)
+            assert bus.recovery.reboots == ({("tilt", "input voltage out of range"): 1} if auto_reboot else {})
 
     def test_a_repeating_hardware_error_is_not_rebooted_in_a_loop(self, make):
         rig = make(reboot_on_hardware_error=True)
         with rig.bus as bus:
             bus.enable()
+            limits = bus.recovery.limits
             rig.hardware_error("pan", 0x04)
             assert bus.read_state()["pan"].hardware_error_bits == 0  # rebooted once
             rig.hardware_error("pan", 0x04)
             assert bus.read_state()["pan"].hardware_error_bits == 0x04  # reported, not rebooted
+            for _ in range(limits.max_reboots - 1):  # back after each holdoff: rebooted again...
+                rig.advance(limits.holdoff_s)
+                assert bus.read_state()["pan"].hardware_error_bits == 0
+                rig.hardware_error("pan", 0x04)
+            rig.advance(limits.holdoff_s)  # ...until the limit: then left to a person
+            assert bus.read_state()["pan"].hardware_error_bits == 0x04
+            assert bus.recovery.given_up == {"pan"} and bus.recovery.reboots[("pan", "overheating")] == 3
+            bus.reboot("pan")  # by hand: free again, and automatic recovery applies again
+            assert bus.read_state()["pan"].hardware_error_bits == 0 and not bus.recovery.given_up
 
     def test_bus_down_then_back_restores_torque_after_reading_positions(self, make, caplog):
         rig = make()

@@ -15,7 +15,6 @@ import pytest
 INSTALL = "run ./setup.sh (it installs gir1.2-aravis-0.8, aravis-tools and PyGObject<3.51)"
 try:
     from drivers import aravis_camera
-    from drivers.aravis_camera import AravisCamera
 except (ImportError, ValueError) as err:  # ValueError: gi without the Aravis 0.8 typelib
     pytest.fail(f"the Aravis backend does not import ({err}): {INSTALL}", pytrace=False)
 

@@ -81,7 +81,8 @@ def test_device_resolution_and_errors(tmp_path):
         OpenCVCamera(CameraConfig(backend="opencv", device="/dev/null"), name="right").open()
     with pytest.raises(CameraConfigError, match="pixel_format 'MJPEG': expected a FourCC"):
         OpenCVCamera(CameraConfig(backend="opencv", pixel_format="MJPEG"))
-    with pytest.raises(CameraConfigError, match=r"cams\.l\.id: not used by the 'opencv' backend"):
+    with pytest.raises(CameraConfigError, match=r"cams\.l\.id: got 'Fake_1', expected nothing: id is not used by the "
+                                                r"'opencv' backend"):
         create_camera(CameraConfig(backend="opencv", id="Fake_1"), key_path="cams.l")
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from drivers.errors import BackendNotFoundError, ServoConfigError
 from drivers.servo_bus import JOINTS, JointConfig, ServoBusConfig, create_servo_bus, decode_hardware_error
-from servo_rigs import config_mapping
+from tests.support.servo_rigs import config_mapping
 
 
 def test_a_full_config_parses_into_typed_objects():
@@ -30,14 +30,19 @@ def test_defaults_fill_what_is_not_given():
 @pytest.mark.parametrize(
     ("patch", "message"),
     [
-        ({"speed": 5}, r"servo_bus\.speed: unknown key \(value 5\); expected one of: backend, port"),
+        ({"speed": 5}, (r"servo_bus\.speed: got 5, expected a known key \(servo_bus takes joints, backend, port, .*"
+                        r"reboot_timeout_s\); 'speed' is an unknown key")),
         ({"baud": 4_500_000}, r"servo_bus\.baud: got 4500000, expected one of 9600, .*4000000"),
         ({"limit_policy": "wrap"}, r"servo_bus\.limit_policy: got 'wrap', expected one of clamp, refuse"),
         ({"protocol": 1.0}, r"servo_bus\.protocol: got 1\.0, expected 2\.0: Protocol 1\.0 .*not supported"),
         ({"watchdog_ms": 30}, r"servo_bus\.watchdog_ms: got 30, expected a multiple of 20"),
         ({"retries": True}, r"servo_bus\.retries: got True, expected an integer"),
         ({"torque_on_close": "yes"}, r"servo_bus\.torque_on_close: got 'yes', expected true or false"),
-        ({"joints": {"pan": {"id": 1}}}, r"servo_bus\.joints: missing joint\(s\) tilt, left_eye, right_eye"),
+        ({"joints": {"pan": {"id": 1}}}, (r"servo_bus\.joints\.tilt: missing, expected every one of pan, tilt, "
+                                          r"left_eye, right_eye under servo_bus\.joints \(missing: tilt, left_eye, "
+                                          r"right_eye\)")),
+        ({"protocol": 3.0}, r"servo_bus\.protocol: got 3\.0, expected 2\.0$"),
+        ({"return_delay_us": 3}, r"servo_bus\.return_delay_us: got 3, expected an even number"),
     ],
 )
 def test_bad_bus_values_name_key_path_value_and_expectation(patch, message):
@@ -50,7 +55,8 @@ def test_bad_bus_values_name_key_path_value_and_expectation(patch, message):
 @pytest.mark.parametrize(
     ("joint_patch", "message"),
     [
-        ({"speed": 1}, r"servo_bus\.joints\.tilt\.speed: unknown key"),
+        ({"speed": 1}, (r"servo_bus\.joints\.tilt\.speed: got 1, expected a known key \(servo_bus\.joints\.tilt "
+                        r"takes id, model, .*\); 'speed' is an unknown key")),
         ({"id": 300}, r"servo_bus\.joints\.tilt\.id: got 300, expected an integer in \[0, 252\]"),
         ({"direction": 2}, r"servo_bus\.joints\.tilt\.direction: got 2, expected one of 1, -1"),
         ({"min_angle": 10, "max_angle": 5}, r"tilt\.min_angle: got 10\.0, expected less than max_angle"),
@@ -64,17 +70,26 @@ def test_bad_joint_values_name_the_joint_key_path(joint_patch, message):
         ServoBusConfig.from_mapping(config_mapping(joints={"tilt": joint_patch}))
 
 
+def test_joints_come_in_the_order_of_JOINTS_whatever_the_file_s():
+    data = config_mapping()
+    data["joints"] = dict(reversed(data["joints"].items()))
+    assert list(ServoBusConfig.from_mapping(data).joints) == list(JOINTS)
+
+
 def test_an_unknown_joint_is_rejected():
     data = config_mapping()
     data["joints"]["neck"] = {"id": 9}
-    with pytest.raises(ServoConfigError, match=r"servo_bus\.joints\.neck: unknown key"):
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.joints\.neck: got \{'id': 9\}, expected a known key "
+                                               r"\(servo_bus\.joints takes pan, tilt, left_eye, right_eye\); "
+                                               r"'neck' is an unknown key"):
         ServoBusConfig.from_mapping(data)
 
 
 def test_not_a_mapping():
-    with pytest.raises(ServoConfigError, match=r"head\.servos: expected a mapping"):
+    with pytest.raises(ServoConfigError, match=r"head\.servos: got \[1, 2\], expected a mapping with keys joints, "):
         ServoBusConfig.from_mapping([1, 2], key_path="head.servos")
-    with pytest.raises(ServoConfigError, match=r"servo_bus\.joints\.pan\.id: missing"):
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.joints\.pan\.id: missing, expected an integer in "
+                                               r"\[0, 252\]"):
         JointConfig.from_mapping({}, "servo_bus.joints.pan")
 
 

@@ -13,27 +13,18 @@ import pytest
 import yaml
 
 from calib_free import GazeMap
-from daemon_proc import SIM, DaemonProcess as Daemon
+from tests.support.daemon_proc import SIM
 
-pytestmark = pytest.mark.timeout(180)
-
-
-@pytest.fixture
-def daemons():
-    started: list[Daemon] = []
-    yield started
-    for d in started:
-        d.kill()
+pytestmark = [pytest.mark.timeout(180), pytest.mark.slow]
 
 
 def _taught(n):
     return lambda s: s["state"] in ("running", "degraded") and s["fixation"]["taught"] >= n
 
 
-def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path, daemons):
+def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path, service_process):
     state = tmp_path / "state"
-    d = Daemon(state)
-    daemons.append(d)
+    d = service_process(state)
     s = d.wait(_taught(2), 60, "two taught fixations")
     assert s["state"] == "running" and s["map"]["restored_from"] == "new"
     assert set(s["joints"]) == {"pan", "tilt", "left_eye", "right_eye"}
@@ -87,8 +78,7 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     assert saved.adaptations >= before["adaptations"]
     assert not (state / "api.url").exists()
 
-    again = Daemon(state)
-    daemons.append(again)
+    again = service_process(state)
     s = again.wait(lambda s: s["state"] == "running", 30, "restarted")
     assert s["map"]["restored_from"] == str(state / "gaze_map.npz")
     assert s["learning"]["adaptations"] >= saved.adaptations
@@ -103,14 +93,13 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     assert GazeMap.load(state / "gaze_map.npz").adaptations > saved.adaptations
 
 
-def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, daemons):
+def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, service_process):
     config = yaml.safe_load(SIM.read_text())
     config["service"]["checkpoint_every"] = 1  # a checkpoint after every adaptation
     path = tmp_path / "sim-every.yaml"
     path.write_text(yaml.safe_dump(config))
     state = tmp_path / "state"
-    d = Daemon(state, path)
-    daemons.append(d)
+    d = service_process(state, path)
     d.wait(lambda s: s["map"]["checkpoints"] >= 1, 60, "a first checkpoint")
     # Kill the moment a checkpoint's temporary file exists (mid-write), watching the directory.
     deadline = time.monotonic() + 60
@@ -121,21 +110,19 @@ def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, daemons):
     d.proc.wait(5)
     gm = GazeMap.load(state / "gaze_map.npz")
     assert gm.adaptations >= 1
-    again = Daemon(state, path)
-    daemons.append(again)
+    again = service_process(state, path)
     s = again.wait(lambda s: s["state"] == "running", 30, "restarted after kill -9")
     assert s["map"]["restored_from"] == str(state / "gaze_map.npz") and not s["map"]["problems"]
     assert again.terminate()[0] == 0
 
 
-def test_status_command_prints_the_state_and_fails_without_a_daemon(tmp_path, daemons, capsys):
+def test_status_command_prints_the_state_and_fails_without_a_daemon(tmp_path, service_process, capsys):
     from headctl.cli import main
 
     assert main(["status", "--state-dir", str(tmp_path / "none"), "--url", "http://127.0.0.1:9"]) == 1
     assert "cannot reach the daemon" in capsys.readouterr().err
     state = tmp_path / "state"
-    d = Daemon(state)
-    daemons.append(d)
+    d = service_process(state)
     d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 1, 30, "a fixation")
     assert main(["status", "--state-dir", str(state)]) == 0
     out = capsys.readouterr().out

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
-import dataclasses
 import http.client
 import json
 import signal
@@ -18,7 +17,6 @@ import sys
 import threading
 import time
 import urllib.parse
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -29,45 +27,23 @@ from calib_free import GazeMap
 from headctl.cli import main
 from headctl.client import ApiClient, ApiError
 from headctl.config import load_config
-from headctl.daemon import Daemon
+from headctl.service import Daemon
+from tests.conftest import sim_head_config
 from headctl.errors import HeadctlError
+from tests.support import TLS
 
 pytestmark = pytest.mark.timeout(120)
 
 TOKEN = "s3cret-token-for-the-tests"
 
 
-def start_daemon(state_dir, frame_timeout_s: float | None = None, **api):
-    config = load_config().with_state_dir(state_dir).with_api(port=0, **api)
-    if frame_timeout_s is not None:
-        fixation = config.fixation
-        params = dataclasses.replace(fixation.params, frame_timeout_s=frame_timeout_s)
-        config = dataclasses.replace(config, fixation=dataclasses.replace(fixation, params=params))
-    daemon = Daemon(config)
-    thread = threading.Thread(target=daemon.run, kwargs={"install_signals": False}, name="test-daemon")
-    thread.start()
-    deadline = time.monotonic() + 30
-    while daemon.phase != "running":
-        assert thread.is_alive(), "the daemon stopped while starting"
-        assert time.monotonic() < deadline, f"the daemon is still {daemon.phase} after 30 s"
-        time.sleep(0.02)
-    return daemon, thread
-
-
-def stop_daemon(daemon, thread):
-    daemon.request_stop()
-    thread.join(15)
-    assert not thread.is_alive(), "the daemon did not stop"
-
-
 @pytest.fixture(scope="module")
 def head(tmp_path_factory):
     # A look waiting for frames from a stalled camera lasts 10 s (not 2): long enough for a test
     # to catch it running on a loaded machine, however slowly its client starts.
-    daemon, thread = start_daemon(tmp_path_factory.mktemp("api-state"), frame_timeout_s=10.0, max_queued_looks=3)
-    client = ApiClient(daemon.api_url, timeout_s=10.0)
-    yield daemon, client
-    stop_daemon(daemon, thread)
+    with Daemon(sim_head_config(tmp_path_factory.mktemp("api-state"), frame_timeout_s=10.0,
+                                max_queued_looks=3)) as daemon:
+        yield daemon, ApiClient(daemon.api_url, timeout_s=10.0)
 
 
 def raw(client, method, path, body: bytes | str | None = None, headers=None):
@@ -130,7 +106,7 @@ def test_state_answers_while_the_map_is_busy(head):
         held.set()
         release.wait(30)
 
-    holder = threading.Thread(target=daemon.adapter.with_map, args=(hold,), name="holds-the-map")
+    holder = threading.Thread(target=daemon.parts.running.adapter.with_map, args=(hold,), name="holds-the-map")
     holder.start()
     try:
         assert held.wait(10), "could not take the map's lock"
@@ -199,8 +175,8 @@ def test_a_queued_target_goes_where_it_was_meant_though_the_head_moved_first(hea
         # The saccade went to the reference pose plus the map's command for the target (the map
         # as it was then: unchanged unless this look taught it).
         if not result["taught"]:
-            daemon.adapter.wait_idle(5)
-            meant = np.asarray(target["request"]["reference_pose"]) + daemon.adapter.command((200, 90, -4))
+            daemon.parts.running.adapter.wait_idle(5)
+            meant = np.asarray(target["request"]["reference_pose"]) + daemon.parts.running.adapter.command((200, 90, -4))
             assert np.asarray(result["pose_before"]) + result["planned"] == pytest.approx(meant, abs=0.05)
     finally:
         client.set_exploration(True)
@@ -363,7 +339,7 @@ def test_a_target_without_d_has_its_disparity_measured_there(head):
                 continue
             request = job["request"]
             assert request["d_measured"] is True and request["d_ncc"] >= 0.6, request
-            low, high = daemon.adapter.map.params.disparity_range
+            low, high = daemon.parts.running.adapter.map.params.disparity_range
             assert low <= request["d"] <= high
             if job["state"] == "done":
                 converged = job
@@ -401,7 +377,7 @@ def test_without_a_recent_stereo_pair_d_cannot_be_measured(head):
 def test_a_full_queue_is_429_and_replace_makes_the_newest_win(head):
     daemon, client = head
     client.set_exploration(False)
-    assert daemon.looks.size == 3  # the config's api.max_queued_looks
+    assert daemon.parts.looks.size == 3  # the config's api.max_queued_looks
     try:
         # Fill faster than the head moves: 1 running + 3 queued; then one more is refused.
         jobs, refused = [], None
@@ -653,29 +629,26 @@ def test_ctrl_c_on_headctl_look_cancels_the_look(head):
 
 
 # --- a token ---------------------------------------------------------------------------------
-def test_a_token_guards_every_route_but_the_page(tmp_path):
-    daemon, thread = start_daemon(tmp_path / "state", token=TOKEN)
-    try:
-        anonymous = ApiClient(daemon.api_url)
-        for method, path in (("GET", "/api/v1/state"), ("POST", "/api/v1/look/target"), ("GET", "/metrics"),
-                             ("GET", "/api/v1/eyes/left.jpg")):
-            status, answer, headers = raw(anonymous, method, path, "{}")
-            assert status == 401 and "token is required" in answer["reason"], (path, answer)
-            assert headers["www-authenticate"].startswith("Bearer")
-        with pytest.raises(ApiError) as err:
-            ApiClient(daemon.api_url, token="wrong-token-wrong-token").state()
-        assert err.value.status == 401 and err.value.reason == "wrong token"
-        assert ApiClient(daemon.api_url, token=TOKEN).state()["state"] in ("running", "degraded")
-        status, _, _ = raw(anonymous, "GET", f"/api/v1/state?token={TOKEN}")
-        assert status == 200
-        status, page, _ = raw(anonymous, "GET", "/")
-        assert status == 200
-    finally:
-        stop_daemon(daemon, thread)
+def test_a_token_guards_every_route_but_the_page(tmp_path, start_service):
+    daemon = start_service(sim_head_config(tmp_path / "state", token=TOKEN))
+    anonymous = ApiClient(daemon.api_url)
+    for method, path in (("GET", "/api/v1/state"), ("POST", "/api/v1/look/target"), ("GET", "/metrics"),
+                         ("GET", "/api/v1/eyes/left.jpg")):
+        status, answer, headers = raw(anonymous, method, path, "{}")
+        assert status == 401 and "token is required" in answer["reason"], (path, answer)
+        assert headers["www-authenticate"].startswith("Bearer")
+    with pytest.raises(ApiError) as err:
+        ApiClient(daemon.api_url, token="wrong-token-wrong-token").state()
+    assert err.value.status == 401 and err.value.reason == "wrong token"
+    assert ApiClient(daemon.api_url, token=TOKEN).state()["state"] in ("running", "degraded")
+    status, _, _ = raw(anonymous, "GET", f"/api/v1/state?token={TOKEN}")
+    assert status == 200
+    status, page, _ = raw(anonymous, "GET", "/")
+    assert status == 200
 
 
-def test_the_event_stream_ends_when_the_daemon_stops(tmp_path):
-    daemon, thread = start_daemon(tmp_path / "state")
+def test_the_event_stream_ends_when_the_daemon_stops(tmp_path, start_service):
+    daemon = start_service(sim_head_config(tmp_path / "state"))
     client = ApiClient(daemon.api_url)
     ended = threading.Event()
 
@@ -686,11 +659,11 @@ def test_the_event_stream_ends_when_the_daemon_stops(tmp_path):
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    wait_state(client, lambda s: daemon.hub.subscribers == 1, what="the stream subscribed")
+    wait_state(client, lambda s: daemon.parts.hub.subscribers == 1, what="the stream subscribed")
     started = time.monotonic()
-    stop_daemon(daemon, thread)
+    daemon.stop()
     assert ended.wait(10) and time.monotonic() - started < 10
-    assert daemon.hub.subscribers == 0
+    assert daemon.parts.hub.subscribers == 0
     assert not (daemon.config.state_dir / "api.url").exists()
 
 
@@ -707,31 +680,27 @@ def test_a_port_in_use_is_a_clear_error_at_start(tmp_path, capsys):
 
 
 # --- HTTPS ---------------------------------------------------------------------------------------
-TLS = Path(__file__).parent / "data" / "tls"  # test-only: a certificate naming head.example, and its key
 
 
-def test_https_with_the_daemons_own_certificate(tmp_path):
+def test_https_with_the_daemons_own_certificate(tmp_path, start_service):
     tls = {"token": TOKEN, "tls_cert": str(TLS / "head-cert.pem"), "tls_key": str(TLS / "head-key.pem")}
-    daemon, thread = start_daemon(tmp_path / "state", **tls)
-    try:
-        assert daemon.api_url.startswith("https://127.0.0.1:")
-        # A client made from the head's config finds the URL and pins the daemon's certificate.
-        pinned = ApiClient.for_config(load_config().with_state_dir(tmp_path / "state").with_api(**tls))
-        assert pinned.url == daemon.api_url and pinned.state()["api"] == daemon.api_url
-        assert next(pinned.events(after=0))["seq"] >= 1  # the event stream over TLS too
-        assert pinned.set_exploration(False) is False
-        # Any other client checks the name: the certificate names head.example, not 127.0.0.1.
-        with pytest.raises(ApiError, match="head.example|match"):
-            ApiClient(daemon.api_url, TOKEN, cafile=tls["tls_cert"]).state()
-        # Nor do the system's CAs vouch for it.
-        with pytest.raises(ApiError, match="CERTIFICATE_VERIFY_FAILED"):
-            ApiClient(daemon.api_url, TOKEN).state()
-        # Plain HTTP on the HTTPS port is answered with nothing the client could take for an answer.
-        with pytest.raises(ApiError, match="cannot reach the daemon"):
-            ApiClient(daemon.api_url.replace("https:", "http:"), TOKEN, timeout_s=3.0).state()
-        assert pinned.state()["fixation"]["explore"] is False  # still serving
-    finally:
-        stop_daemon(daemon, thread)
+    daemon = start_service(sim_head_config(tmp_path / "state", **tls))
+    assert daemon.api_url.startswith("https://127.0.0.1:")
+    # A client made from the head's config finds the URL and pins the daemon's certificate.
+    pinned = ApiClient.for_config(load_config().with_state_dir(tmp_path / "state").with_api(**tls))
+    assert pinned.url == daemon.api_url and pinned.state()["api"] == daemon.api_url
+    assert next(pinned.events(after=0))["seq"] >= 1  # the event stream over TLS too
+    assert pinned.set_exploration(False) is False
+    # Any other client checks the name: the certificate names head.example, not 127.0.0.1.
+    with pytest.raises(ApiError, match="head.example|match"):
+        ApiClient(daemon.api_url, TOKEN, cafile=tls["tls_cert"]).state()
+    # Nor do the system's CAs vouch for it.
+    with pytest.raises(ApiError, match="CERTIFICATE_VERIFY_FAILED"):
+        ApiClient(daemon.api_url, TOKEN).state()
+    # Plain HTTP on the HTTPS port is answered with nothing the client could take for an answer.
+    with pytest.raises(ApiError, match="cannot reach the daemon"):
+        ApiClient(daemon.api_url.replace("https:", "http:"), TOKEN, timeout_s=3.0).state()
+    assert pinned.state()["fixation"]["explore"] is False  # still serving
 
 
 def test_a_certificate_the_server_cannot_use_is_an_error_at_start(tmp_path):

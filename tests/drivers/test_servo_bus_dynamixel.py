@@ -10,11 +10,10 @@ import time
 import dynamixel_sdk as sdk
 import pytest
 
+from drivers.dxl_control_table import READ_BLOCK_ADDRESSES, XAddr
 from drivers.dxl_emulator import DxlEmulator
 from drivers.dynamixel import (
-    READ_BLOCK_ADDRESSES,
     DynamixelBus,
-    XAddr,
     _BlockingPortHandler,
     port_access_hint,
     scan,
@@ -22,7 +21,7 @@ from drivers.dynamixel import (
 from drivers.errors import ServoCommError, ServoConfigError, ServoModelError, ServoTimeoutError
 from drivers.servo_bus import JOINTS, ServoBusConfig
 from headctl import cmd_servos
-from servo_rigs import IDS, EmulatorRig, config_mapping
+from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping
 
 
 @pytest.fixture

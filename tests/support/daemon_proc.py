@@ -15,7 +15,7 @@ import time
 
 from headctl.client import ApiClient, ApiError
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 SIM = ROOT / "configs" / "sim.yaml"
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from calib_free.sim import HeadModel
-from drivers.camera import CameraConfig, StereoPair, StreamHealth, create_camera
+from drivers.camera import CameraConfig, StreamHealth, create_camera
+from drivers.stereo import StereoPair
 from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError, CameraError, CameraTimeoutError
 from drivers.sim_camera import SimulatedCamera, fixed_pose
@@ -170,6 +171,7 @@ def test_config_errors_name_the_key():
         create_camera(CameraConfig(backend="sim", eye="left"))
     with pytest.raises(CameraConfigError, match=r"cameras\.left\.lens: got 'fisheye', expected 'foveated' or"):
         CameraConfig.from_mapping({"backend": "sim", "lens": "fisheye"}, "cameras.left")
-    with pytest.raises(CameraConfigError, match=r"cameras\.left\.serial: not used by the 'sim' backend"):
+    with pytest.raises(CameraConfigError, match=r"cameras\.left\.serial: got 'X', expected nothing: serial is not used "
+                                                r"by the 'sim' backend"):
         create_camera(CameraConfig(backend="sim", eye="left", serial="X"), key_path="cameras.left",
                       head=HEAD, pose_source=fixed_pose())

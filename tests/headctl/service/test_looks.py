@@ -1,5 +1,6 @@
-"""Looks and events apart from HTTP (headctl.control): the queue the fixation thread serves and
-the hub the event stream reads."""
+"""Looks and events apart from HTTP (headctl.service.looks, headctl.service.events): the queue the
+fixation thread serves and the hub the event stream reads; the answer each refusal becomes is the
+API's (headctl.api.control_status)."""
 from __future__ import annotations
 
 import threading
@@ -7,15 +8,19 @@ import threading
 import numpy as np
 import pytest
 
-from headctl.control import (CANCELLED, DONE, RUNNING, ControlError, EventHub, LookQueue, LookRequest,
-                             NotFoundError, QueueFullError)
+from headctl.api import control_status
+from headctl.errors import ControlError, NotFoundError, QueueFullError
+from headctl.service.events import EventHub
+from headctl.service.looks import LookKind, LookQueue, LookRequest, LookState
 
-TARGET = LookRequest("target", (10.0, 20.0, -3.0))
+CANCELLED, DONE, RUNNING = LookState.CANCELLED, LookState.DONE, LookState.RUNNING
+
+TARGET = LookRequest(LookKind.TARGET, (10.0, 20.0, -3.0))
 
 
 def test_looks_run_in_order_and_finish_once():
     q = LookQueue(size=4)
-    a, b = q.submit(TARGET), q.submit(LookRequest("angles", (1.0, 2.0, 3.0), relative=True))
+    a, b = q.submit(TARGET), q.submit(LookRequest(LookKind.ANGLES, (1.0, 2.0, 3.0), relative=True))
     assert (a.id, b.id) == (1, 2) and q.pending() == 2
     taken = q.take()
     assert taken is a and a.state == RUNNING and a.started_s is not None
@@ -30,7 +35,7 @@ def test_a_full_queue_refuses_and_replace_cancels_the_waiting_ones():
     first, second = q.submit(TARGET), q.submit(TARGET)
     with pytest.raises(QueueFullError) as err:
         q.submit(TARGET)
-    assert err.value.status == 429
+    assert control_status(err.value) == 429
     newest = q.submit(TARGET, replace=True)
     assert first.state == second.state == CANCELLED and first.outcome == "replaced"
     assert q.pending() == 1 and q.take() is newest
@@ -51,7 +56,7 @@ def test_a_queued_look_is_cancelled_at_once_a_running_one_on_request_an_ended_on
     assert err.value.field == "id"
     with pytest.raises(NotFoundError) as err:
         q.get(99)
-    assert err.value.field == "id" and err.value.status == 404
+    assert err.value.field == "id" and control_status(err.value) == 404
 
 
 def test_replace_stops_the_running_look_but_not_a_finished_one():

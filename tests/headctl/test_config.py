@@ -1,7 +1,8 @@
 """The head's YAML config (headctl.config) and `headctl check`."""
 from __future__ import annotations
 
-import pathlib
+import subprocess
+import sys
 
 import pytest
 import yaml
@@ -10,11 +11,10 @@ from calib_free.fixation import FixationParams
 from headctl.cli import main
 from headctl.config import DEFAULT_CONFIG, load_config
 from headctl.errors import ConfigError
+from tests.support import CONFIGS, TLS
 
-CONFIGS = pathlib.Path(__file__).resolve().parents[1] / "configs"
 EXAMPLES = ["sim.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]
 
-TLS = pathlib.Path(__file__).parent / "data" / "tls"  # test-only certificate and keys
 
 
 def _write(tmp_path, data, name="head.yaml"):
@@ -44,6 +44,15 @@ def test_the_default_config_is_the_simulated_head():
     assert config.fixation.explore and config.fixation.vergence_range == (1.0, 20.0)
 
 
+def test_the_default_config_is_package_data_found_from_any_directory(tmp_path):
+    assert DEFAULT_CONFIG.parent.parent.name == "headctl" and DEFAULT_CONFIG.is_file()
+    assert (CONFIGS / "sim.yaml").resolve() == DEFAULT_CONFIG.resolve()  # configs/ links to the package's
+    done = subprocess.run([sys.executable, "-m", "headctl", "check", "--no-connect"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert f"{DEFAULT_CONFIG}: valid" in done.stdout
+
+
 def test_fixation_and_map_keys_reach_their_parameters(tmp_path):
     data = _sim()
     data["fixation"].update(vergence_tolerance_px=0.5, exploration_step_deg=[10, 5, 4], rate_hz=2,
@@ -70,29 +79,43 @@ def test_a_relative_state_dir_is_relative_to_the_config_file(tmp_path):
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda d: d.update(colour=True), "(top level).colour: got True, expected no such key"),
-    (lambda d: d["fixation"].update(rate=3), "fixation.rate: got 3, expected no such key"),
+    (lambda d: d.update(colour=True), (": colour: got True, expected a known key (the top level takes servo_bus, "
+                                       "cameras, gaze_map, fixation, service, state_dir, logging, api); "
+                                       "'colour' is an unknown key")),
+    (lambda d: d["fixation"].update(rate=3), "fixation.rate: got 3, expected a known key (fixation takes vergence_"),
+    (lambda d: d["fixation"].update(rate=3), "rate_hz, vergence_range); 'rate' is an unknown key"),
     (lambda d: d["fixation"].update(rate_hz="fast"), "fixation.rate_hz: got 'fast', expected a number"),
     (lambda d: d["fixation"].update(exploration_step_deg=[1, 2]),
      "fixation.exploration_step_deg: got [1, 2], expected a list of 3 (a number, a number, a number)"),
-    (lambda d: d["fixation"].update(confidence_floor=2.0), "fixation: got {'confidence_floor': 2.0}"),
+    (lambda d: d["fixation"].update(confidence_floor=2.0), "fixation.confidence_floor: got 2.0, expected in [0, 1]"),
+    (lambda d: d["fixation"].update(correspondence={"patch_size": [2, 2]}),
+     "fixation.correspondence.patch_size: got (2, 2), expected at least 3 x 3 pixels"),
+    (lambda d: d["fixation"].update(vergence_range=[5, 1]),
+     "fixation.vergence_range: got (5.0, 1.0), expected [low, high] with low < high (deg)"),
     (lambda d: d["fixation"]["correspondence"] if False else d["fixation"].update(correspondence={"patch": 3}),
-     "fixation.correspondence.patch: got 3, expected no such key"),
+     "fixation.correspondence.patch: got 3, expected a known key (fixation.correspondence takes patch_size, "),
     (lambda d: d["gaze_map"].update(profile="fast"), "gaze_map.profile: got 'fast', expected default or paper"),
     (lambda d: d["gaze_map"].update(grid_shape=[10, 10]), "gaze_map.grid_shape: got [10, 10], expected a list of 3"),
-    (lambda d: d["gaze_map"].update(image_size=[10, 10]), "gaze_map.image_size: got [10, 10], expected no such key"),
-    (lambda d: d["service"].update(servo_rate_hz=5000), "service: got"),
+    (lambda d: d["gaze_map"].update(image_size=[10, 10]), "gaze_map.image_size: got [10, 10], expected a known key"),
+    (lambda d: d["gaze_map"].update(adaptation_rate=2), "gaze_map.adaptation_rate: got 2.0, expected in (0, 1]"),
+    (lambda d: d["gaze_map"].update(seed=True), "gaze_map.seed: got True, expected an integer"),
+    (lambda d: d["service"].update(servo_rate_hz=5000),
+     "service.servo_rate_hz: got 5000.0, expected a rate in [1, 1000] Hz"),
     (lambda d: d["service"].update(safe_state="limp"), "safe_state: got 'limp', expected hold or torque_off"),
     (lambda d: d["logging"].update(level="LOUD"), "logging.level: got 'LOUD', expected DEBUG or INFO"),
-    (lambda d: d["servo_bus"]["joints"]["pan"].update(idd=3), "servo_bus.joints.pan.idd: unknown key"),
+    (lambda d: d["servo_bus"]["joints"]["pan"].update(idd=3), "servo_bus.joints.pan.idd: got 3, expected a known key"),
     (lambda d: d["servo_bus"].update(baud=12), "servo_bus.baud: got 12, expected one of"),
     (lambda d: d["cameras"]["left"].update(fps="fast"), "cameras.left.fps: got 'fast', expected a number"),
     (lambda d: d["cameras"]["left"].pop("width"), "cameras.left.width: got None, expected the image size"),
     (lambda d: d["cameras"]["right"].update(seed=3), "cameras.right.seed: got 3, expected 0 like cameras.left"),
     (lambda d: d["servo_bus"].update(backend="dynamixel"),
      "cameras.left.backend: got 'sim', expected a real camera backend"),
-    (lambda d: d.pop("cameras"), "cameras: got None, expected a cameras: section"),
-    (lambda d: d.update(state_dir=3), "state_dir: got 3, expected a string"),
+    (lambda d: d.pop("cameras"), "cameras: missing, expected a mapping with keys left, right, tolerance_s"),
+    (lambda d: d.update(state_dir=3), "state_dir: got 3, expected a path (a non-empty string)"),
+    (lambda d: d["cameras"]["right"].update(width=640, height=480),
+     "cameras.right.width: got (640, 480), expected the left camera's size 320 x 240"),
+    (lambda d: d["cameras"]["right"].update(backend="opencv", device=0),
+     "cameras.right.backend: got 'opencv', expected sim: both eyes of the simulated head are simulated, or neither"),
 ])
 def test_errors_name_the_file_the_key_path_the_value_and_what_was_expected(tmp_path, edit, message):
     data = _sim()
@@ -150,8 +173,9 @@ def test_the_api_defaults_to_loopback_without_a_token():
 @pytest.mark.parametrize("api, words", [
     ({"host": "0.0.0.0"}, "api.token: got None, expected a token (api.token or api.token_file): api.host '0.0.0.0'"),
     ({"host": "192.0.2.7", "port": 80}, "api.host '192.0.2.7' is not a loopback address"),
-    ({"port": 70000}, "api: got"),
-    ({"token": "short"}, "token: got 'short', expected at least 16 characters"),
+    ({"port": 70000}, "api.port: got 70000, expected a TCP port, 0 for an ephemeral one"),
+    ({"token": "short"}, "api.token: got <hidden>, expected at least 16 characters"),
+    ({"token": 12345678901234567890}, "api.token: got <hidden>, expected a non-empty string"),
     ({"token": "x" * 20, "token_file": "t"}, "api.token_file: got 't', expected either api.token or api.token_file"),
     ({"token_file": "missing-token"}, "api.token_file: got 'missing-token', expected a readable file"),
     ({"stream_fps": 500}, "stream_fps"),

@@ -9,7 +9,7 @@ from drivers.clock import ManualClock
 from drivers.errors import BusDownError
 from drivers.servo_bus import ServoBusConfig, create_servo_bus
 from drivers.sim_servo import ProfileAxis, SimulatedServoBus
-from servo_rigs import config_mapping
+from tests.support.servo_rigs import config_mapping
 
 
 # --- ProfileAxis ------------------------------------------------------------------------

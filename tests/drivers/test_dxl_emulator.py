@@ -18,11 +18,12 @@ except ImportError as err:  # no silent skips: name the install step
     raise ImportError(f"{err}: run ./setup.sh (installs dynamixel-sdk into .venv)") from err
 
 from drivers.clock import ManualClock
-from drivers.dxl_emulator import (
+from drivers.dxl_control_table import DEG_PER_TICK, DPS_PER_VELOCITY_UNIT, XAddr
+from drivers.dxl_emulator import DxlEmulator
+from drivers.dxl_protocol import (
     ERR_ACCESS,
     ERR_CRC,
     ERR_DATA_LIMIT,
-    DxlEmulator,
     PacketParser,
     build_packet,
     crc16,
@@ -30,7 +31,6 @@ from drivers.dxl_emulator import (
     stuff,
     unstuff,
 )
-from drivers.dynamixel import DEG_PER_TICK, DPS_PER_VELOCITY_UNIT, XAddr
 
 
 # --- wire format ------------------------------------------------------------------------

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import yaml
 
-from daemon_proc import ROOT, DaemonProcess as Daemon
+from tests.support.daemon_proc import ROOT
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.slow]
 
 
 @pytest.fixture
@@ -75,24 +75,21 @@ def test_check_connects_and_reports_each_servo_and_camera(tmp_path, emulator, vi
     assert out.stdout.rstrip().endswith("check: OK")
 
 
-def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video):
+def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video, service_process):
     path = emulated_config(tmp_path, emulator, video)
-    d = Daemon(tmp_path / "state", path)
-    try:
-        s = d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 2, 60, "two fixations")
-        assert s["servo_loop"]["cycles"] > 50
-        assert s["cameras"]["left"]["health"] == s["cameras"]["right"]["health"] == "streaming"
-        # These cameras do not see the head's scene: the fixations run and are refused, never taught.
-        assert s["fixation"]["taught"] == 0 and sum(s["fixation"]["refused"].values()) == s["fixation"]["done"]
-        positions = [s["joints"]["pan"]["position_deg"]]
-        s = d.wait(lambda s: abs(s["joints"]["pan"]["position_deg"] - positions[0]) > 0.5, 30, "the head moving")
-        assert all(j["torque_on"] for j in s["joints"].values())
-        # Torque through the API, on the real driver: off on every servo, then on again.
-        assert d.client.set_torque(False) is False
-        d.wait(lambda s: not any(j["torque_on"] for j in s["joints"].values()), 10, "torque off on the servos")
-        assert d.client.set_torque(True) is True
-        d.wait(lambda s: all(j["torque_on"] for j in s["joints"].values()), 10, "torque on again")
-        code, seconds = d.terminate()
-        assert code == 0 and seconds < 5.0
-    finally:
-        d.kill()
+    d = service_process(tmp_path / "state", path)
+    s = d.wait(lambda s: s["state"] == "running" and s["fixation"]["done"] >= 2, 60, "two fixations")
+    assert s["servo_loop"]["cycles"] > 50
+    assert s["cameras"]["left"]["health"] == s["cameras"]["right"]["health"] == "streaming"
+    # These cameras do not see the head's scene: the fixations run and are refused, never taught.
+    assert s["fixation"]["taught"] == 0 and sum(s["fixation"]["refused"].values()) == s["fixation"]["done"]
+    positions = [s["joints"]["pan"]["position_deg"]]
+    s = d.wait(lambda s: abs(s["joints"]["pan"]["position_deg"] - positions[0]) > 0.5, 30, "the head moving")
+    assert all(j["torque_on"] for j in s["joints"].values())
+    # Torque through the API, on the real driver: off on every servo, then on again.
+    assert d.client.set_torque(False) is False
+    d.wait(lambda s: not any(j["torque_on"] for j in s["joints"].values()), 10, "torque off on the servos")
+    assert d.client.set_torque(True) is True
+    d.wait(lambda s: all(j["torque_on"] for j in s["joints"].values()), 10, "torque on again")
+    code, seconds = d.terminate()
+    assert code == 0 and seconds < 5.0

@@ -73,12 +73,16 @@ def test_config_from_mapping_types_and_defaults():
 
 
 @pytest.mark.parametrize("data, message", [
-    ({"backend": "sim", "fsp": 30}, r"cameras\.left\.fsp: unknown key \(value 30\); expected one of .*fps"),
+    ({"backend": "sim", "fsp": 30}, (r"cameras\.left\.fsp: got 30, expected a known key \(cameras\.left takes "
+                                     r".*fps.*\); 'fsp' is an unknown key")),
     ({"fps": "fast"}, r"cameras\.left\.fps: got 'fast', expected a number"),
     ({"width": 640.5}, r"cameras\.left\.width: got 640\.5, expected an integer"),
     ({"image": "color"}, r"cameras\.left\.image: got 'color', expected 'grey' or 'colour'"),
     ({"fps": -1}, r"cameras\.left\.fps: got -1\.0, expected a positive rate"),
-    ({"id": "a", "serial": "b"}, r"cameras\.left\.id and serial: got both"),
+    ({"id": "a", "serial": "b"}, r"cameras\.left\.serial: got 'b', expected no serial when id is given \(id 'a'\)"),
+    ({"history": 1}, r"cameras\.left\.history: got 1, expected at least 2 frames"),
+    ({"width": True}, r"cameras\.left\.width: got True, expected an integer \(at least 2\)"),
+    ({"exposure_us": float("nan")}, r"cameras\.left\.exposure_us: got nan, expected a number"),
     ({"eye": "middle"}, r"cameras\.left\.eye: got 'middle', expected 'left' or 'right'"),
     (["backend"], r"cameras\.left: got \['backend'\], expected a mapping"),
 ])
@@ -91,13 +95,15 @@ def test_unknown_backend_and_keys_a_backend_does_not_use():
     with pytest.raises(BackendNotFoundError, match="unknown camera backend 'nope'"):
         create_camera(CameraConfig(backend="nope"))
     config = CameraConfig(backend=f"{__name__}:ScriptedCamera", serial="S1")
-    with pytest.raises(CameraConfigError, match=r"right\.serial: not used by .* it uses .*device"):
+    with pytest.raises(CameraConfigError, match=r"right\.serial: got 'S1', expected nothing: serial is not used by .* "
+                                                r"which uses .*device"):
         create_camera(config, key_path="right")
     cam = create_camera(CameraConfig(backend=f"{__name__}:ScriptedCamera", device="d"))
     assert isinstance(cam, ScriptedCamera)
     # A key given at its default value is refused too: the user wrote it, so it must mean something.
     config = CameraConfig.from_mapping({"backend": "opencv", "device": 0, "seed": 0}, "cameras.left")
-    with pytest.raises(CameraConfigError, match=r"cameras\.left\.seed: not used by the 'opencv' backend \(value 0\)"):
+    with pytest.raises(CameraConfigError, match=r"cameras\.left\.seed: got 0, expected nothing: seed is not used by "
+                                                r"the 'opencv' backend"):
         create_camera(config, key_path="cameras.left")
 
 

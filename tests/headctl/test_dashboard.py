@@ -19,7 +19,7 @@ import urllib.parse
 import pytest
 import yaml
 
-from daemon_proc import ROOT, SIM, DaemonProcess
+from tests.support.daemon_proc import ROOT, SIM
 
 CHROMIUM = pathlib.Path("/usr/bin/chromium")
 CHROMEDRIVER = pathlib.Path("/usr/bin/chromedriver")
@@ -27,7 +27,7 @@ INSTALL = "./setup.sh test installs them (apt-get install chromium chromium-driv
 SCREENSHOT = ROOT / "docs" / "figures" / "dashboard.png"
 TOKEN = "dashboard-test-token-0123456789"
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.timeout(120), pytest.mark.slow]
 
 
 def _require_browser() -> None:
@@ -46,13 +46,13 @@ def _browser_installed() -> None:
 
 
 @pytest.fixture
-def daemon(tmp_path):
+def daemon(tmp_path, service_process):
     """`headctl run` on the simulated head, its API needing TOKEN; listening when yielded."""
     config = yaml.safe_load(SIM.read_text())
     config["api"] = {**(config.get("api") or {}), "token": TOKEN}
     config_path = tmp_path / "sim-token.yaml"
     config_path.write_text(yaml.safe_dump(config, sort_keys=False))
-    proc = DaemonProcess(tmp_path / "state", config_path, token=TOKEN)
+    proc = service_process(tmp_path / "state", config_path, token=TOKEN)
     try:
         proc.client       # waits for <state_dir>/api.url
         yield proc

@@ -9,8 +9,7 @@ import pytest
 
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
-from calib_free.fixation import (REFUSED_NOT_CONVERGED, REFUSED_TARGET_OUTSIDE, TAUGHT, FixationController,
-                                 FixationParams, HeadTimeoutError)
+from calib_free.fixation import FixationController, FixationOutcome, FixationParams, HeadTimeoutError
 from headctl.cli import main
 from headctl.online import SimulatedHeadRig
 
@@ -50,7 +49,7 @@ def test_a_fixation_that_does_not_converge_never_teaches():
     gm = GazeMap.for_image(320, 240, seed=0)
     controller = FixationController(head, gm, FixationParams(max_vergence_steps=4), seed=1)
     record = controller.fixate()
-    assert record.outcome == REFUSED_NOT_CONVERGED and not record.taught
+    assert record.outcome == FixationOutcome.NOT_CONVERGED and not record.taught
     assert record.match is None  # no correspondence was even attempted
     assert record.vergence_steps == 4 and len(record.vergence_disparities_px) == 5
     assert all(d == pytest.approx(12.0, abs=0.2) for d in record.vergence_disparities_px)
@@ -62,7 +61,7 @@ def test_a_target_outside_the_map_is_refused_before_moving():
     head = FrozenEyesHead()
     controller = FixationController(head, GazeMap.for_image(320, 240, seed=0), seed=1)
     record = controller.fixate(target=(500.0, 10.0, 0.0))
-    assert record.outcome == REFUSED_TARGET_OUTSIDE and "x=500" in record.detail
+    assert record.outcome == FixationOutcome.TARGET_OUTSIDE and "x=500" in record.detail
     assert head.moves == []
 
 
@@ -104,7 +103,7 @@ def test_fine_vergence_converges_within_five_steps(explored):
 
 def test_only_converged_confident_fixations_teach(explored):
     records, (low, high) = explored
-    taught = [r for r in records if r.outcome == TAUGHT]
+    taught = [r for r in records if r.outcome is FixationOutcome.TAUGHT]
     assert len(taught) >= 15
     for r in records:
         assert r.outcome  # every fixation says what became of it
@@ -161,7 +160,7 @@ def test_online_experiment_command(tmp_path, capsys):
     assert (tmp_path / "online-default.png").stat().st_size > 10_000
 
 
-def test_driver_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
+def test_the_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
     with SimulatedHeadRig(seed=0) as rig:
         head = rig.head
         head.move_to(np.array([100.0, -90.0, 50.0]))  # far outside every limit
@@ -179,7 +178,7 @@ def test_driver_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
 
 
 def test_with_the_pan_reading_offset_no_goal_is_clamped_by_the_bus_and_moves_stay_commanded_plus_offset():
-    # DriverHead clips a goal in the coordinates it writes, the joints' own: near the pan
+    # The head clips a goal in the coordinates it writes, the joints' own: near the pan
     # limit the bus sends what was asked, and the head moves exactly the commanded move plus
     # the offset -- what `executed_command="commanded"` teaches stays consistent.
     with SimulatedHeadRig(seed=0) as rig:

@@ -1,0 +1,108 @@
+"""Building the head from a config (headctl.service.build) and supervising it on a manual clock."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.camera import StreamHealth
+from drivers.clock import ManualClock
+from drivers.errors import CameraError
+from drivers.sim_camera import SimulatedCamera
+from drivers.sim_servo import SimulatedServoBus
+from headctl.config import load_config
+from headctl.online import SimulatedHeadRig
+from headctl.service.build import SIM_START_JOINTS, HeadDevices, build_head
+from headctl.service.events import EventHub, EventLog
+from headctl.service.looks import LookQueue
+from headctl.service.parts import LearningLog, ServiceParts
+from headctl.service.status import FaultWatcher
+from headctl.service.supervisor import Supervisor
+from headctl.service.systemd import SystemdNotifier
+
+
+def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_servos():
+    config = load_config()
+    clock = ManualClock()
+    devices = HeadDevices.build(config, clock)
+    assert isinstance(devices.bus, SimulatedServoBus) and devices.world is not None
+    assert all(isinstance(c, SimulatedCamera) for c in devices.cameras.values())
+    with devices:
+        devices.bus.enable()
+        assert devices.world.true_joints() == pytest.approx(SIM_START_JOINTS)
+        left = devices.cameras["left"]
+        before = left.render(devices.world.true_joints())
+        devices.bus.write_goals({"pan": 10.0})
+        clock.advance(2.0)
+        assert devices.world.true_joints()["pan"] == pytest.approx(10.0)
+        assert not np.array_equal(left.render(devices.world.true_joints()), before)  # the view turned
+        devices.world.stalled.add("left")
+        with pytest.raises(CameraError, match="camera left: stalled"):
+            devices.world.pose_source("left")()
+        devices.world.pose_source("right")()  # the other eye still sees
+
+
+def test_the_experiments_build_the_head_the_service_builds():
+    config = load_config()
+    with SimulatedHeadRig(seed=0) as rig:
+        service_head = build_head(config, rig.bus, rig.pairs)
+        np.testing.assert_array_equal(rig.head.pose_low, service_head.pose_low)
+        np.testing.assert_array_equal(rig.head.pose_high, service_head.pose_high)
+        assert rig.bus.config.joints == config.servo_bus.joints
+        assert rig.model.limits.vergence == config.fixation.vergence_range
+
+
+class StubCamera:
+    """A camera whose health a test sets; counts the supervisor's restarts."""
+
+    def __init__(self) -> None:
+        self.health = StreamHealth.STREAMING
+        self.last_error = None
+        self.restarts = 0
+
+    def latest(self):
+        return None
+
+    def disable(self) -> None:
+        pass
+
+    def enable(self) -> None:
+        self.restarts += 1
+
+
+def supervised(camera: StubCamera):
+    clock = ManualClock()
+    config = load_config()
+    parts = ServiceParts(config=config, clock=clock, hub=EventHub(), warnings=EventLog(), looks=LookQueue(),
+                         learning=LearningLog(clock), started_s=0.0,
+                         devices=HeadDevices(bus=None, cameras={"left": camera}, world=None))  # type: ignore[arg-type]
+    return Supervisor(parts, SystemdNotifier({}), FaultWatcher(parts, parts.hub)), parts, clock
+
+
+def test_a_silent_camera_is_restarted_at_most_once_per_stall_time():
+    camera = StubCamera()
+    supervisor, parts, clock = supervised(camera)
+    stall_s = parts.config.service.camera_stall_s
+    supervisor.tick()
+    assert camera.restarts == 0
+    clock.advance(stall_s + 0.1)
+    supervisor.tick()
+    assert camera.restarts == 1 and parts.camera_restarts["left"] == 1
+    clock.advance(stall_s / 2)
+    supervisor.tick()
+    assert camera.restarts == 1  # not again so soon
+    clock.advance(stall_s)
+    supervisor.tick()
+    assert camera.restarts == 2
+
+
+def test_a_fault_is_published_when_it_appears_and_when_it_clears():
+    camera = StubCamera()
+    supervisor, parts, _ = supervised(camera)
+    seen: list[dict] = []
+    parts.hub.subscribe(seen.append)
+    camera.health = StreamHealth.FAILED
+    supervisor.tick()
+    supervisor.tick()
+    camera.health = StreamHealth.STREAMING
+    supervisor.tick()
+    assert [(e["type"], e["key"]) for e in seen] == [("fault", "camera:left"), ("fault_cleared", "camera:left")]
