@@ -9,7 +9,7 @@ where f1 and f2 favour pre-fixation patches with the same mean and variance as t
 patch: the fish-eye periphery distorts shapes, which NCC is sensitive to, but barely changes
 a patch's mean and variance (II-B).
 
-Bounded factors (a point the paper leaves open, DESIGN.md). Eqs. 2-3 are |difference|^-1,
+Bounded factors (a point the paper leaves open, docs/architecture.md). Eqs. 2-3 are |difference|^-1,
 which is infinite for equal statistics and makes C unbounded, while eq. 4 reads c_max as a
 correlation in [-1, 1] (its threshold (1 + tau)/2). We use
 

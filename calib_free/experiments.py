@@ -4,7 +4,7 @@ Each experiment feeds random fixations (r, m) from `calib_free.sim.FixationSampl
 `GazeMap`, switches on a perturbation at given fixations, and records per fixation the
 paper's figures -- retinal error (eq. 8) and per-axis output error |dW(r*)| -- averaged over
 the last 10 (section III), plus, every `landing_every` fixations, the single-saccade landing
-error in pixels (DESIGN.md): the median distance from the left fovea at which a visible
+error in pixels (docs/architecture.md): the median distance from the left fovea at which a visible
 target lands after one command W(x, y, d).
 
 `representation_floor` measures what the (x, y, d) representation allows on the same model:

@@ -11,7 +11,7 @@ Two profiles:
     inverse lookup, a fixed adaptation rate alpha, target m for every node in the
     neighbourhood.
   - `default`: the same grid, eqs. 8-11 and schedule, with what holds the paper's rule back
-    removed (README, "Two profiles"): W = P + R, P a cubic polynomial in (x, y, d) fitted by
+    removed (docs/method.md, "Two profiles"): W = P + R, P a cubic polynomial in (x, y, d) fitted by
     confidence-weighted recursive least squares, R the grid learning P's residual by eqs.
     10-11; a memory that shrinks when the error jumps (the head changed) and regrows; a
     Cauchy weight against confident false correspondences; trilinear readout and a sub-node
@@ -474,7 +474,7 @@ class GazeMap:
             # level), so a window's median tops the threshold for a few adaptations in a row
             # every few hundred: each such false alarm cut the fit to `global_memory_min`
             # fixations and faded the residual grid, and the landing error drifted up over a
-            # long run (README, "Learning from images"). A changed head keeps the windows high:
+            # long run (docs/results.md). A changed head keeps the windows high:
             # their surprise, in thresholds, is summed until it makes `error_window` (a window
             # 3x over the long-run level counts 1: 10 in a row; a prism's 10-15x counts 3-5).
             # The false alarms measured summed to 4.3 at most. While the memory regrows after a

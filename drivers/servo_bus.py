@@ -42,7 +42,7 @@ from drivers.errors import (
 
 log = logging.getLogger(__name__)
 
-# Per-packet traffic is logged below DEBUG (STYLE.md rule 8).
+# Per-packet traffic is logged below DEBUG (docs/development.md, "Code conventions").
 TRACE = 5
 
 JOINTS: tuple[str, ...] = ("pan", "tilt", "left_eye", "right_eye")

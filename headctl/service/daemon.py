@@ -204,7 +204,7 @@ class Daemon:
     def _stop(self) -> None:
         if self.parts.phase is ServicePhase.STOPPED:
             return
-        started = time.monotonic()
+        started = self.clock.monotonic()
         self.parts.phase = ServicePhase.STOPPING
         self.notifier.notify(stopping=1, status="stopping: finishing the fixation, saving the gaze map")
         if self._supervisor is not None:
@@ -222,7 +222,7 @@ class Daemon:
             self._stack.close()
             self.parts.running = None
             self.parts.phase = ServicePhase.STOPPED
-        log.info("shutdown took %.2f s", time.monotonic() - started)
+        log.info("shutdown took %.2f s", self.clock.monotonic() - started)
 
     def _safe_state(self, running: RunningParts) -> None:
         loop, bus = running.loop, running.devices.bus
