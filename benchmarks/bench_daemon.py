@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from drivers.servo_bus import ServoBusConfig  # noqa: E402
+from drivers.servo_config import ServoBusConfig  # noqa: E402
 from drivers.sim_servo import SimulatedServoBus  # noqa: E402
 from headctl.config import load_config  # noqa: E402
 from headctl.service.servo_loop import ServoLoop  # noqa: E402

@@ -24,7 +24,8 @@ import dynamixel_sdk as sdk
 
 from drivers.dxl_control_table import READ_BLOCK_SIZE, XAddr
 from drivers.dynamixel import DynamixelBus
-from drivers.servo_bus import JOINTS, ServoBusConfig
+from drivers.servo_bus import JOINTS
+from drivers.servo_config import ServoBusConfig
 
 IDS = (1, 2, 3, 4)
 _CHILD = """

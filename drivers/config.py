@@ -21,7 +21,17 @@ import this module) is raised again under the section's key path. A `__post_init
 calls `check_settings(self)` applies the declared bounds to direct construction too.
 
 A secret field's value (an API token) never appears in a message: `<hidden>` does, also
-where a whole section is shown.
+where a whole section is shown, and for a key a section holding a secret does not know (a
+misspelt secret key). A value longer than `MAX_SHOWN` characters is shown abbreviated
+(`drivers.config_messages`).
+
+Rules for the fields of a dataclass that cannot import this module (`calib_free`'s parameter
+classes) are declared from outside with `declare_settings(cls, field=config_meta(...))`.
+
+Bounds every value meets whatever its field declares: an integer lies within +-2**63 (numpy
+and C take it), a number is finite, a string holds text (no NUL character, no lone surrogate).
+
+A config file becomes the plain data read here through `drivers.config_file.read_yaml_file`.
 """
 from __future__ import annotations
 
@@ -36,6 +46,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+from drivers.config_messages import HIDDEN, join_key, quoted_key, shown, where
 from drivers.errors import ConfigError
 
 T = TypeVar("T")
@@ -47,15 +58,7 @@ Source = Literal["mapping", "key_path", "file", "given_keys"]
 
 _META = "drivers.config"  # the key of this module's metadata in a field's metadata
 
-
-class _Hidden:
-    """Stands for a secret's value in errors and in sections shown in a message."""
-
-    def __repr__(self) -> str:
-        return "<hidden>"
-
-
-HIDDEN: Any = _Hidden()
+INT_LIMIT = 2**63  # integers within +-INT_LIMIT: what numpy's int64 and C take on the way to a device
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,6 +140,22 @@ class _Plan:
     secret_keys: frozenset[str]
 
 
+# Rules declared from outside for fields of classes that cannot import this module.
+_DECLARED: dict[type, dict[str, _Rules]] = {}
+
+
+def declare_settings(cls: type, **rules: Mapping[str, Any]) -> None:
+    """Declare what the reader checks for fields of dataclass `cls` that cannot declare it
+    themselves (`calib_free`'s parameter classes cannot import this module): each keyword
+    names a field, its value is `config_meta(...)`. A field's own metadata wins."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(rules) - names)
+    if unknown:
+        raise TypeError(f"{cls.__name__} has no field {unknown[0]!r}")
+    _DECLARED.setdefault(cls, {}).update({name: meta[_META] for name, meta in rules.items()})
+    _plan.cache_clear()
+
+
 @functools.cache
 def _plan(cls: type) -> _Plan:
     if not dataclasses.is_dataclass(cls):
@@ -144,8 +163,9 @@ def _plan(cls: type) -> _Plan:
     hints = typing.get_type_hints(cls)
     fields: list[_Field] = []
     keys: list[str] = []
+    declared = _DECLARED.get(cls, {})
     for f in dataclasses.fields(cls):
-        rules: _Rules = f.metadata.get(_META, _Rules())
+        rules: _Rules = f.metadata[_META] if _META in f.metadata else declared.get(f.name, _Rules())
         if not f.init and rules.source != "given_keys":
             continue
         required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
@@ -163,6 +183,29 @@ def _plan(cls: type) -> _Plan:
 def config_keys(cls: type) -> tuple[str, ...]:
     """The keys a section (dataclass) takes in its mapping, in field order."""
     return _plan(cls).keys
+
+
+def secret_keys(cls: type) -> frozenset[str]:
+    """The keys of secret fields anywhere in section `cls` and the sections inside it: what
+    is hidden wherever a mapping is shown whole."""
+    found: set[str] = set()
+    seen: set[type] = set()
+
+    def walk(tp: Any) -> None:
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+            if tp in seen:
+                return
+            seen.add(tp)
+            plan = _plan(tp)
+            found.update(plan.secret_keys)
+            for f in plan.fields:
+                walk(f.rules.inline if f.rules.inline is not None else f.type)
+        else:
+            for arg in typing.get_args(tp):
+                walk(arg)
+
+    walk(cls)
+    return frozenset(found)
 
 
 def _error_class(cls: type, inherited: type[ConfigError]) -> type[ConfigError]:
@@ -233,14 +276,6 @@ def _non_none(tp: Any) -> Any:
 
 
 # --- reading ---------------------------------------------------------------------------------
-def _join(key_path: str, key: str) -> str:
-    return f"{key_path}.{key}" if key_path else key
-
-
-def _where(key_path: str) -> str:
-    return key_path or "the top level"
-
-
 def _shown(data: Any, secret_keys: Iterable[str]) -> Any:
     """`data` as a message may show it: the values of secret keys hidden."""
     secret = set(secret_keys)
@@ -250,12 +285,14 @@ def _shown(data: Any, secret_keys: Iterable[str]) -> Any:
 
 
 def _check_keys(data: Mapping[Any, Any], allowed: tuple[str, ...], key_path: str,
-                error: type[ConfigError]) -> None:
+                error: type[ConfigError], hide: bool = False) -> None:
+    """Refuse keys not in `allowed`; with `hide` (a section holding a secret) without showing
+    the value, which may be a secret under a misspelt key."""
     for key in data:
         if key not in allowed:
-            raise error(key_path=_join(key_path, str(key)), value=data[key],
-                        expected=f"a known key ({_where(key_path)} takes {', '.join(allowed)}); "
-                                 f"{key!r} is an unknown key")
+            raise error(key_path=join_key(key_path, key), value=HIDDEN if hide else data[key],
+                        expected=f"a known key ({where(key_path)} takes {', '.join(allowed)}); "
+                                 f"{quoted_key(key)} is an unknown key")
 
 
 def read_config(cls: type[T], data: Any, key_path: str = "", *, file: Any = None) -> T:
@@ -269,6 +306,7 @@ def read_config(cls: type[T], data: Any, key_path: str = "", *, file: Any = None
     except ConfigError as err:
         if file is not None and err.file is None:
             err.file = file
+        err.value = shown(err.value, secret_keys(cls))
         raise
 
 
@@ -278,7 +316,7 @@ def _read_section(cls: type, data: Any, key_path: str, error: type[ConfigError],
         data = {}
     if not isinstance(data, Mapping):
         raise error(key_path=key_path, value=data, expected=describe(cls))
-    _check_keys(data, plan.keys, key_path, error)
+    _check_keys(data, plan.keys, key_path, error, hide=bool(plan.secret_keys))
     values: dict[str, Any] = {}
     for f in plan.fields:
         if f.rules.source == "key_path":
@@ -296,9 +334,9 @@ def _read_section(cls: type, data: Any, key_path: str, error: type[ConfigError],
                 values[f.name] = _read_section(f.rules.inline, given, key_path,
                                                _error_class(f.rules.inline, error), file)
         elif f.key in data:
-            values[f.name] = _read_field(f, data[f.key], _join(key_path, f.key), error, file)
+            values[f.name] = _read_field(f, data[f.key], join_key(key_path, f.key), error, file)
         elif f.required:
-            raise error(key_path=_join(key_path, f.key), missing=True,
+            raise error(key_path=join_key(key_path, f.key), missing=True,
                         expected=_expected(f.type, f.rules, type_failed=True))
     instance = _construct(cls, values, key_path, error)
     for f in plan.fields:
@@ -313,7 +351,7 @@ def _read_field(f: _Field, value: Any, key_path: str, error: type[ConfigError], 
             _check_keys(value, f.rules.keys, key_path, error)
             missing = [k for k in f.rules.keys if k not in value]
             if missing:
-                raise error(key_path=_join(key_path, missing[0]), missing=True,
+                raise error(key_path=join_key(key_path, missing[0]), missing=True,
                             expected=f"every one of {', '.join(f.rules.keys)} under {key_path} "
                                      f"(missing: {', '.join(missing)})")
             value = {k: value[k] for k in f.rules.keys}  # in the declared order, whatever the file's
@@ -395,7 +433,7 @@ def _read_value(value: Any, tp: Any, key_path: str, error: type[ConfigError], fi
         if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
             raise fail()
         item_type = args[1] if len(args) == 2 else Any
-        return {k: _read_value(v, item_type, _join(key_path, k), error, file, _Rules()) for k, v in value.items()}
+        return {k: _read_value(v, item_type, join_key(key_path, k), error, file, _Rules()) for k, v in value.items()}
     if isinstance(tp, type) and dataclasses.is_dataclass(tp):
         return _read_section(tp, value, key_path, _error_class(tp, error), file)
     if tp is bool:
@@ -405,21 +443,38 @@ def _read_value(value: Any, tp: Any, key_path: str, error: type[ConfigError], fi
     if tp is int:
         # bool is an int in Python; `true` for a count is a config mistake, not 1.
         if isinstance(value, int) and not isinstance(value, bool):
-            return value
+            if -INT_LIMIT <= value < INT_LIMIT:
+                return value
+            raise error(key_path=key_path, value=value, expected=f"{describe(tp)} within +-2**63")
         raise fail()
     if tp is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
-            return float(value)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            try:
+                number = float(value)
+            except OverflowError:  # an int beyond any float
+                raise fail() from None
+            if math.isfinite(number):
+                return number
         raise fail()
-    if tp is str:
+    if tp is str or tp is Path:
         if isinstance(value, str) and value:
-            return value
-        raise fail()
-    if tp is Path:
-        if isinstance(value, str) and value:
-            return Path(value)
+            if not _is_text(value):
+                raise error(key_path=key_path, value=value,
+                            expected=f"{describe(tp)} of text (no NUL character, no lone surrogate)")
+            return value if tp is str else Path(value)
         raise fail()
     raise TypeError(f"{key_path}: the config reader cannot read type {tp!r}")
+
+
+def _is_text(value: str) -> bool:
+    """True when `value` can name a file and be printed: no NUL, valid Unicode."""
+    if "\0" in value:
+        return False
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def read_fields(cls: type, data: Any, key_path: str, *, exclude: Iterable[str] = ()) -> dict[str, Any]:
@@ -436,9 +491,9 @@ def _read_fields(cls: type, data: Any, key_path: str, error: type[ConfigError],
     allowed = tuple(k for k in plan.keys if k not in exclude)
     if not isinstance(data, Mapping):
         raise error(key_path=key_path, value=data, expected=f"a mapping with keys {', '.join(allowed)}")
-    _check_keys(data, allowed, key_path, error)
+    _check_keys(data, allowed, key_path, error, hide=bool(plan.secret_keys))
     by_key = {f.key: f for f in plan.fields}
-    return {by_key[k].name: _read_field(by_key[k], v, _join(key_path, k), error, None) for k, v in data.items()}
+    return {by_key[k].name: _read_field(by_key[k], v, join_key(key_path, k), error, None) for k, v in data.items()}
 
 
 # --- errors from a dataclass's own checks ------------------------------------------------------
@@ -470,7 +525,7 @@ def _rerooted(err: ConfigError, cls: type, key_path: str, error: type[ConfigErro
             relative = field.key + rest
             if field.rules.secret:
                 value = HIDDEN
-    new_path = _join(key_path, relative)
+    new_path = join_key(key_path, relative)
     if isinstance(err, error):
         err.key_path, err.value = new_path, value
         return err
@@ -498,7 +553,7 @@ def config_error_from(err: ValueError, key_path: str, values: Mapping[str, Any],
         field = plan.by_name.get(name) if plan is not None else None
         key = field.key if field is not None else name
         hidden = field is not None and field.rules.secret
-        return error(key_path=_join(key_path, key), value=HIDDEN if hidden else values[name], expected=expected)
+        return error(key_path=join_key(key_path, key), value=HIDDEN if hidden else values[name], expected=expected)
     return error(key_path=key_path, value=_shown(dict(values), secret), expected=f"valid settings ({text})")
 
 

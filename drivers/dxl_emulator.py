@@ -9,11 +9,14 @@ Instructions: Ping (also broadcast), Read, Write, Sync Read, Sync Write, Bulk Re
 Write, Reboot; others get an Instruction Error status. Fast Sync Read is not served.
 
 Faults can be injected: dropped replies, corrupted CRCs, delayed replies, hardware error
-bits, a servo power cycle, and the port vanishing and coming back (a stable symlink, like
-a udev rule's, follows the new pseudo-terminal). The motion model runs on an injectable
-clock; reply delays (Return Delay Time, injected delays) are wire timing and real time.
+bits, a servo power cycle, and the port vanishing and coming back, by itself after a while
+or when told (a stable symlink, like a udev rule's, follows the new pseudo-terminal);
+`injected()` says what is pending. The motion model runs on an injectable clock; reply
+delays (Return Delay Time, injected delays) and how long the port stays away are wire
+timing and real time.
 
-Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`.
+Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`; from outside,
+faults go in through `--control` (`drivers.dxl_emulator_control`).
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable, Iterable
+from typing import Any
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.dxl_control_table import X_BAUD_CODES, XAddr
@@ -109,6 +113,7 @@ class DxlEmulator:
         self._master: int | None = None
         self._slave: int | None = None
         self._port: str | None = None
+        self._reappear_at_s: float | None = None  # time.monotonic() at which a vanished port comes back
         self._thread: threading.Thread | None = None
         self._closed = False
         self._open_pty()
@@ -188,13 +193,56 @@ class DxlEmulator:
         with self._lock:
             self.servos[servo_id].reboot(self.clock.monotonic())
 
-    def vanish(self, timeout: float = 2.0) -> None:
-        """The adapter is unplugged: the pty closes (clients get EIO) and the symlink goes."""
+    def clear_faults(self, servo_id: int | None = None) -> None:
+        """Cancel the pending dropped, corrupted and delayed replies of `servo_id` (or of all).
+        Hardware errors stay: a servo clears them only when it reboots."""
+        with self._lock:
+            if servo_id is not None and servo_id not in self._faults:
+                raise KeyError(f"dxl emulator: no servo with id {servo_id}")
+            for i in self._faults if servo_id is None else [servo_id]:
+                self._faults[i] = _Faults()
+
+    def vanish(self, timeout: float = 2.0, *, for_s: float | None = None) -> None:
+        """The adapter is unplugged: the pty closes (clients get EIO) and the symlink goes.
+        With `for_s` it comes back by itself that many seconds later (real time; the
+        emulator must be running), else on `reappear()`."""
+        if for_s is not None and not 0.0 <= for_s < float("inf"):
+            raise ValueError(f"vanish for {for_s} s: expected a finite time >= 0")
+        with self._lock:
+            self._reappear_at_s = None if for_s is None else time.monotonic() + for_s
         self._command("vanish", timeout)
 
     def reappear(self, timeout: float = 2.0) -> None:
         """The adapter is back: a new pty, and the symlink points at it."""
         self._command("reappear", timeout)
+
+    def wait_port(self, timeout: float = 2.0) -> str:
+        """Wait until the port is there (it may have vanished); returns the path to open."""
+        with self._idle:
+            if not self._idle.wait_for(lambda: self._port is not None, timeout):
+                raise DeviceTimeoutError(f"dxl emulator: the port is not back after {timeout} s")
+            return self.port
+
+    def injected(self) -> dict[str, Any]:
+        """What is injected now: for each servo id its pending dropped, corrupted and delayed
+        replies, its Hardware Error Status, torque and whether it is booting; whether the
+        port has vanished and in how many seconds it comes back by itself."""
+        with self._lock:
+            now = self.clock.monotonic()
+            servos: dict[int, dict[str, Any]] = {}
+            for servo_id, servo in self.servos.items():
+                faults = self._faults[servo_id]
+                servos[servo_id] = {
+                    "drop": faults.drop, "corrupt": faults.corrupt, "delay_count": faults.delay_count,
+                    "delay_s": faults.delay_s if faults.delay_count else 0.0,
+                    "hardware_error": servo.table[XAddr.HARDWARE_ERROR_STATUS],
+                    "torque_on": servo.torque_on, "booting": servo.is_booting(now),
+                }
+            back_in_s = None
+            if self._port is None and self._reappear_at_s is not None:
+                back_in_s = round(max(0.0, self._reappear_at_s - time.monotonic()), 3)
+            return {"port": self._port, "link": self.link, "vanished": self._port is None,
+                    "back_in_s": back_in_s, "servos": servos}
 
     def servo(self, servo_id: int) -> EmulatedServo:
         """The servo, its motion brought up to now, for inspection. Read it after
@@ -224,10 +272,11 @@ class DxlEmulator:
     def _run(self) -> None:
         parser = PacketParser()
         while not self._stop.is_set():
+            wait_s = self._reappear_if_due()
             master = self._master
             fds = [self._wake_r] + ([master] if master is not None else [])
             try:
-                readable, _, _ = select.select(fds, [], [], 0.5)
+                readable, _, _ = select.select(fds, [], [], wait_s)
             except OSError as err:
                 log.error("dxl emulator on %s: select failed, stopping: %s", self._port, err)
                 self._report(err)
@@ -250,6 +299,22 @@ class DxlEmulator:
                 self._report(err)
         self._run_commands(parser)
 
+    def _reappear_if_due(self) -> float:
+        """Bring a port that vanished for a while back once its time has come; returns how
+        long the thread may wait for input before looking again."""
+        with self._lock:
+            at_s = self._reappear_at_s
+        if at_s is None or self._master is not None:
+            return 0.5
+        left_s = at_s - time.monotonic()
+        if left_s > 0.0:
+            return min(0.5, left_s)
+        with self._lock:
+            self._reappear_at_s = None
+        self._open_pty()
+        log.info("dxl emulator: port back at %s", self.port)
+        return 0.5
+
     def _report(self, err: BaseException) -> None:
         self.last_error = err
         if self.on_error is not None:
@@ -265,9 +330,12 @@ class DxlEmulator:
                 self._close_pty()
                 parser.reset()
                 log.info("dxl emulator: port vanished")
-            elif name == "reappear" and self._master is None:
-                self._open_pty()
-                log.info("dxl emulator: port back at %s", self.port)
+            elif name == "reappear":
+                with self._lock:
+                    self._reappear_at_s = None
+                if self._master is None:
+                    self._open_pty()
+                    log.info("dxl emulator: port back at %s", self.port)
             done.set()
 
     def _command(self, name: str, timeout: float) -> None:
@@ -291,14 +359,17 @@ class DxlEmulator:
         # configures the port. The emulator keeps the slave open so the master never
         # reads EIO between clients.
         tty.setraw(slave)
-        self._master, self._slave = master, slave
-        self._port = os.ttyname(slave)
+        path = os.ttyname(slave)
         if self.link:
             tmp = f"{self.link}.{os.getpid()}.tmp"
             if os.path.lexists(tmp):
                 os.unlink(tmp)
-            os.symlink(self._port, tmp)
+            os.symlink(path, tmp)
             os.replace(tmp, self.link)  # atomic, like udev updating its symlink
+        with self._idle:
+            self._master, self._slave = master, slave
+            self._port = path
+            self._idle.notify_all()
 
     def _close_pty(self) -> None:
         for fd in (self._master, self._slave):

@@ -2,21 +2,28 @@
 
 This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` and `scan()`,
 which finds servos on a port. The control table it drives by is `drivers.dxl_control_table`,
-which the emulator's servos (`drivers.dxl_servo`) serve too.
+which the emulator's servos (`drivers.dxl_servo`) serve too; the SDK's classes it talks
+through, with their pitfalls fixed, are in `drivers.dxl_sdk`.
 
-How the known pitfalls of dynamixel-sdk 4.1.0 are handled here:
+How the known pitfalls of dynamixel-sdk 4.1.0 are handled (here and in `drivers.dxl_sdk`):
 
 * `GroupSyncRead` drops each servo's status error byte (the Alert bit). The sync-read
   block is laid out with indirect addressing so Hardware Error Status (70), Torque
   Enable, Bus Watchdog and the servo's own ID (a check that the mapping survived) come
-  back in the same transaction as position and velocity; `_SyncRead` also keeps the error
-  byte and the id of the servo that failed, so errors name the joint.
+  back in the same transaction as position and velocity; `SyncRead` also keeps the error
+  byte.
+* `GroupSyncRead` waits for the servos' replies one id after another, throws away any
+  other id's reply that comes while it waits, and stops at the first id that fails: the
+  servo it names is whichever it was waiting for when time ran out, often one held up
+  behind the servo that was really late. `SyncRead` keeps every reply that arrives under
+  its own id and says per id what happened; a failed sync read names the servo(s) that did
+  not answer or answered corrupt, judged over all its attempts (`blame_sync_read`).
 * A vanished adapter makes the SDK raise a raw `OSError` (or `termios.error`, which is
   not one, from its tcflush) and leaves `port.is_using` set for good: both, and a
   COMM_PORT_BUSY result, become `BusDownError`, the `PortHandler` is discarded, and the
   base class reopens a new one with back-off.
 * The SDK computes reply timeouts from a hard-coded 16 ms latency timer and reads a
-  `timeout=0` pyserial port in a busy loop: `_BlockingPortHandler` waits in `select()`
+  `timeout=0` pyserial port in a busy loop: `BlockingPortHandler` waits in `select()`
   until bytes arrive or the deadline passes, on the monotonic clock, with a timeout
   computed from the adapter's real latency timer and the Return Delay Time.
 * Return Delay Time, Drive Mode, Operating Mode and position limits live in EEPROM,
@@ -28,18 +35,21 @@ How the known pitfalls of dynamixel-sdk 4.1.0 are handled here:
 """
 from __future__ import annotations
 
-import errno
 import logging
-import os
-import select
 import struct
-import termios
-import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, NoReturn, TypeVar
 
-from dynamixel_sdk import COMM_PORT_BUSY, COMM_RX_CORRUPT, COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
+from dynamixel_sdk import (
+    COMM_PORT_BUSY,
+    COMM_RX_CORRUPT,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    GroupSyncWrite,
+    PacketHandler,
+    PortHandler,
+)
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.dxl_control_table import (
@@ -60,6 +70,16 @@ from drivers.dxl_control_table import (
     ticks_to_deg,
 )
 from drivers.dxl_protocol import ERRBIT_ALERT
+from drivers.dxl_sdk import (
+    PORT_ERRORS,
+    BlockingPortHandler,
+    SyncRead,
+    SyncReadAttempt,
+    adapter_latency_timer_ms,
+    blame_sync_read,
+    port_access_hint,
+    status_ids,
+)
 from drivers.errors import (
     BusDownError,
     ServoCommError,
@@ -69,125 +89,13 @@ from drivers.errors import (
     ServoModelError,
     ServoTimeoutError,
 )
-from drivers.servo_bus import JOINTS, TRACE, JointState, ServoBus, ServoBusConfig, decode_hardware_error
+from drivers.servo_bus import JOINTS, JointState, ServoBus, ServoBusConfig, decode_hardware_error
 
 log = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
 
-
-# --- the port --------------------------------------------------------------------------
-_COMM_TIMEOUT_RESULTS = {-3001}  # COMM_RX_TIMEOUT
-# What a vanished adapter raises out of the SDK: pyserial's SerialException is an OSError,
-# but tcflush() on a dead tty raises termios.error, which is not.
-PORT_ERRORS = (OSError, termios.error)
-
-
-def port_access_hint(port: str, err: BaseException) -> str:
-    """What fixes a port that cannot be opened: the udev rule or the dialout group."""
-    code = getattr(err, "errno", None)
-    if code is None and err.args and isinstance(err.args[0], int):
-        code = err.args[0]
-    if code == errno.ENOENT or not os.path.exists(port):
-        return (f"port {port} does not exist: is the adapter plugged in and powered? "
-                "`ls -l /dev/serial/by-id/` lists adapters; install udev/99-headctl-servos.rules "
-                "(sudo cp udev/99-headctl-servos.rules /etc/udev/rules.d/ && sudo udevadm control --reload "
-                "&& sudo udevadm trigger) for the stable name /dev/head-servos")
-    if code in (errno.EACCES, errno.EPERM) or not os.access(port, os.R_OK | os.W_OK):
-        return (f"no permission to open {port}: add your user to the dialout group "
-                "(sudo usermod -aG dialout $USER, then log out and in again), or install "
-                "udev/99-headctl-servos.rules, which gives the adapter MODE 0660 GROUP dialout")
-    if code == errno.EBUSY:
-        return f"port {port} is busy: another program (another headctl, DYNAMIXEL Wizard) has it open"
-    return f"could not open {port}: {err}"
-
-
-def adapter_latency_timer_ms(port: str) -> float | None:
-    """The FTDI latency timer of the USB adapter behind `port`, if the kernel exposes it."""
-    name = os.path.basename(os.path.realpath(port))
-    path = f"/sys/bus/usb-serial/devices/{name}/latency_timer"
-    try:
-        with open(path, encoding="ascii") as f:
-            return float(f.read().strip())
-    except (OSError, ValueError):
-        return None
-
-
-# --- the SDK, with its timing fixed ----------------------------------------------------
-class _BlockingPortHandler(PortHandler):
-    """A `PortHandler` that blocks in select() instead of spinning, on the monotonic clock.
-
-    The SDK's reply timeout assumes a 16 ms adapter latency timer (about 34 ms a reply);
-    here it is the wire time of the reply plus twice the real latency timer plus the
-    servos' Return Delay Time plus a margin for host scheduling.
-    """
-
-    def __init__(self, port_name: str, latency_timer_ms: float, reply_slack_ms: float) -> None:
-        super().__init__(port_name)
-        self.latency_timer_ms = latency_timer_ms
-        self.reply_slack_ms = reply_slack_ms
-
-    def setupPort(self, cflag_baud: int) -> bool:
-        opened: bool = super().setupPort(cflag_baud)
-        try:
-            # FTDI adapters (U2D2) hold short replies for their latency timer; ask for 1 ms.
-            # A pseudo-terminal or a non-FTDI adapter refuses, which is harmless.
-            self.ser.set_low_latency_mode(True)
-        except (OSError, ValueError, AttributeError, NotImplementedError):
-            log.log(TRACE, "%s: low-latency mode not available", self.port_name)
-        return opened
-
-    def getCurrentTime(self) -> float:
-        # The SDK uses wall-clock time, which jumps with NTP; control timing is monotonic.
-        return time.monotonic() * 1000.0
-
-    def setPacketTimeout(self, packet_length: int) -> None:
-        self.packet_start_time = self.getCurrentTime()
-        self.packet_timeout = (self.tx_time_per_byte * packet_length + 2.0 * self.latency_timer_ms
-                               + self.reply_slack_ms)
-
-    def readPort(self, length: int) -> bytes:
-        remaining_s = (self.packet_timeout - self.getTimeSinceStart()) / 1000.0
-        if remaining_s > 0.0:
-            # Sleep until a byte arrives or the deadline passes (the SDK loops on us).
-            select.select([self.ser.fileno()], [], [], remaining_s)
-        data: bytes = self.ser.read(length)
-        return data
-
-    def drain_late_replies(self) -> int:
-        """Discard replies still arriving after a timeout; returns how many bytes.
-
-        A reply that comes after its timeout would otherwise be taken as the answer to
-        the retry (the SDK matches replies by id only), handing back stale or wrong data.
-        Waits until the line has been quiet for one reply timeout.
-        """
-        quiet_s = (2.0 * self.latency_timer_ms + self.reply_slack_ms) / 1000.0
-        discarded = 0
-        while select.select([self.ser.fileno()], [], [], quiet_s)[0]:
-            chunk = self.ser.read(4096)
-            if not chunk:
-                break
-            discarded += len(chunk)
-        return discarded
-
-
-class _SyncRead(GroupSyncRead):
-    """`GroupSyncRead` that keeps each servo's status error byte and the failing id."""
-
-    def rxPacket(self) -> int:
-        self.last_result = False
-        self.errors: dict[int, int] = {}
-        self.failed_id: int | None = None
-        result: int = COMM_SUCCESS
-        for dxl_id in self.data_dict:
-            data, result, error = self.ph.readRx(self.port, dxl_id, self.data_length)
-            self.data_dict[dxl_id] = data
-            self.errors[dxl_id] = error
-            if result != COMM_SUCCESS:
-                self.failed_id = dxl_id
-                return result
-        self.last_result = True
-        return result
+_COMM_TIMEOUT_RESULTS = {COMM_RX_TIMEOUT}
 
 
 # --- the backend -----------------------------------------------------------------------
@@ -195,6 +103,10 @@ class DynamixelBus(ServoBus):
     """Four Protocol 2.0 X-series servos on one port; see the module docstring."""
 
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog"})
+    CONFIG_KEYS = frozenset({"baud", "protocol", "retries", "watchdog_ms", "return_delay_us", "latency_timer_ms",
+                             "reboot_timeout_s"})
+    JOINT_CONFIG_KEYS = frozenset({"model", "profile_velocity", "profile_acceleration"})
+    MODELS = frozenset(X_MODELS)
 
     # Host scheduling margin added to every reply timeout: a Python thread on a busy
     # 2-core machine can be late by a couple of milliseconds.
@@ -212,8 +124,8 @@ class DynamixelBus(ServoBus):
         self._ids = {joint: config.joints[joint].servo_id for joint in JOINTS}
         self._joint_of = {servo_id: joint for joint, servo_id in self._ids.items()}
         self._packet = PacketHandler(2.0)
-        self._port: _BlockingPortHandler | None = None
-        self._sync_read: _SyncRead | None = None
+        self._port: BlockingPortHandler | None = None
+        self._sync_read: SyncRead | None = None
         self._sync_write: GroupSyncWrite | None = None
         self.firmware: dict[str, int] = {}
 
@@ -227,7 +139,7 @@ class DynamixelBus(ServoBus):
                         latency_ms)
             latency_ms = actual_ms
         slack_ms = self.REPLY_SLACK_MS + len(JOINTS) * self.config.return_delay_us / 1000.0
-        port = _BlockingPortHandler(self.config.port, latency_ms, slack_ms)
+        port = BlockingPortHandler(self.config.port, latency_ms, slack_ms)
         self._port = port
         try:
             opened = port.setBaudRate(self.config.baud)  # opens the port at that rate
@@ -237,7 +149,7 @@ class DynamixelBus(ServoBus):
             raise ServoConfigError(f"{self.config.key_path}.baud: dynamixel-sdk refused {self.config.baud} baud")
         for joint in JOINTS:
             self._check_model(joint)
-        self._sync_read = _SyncRead(port, self._packet, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE)
+        self._sync_read = SyncRead(port, self._packet, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE)
         for servo_id in self._ids.values():
             self._sync_read.addParam(servo_id)
         self._sync_write = GroupSyncWrite(port, self._packet, XAddr.GOAL_POSITION, 4)
@@ -375,6 +287,7 @@ class DynamixelBus(ServoBus):
     def _sync_read_states(self) -> dict[str, JointState | None]:
         sync_read = self._require(self._sync_read)
         result = COMM_SUCCESS
+        attempts: list[SyncReadAttempt] = []
         for attempt in range(self.config.retries + 1):
             try:
                 result = sync_read.txRxPacket()
@@ -384,12 +297,13 @@ class DynamixelBus(ServoBus):
                 break
             if result == COMM_PORT_BUSY:
                 raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure (sync read)")
-            log.debug("%s: sync read attempt %d failed at id %s: %s", self.name, attempt + 1,
-                      sync_read.failed_id, self._packet.getTxRxResult(result))
-            self._drain()
+            late = tuple(sync_read.strays) + status_ids(self._drain())
+            attempts.append(SyncReadAttempt(frozenset(sync_read.answered), dict(sync_read.failures), late))
+            log.debug("%s: sync read attempt %d: %s; replies late from %s", self.name, attempt + 1,
+                      ", ".join(f"id {i}: {self._packet.getTxRxResult(r)}" for i, r in sync_read.failures.items())
+                      or self._packet.getTxRxResult(result), list(late) or "none")
         else:
-            failed_id = sync_read.failed_id
-            self._raise_comm(self._joint_of.get(failed_id) if failed_id is not None else None, "sync read", result)
+            self._raise_sync_read(attempts, result)
         states: dict[str, JointState | None] = {}
         watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
         for joint, servo_id in self._ids.items():
@@ -465,6 +379,52 @@ class DynamixelBus(ServoBus):
             return value, error
         self._raise_comm(joint, what, result)
 
+    def _raise_sync_read(self, attempts: list[SyncReadAttempt], result: int) -> NoReturn:
+        """Raise for a sync read that failed every attempt, naming the servo(s) to blame."""
+        blamed = blame_sync_read(attempts) if attempts and attempts[-1].failures else {}
+        if not blamed:  # the request itself failed to go out: the bus, not a servo
+            self._raise_comm(None, "sync read", result)
+        late = {servo_id for attempt in attempts for servo_id in attempt.late}
+        order = list(self._ids.values())
+        held: list[int] = []
+        timeouts = all(r in _COMM_TIMEOUT_RESULTS for r in blamed.values())
+        first_late = next((i for i in order if i in blamed and i in late), None)
+        if len(blamed) > 1 and timeouts and first_late is not None:
+            # Servos answer in turn: those after a late servo are held up behind it and
+            # come late too. It is to blame, with any silent one before it.
+            held = [i for i in blamed if order.index(i) > order.index(first_late)]
+            blamed = {i: r for i, r in blamed.items() if i not in held}
+
+        def what(servo_id: int, servo_result: int) -> str:
+            text: str = self._packet.getTxRxResult(servo_result)
+            notes = ["its reply came after the timeout"] if servo_id in late else []
+            if held and servo_id == first_late:
+                notes.append(f"id{'s' if len(held) > 1 else ''} {', '.join(map(str, held))}, after it in turn, "
+                             f"held up behind it")
+            return text + (f" ({'; '.join(notes)})" if notes else "")
+
+        failed = f"sync read failed after {self.config.retries + 1} attempt(s)"
+        if len(blamed) == len(order) and not any(attempt.answered for attempt in attempts):
+            # No servo ever answered, and none late: the first in turn, which the others
+            # wait for, or a bus without power.
+            first_joint = next(iter(self._ids))
+            message = (f"{self.describe(first_joint)}: {failed}: no servo answered: this one, the first in turn "
+                       f"(the others wait for its reply), or all of them (power, wiring): "
+                       f"{self._packet.getTxRxResult(result)}")
+        elif len(blamed) == 1:
+            (servo_id, servo_result), = blamed.items()
+            joint = self._joint_of.get(servo_id)
+            where = self.describe(joint) if joint else f"id {servo_id} on {self.name}"
+            message = f"{where}: {failed}: {what(servo_id, servo_result)}"
+        else:
+            each = "; ".join(
+                f"joint {self._joint_of.get(i, '?')} (id {i}): {what(i, r)}" for i, r in blamed.items()
+            )
+            message = f"{self.name}: {failed}: {each}"
+        if timeouts:
+            raise ServoTimeoutError(message)
+        raise ServoCommError(message)
+
     def _raise_comm(self, joint: str | None, what: str, result: int) -> NoReturn:
         where = self.describe(joint) if joint else self.name
         message = (f"{where}: {what} failed after {self.config.retries + 1} attempt(s): "
@@ -473,13 +433,15 @@ class DynamixelBus(ServoBus):
             raise ServoTimeoutError(message)
         raise ServoCommError(message)
 
-    def _drain(self) -> None:
+    def _drain(self) -> bytes:
+        """Discard late replies before a retry; returns them."""
         try:
-            discarded = self._require(self._port).drain_late_replies()
+            discarded = self._require(self._port).drain_late_bytes()
         except PORT_ERRORS as err:
             raise BusDownError(f"{self.name}: port failed while draining late replies: {err}") from err
         if discarded:
-            log.debug("%s: discarded %d bytes of late replies before retrying", self.name, discarded)
+            log.debug("%s: discarded %d bytes of late replies before retrying", self.name, len(discarded))
+        return discarded
 
     def _require(self, thing: _T | None) -> _T:
         if thing is None:
@@ -509,7 +471,7 @@ def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterabl
     Protocol 1.0 has no broadcast ping reply, so each id is pinged and its model read.
     Raises `ServoCommError` naming the fix when the port cannot be opened.
     """
-    handler = _BlockingPortHandler(port, latency_timer_ms, DynamixelBus.REPLY_SLACK_MS)
+    handler = BlockingPortHandler(port, latency_timer_ms, DynamixelBus.REPLY_SLACK_MS)
     packet = PacketHandler(protocol)
     wanted = set(ids)
     found: list[ScanResult] = []

@@ -1,12 +1,12 @@
-"""The servo-bus interface of the head: joint names, config, units, limits and recovery.
+"""The servo-bus interface of the head: joint names, states, units, limits and recovery.
 
 This module owns everything a servo backend shares:
 
 * the four joint names (`JOINTS`); vergence (left_eye = +v/2, right_eye = -v/2) is
   composed above this layer;
-* the typed configuration (`JointConfig`, `ServoBusConfig`), read from plain mappings (what
-  YAML gives) by `drivers.config`: errors are `ServoConfigError`s naming the key path, the
-  value and what was expected;
+* the config a bus is built from (`ServoBusConfig`), defined and checked in
+  `drivers.servo_config`;
+* joint states (`JointState`, `BusState`) and the meaning of a servo's hardware error bits;
 * the abstract `ServoBus`, whose public methods are template methods working in joint
   units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
   zero offset), limits (clamp or refuse), logging, the lifecycle, reboot recovery and
@@ -25,13 +25,29 @@ import functools
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from drivers.base import Device
 from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.servo_faults import (
+    BY_AUTOMATIC_REBOOT,
+    BY_HAND,
+    BY_ITSELF,
+    HELD_OFF,
+    LEFT_TO_A_PERSON,
+    REBOOT_FAILED,
+    REBOOTED,
+    REBOOTING,
+    REPORTED,
+    WAITING,
+    EpisodeRecorder,
+    FaultLog,
+    HardwareErrorEpisode,
+)
+from drivers.servo_config import JOINTS as JOINTS
+from drivers.servo_config import ServoBusConfig as ServoBusConfig
 from drivers.servo_recovery import Fault, FaultRecovery
-from drivers.config import check_settings, config_meta, read_config, setting
 from drivers.errors import (
     BusDownError,
     DriverError,
@@ -45,9 +61,6 @@ log = logging.getLogger(__name__)
 # Per-packet traffic is logged below DEBUG (docs/development.md, "Code conventions").
 TRACE = 5
 
-JOINTS: tuple[str, ...] = ("pan", "tilt", "left_eye", "right_eye")
-LIMIT_POLICIES: tuple[str, ...] = ("clamp", "refuse")
-
 # Hardware Error Status (X-series address 70): bit -> meaning.
 HARDWARE_ERROR_BITS: dict[int, str] = {
     0: "input voltage out of range",
@@ -56,10 +69,6 @@ HARDWARE_ERROR_BITS: dict[int, str] = {
     4: "electrical shock (motor circuit)",
     5: "overload",
 }
-
-# Baud rates an X-series servo offers that dynamixel-sdk 4.1.0 also accepts (its
-# whitelist stops at 4 Mbps, so the servo's 4.5 Mbps is out of reach).
-SUPPORTED_BAUDS: tuple[int, ...] = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 # Reopening a bus that went down: first retry after this, doubling up to the maximum.
 REOPEN_BACKOFF_FIRST_S = 0.1
@@ -75,113 +84,6 @@ def decode_hardware_error(bits: int) -> tuple[str, ...]:
     if bits & ~known_mask:
         meanings.append(f"unknown bits 0x{bits & ~known_mask:02x}")
     return tuple(meanings)
-
-
-# --- configuration ---------------------------------------------------------------------
-# Why Protocol 2.0 only: 1.0 has no Sync Read, so the state of four servos cannot be read in
-# one transaction (AX-12A has no Bulk Read either).
-_PROTOCOL_1_REFUSED = (
-    "2.0: Protocol 1.0 (AX-12A, MX-28) is not supported because it cannot read all joints "
-    "in one transaction; MX-28 can be switched to Protocol 2.0 firmware with DYNAMIXEL Wizard"
-)
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """One joint's servo. Angles in degrees, velocity in deg/s, acceleration in deg/s^2.
-
-    `zero_offset` is the servo angle (degrees from the servo's centre position, tick 2048
-    on an X-series servo) at which the joint reads 0; `direction` -1 flips the joint's
-    sign. So servo_angle = zero_offset + direction * joint_angle.
-    A profile velocity or acceleration of 0 means "as fast as the servo can".
-    The YAML key of `servo_id` is `id`.
-    """
-
-    servo_id: int = field(metadata=config_meta(key="id", lo=0, hi=252))
-    model: str = "XM430-W350"
-    direction: int = setting(1, choices=(1, -1))
-    zero_offset: float = setting(0.0, lo=-180.0, hi=180.0)
-    min_angle: float = setting(-90.0, lo=-360.0, hi=360.0)
-    max_angle: float = setting(90.0, lo=-360.0, hi=360.0)
-    profile_velocity: float = setting(120.0, lo=0.0, hi=10_000.0)
-    profile_acceleration: float = setting(600.0, lo=0.0, hi=1e6)
-
-    CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
-
-    def __post_init__(self) -> None:
-        check_settings(self)
-        if self.min_angle >= self.max_angle:
-            raise ServoConfigError(key_path="min_angle", value=self.min_angle,
-                                   expected=f"less than max_angle ({self.max_angle})")
-        for key, angle in (("min_angle", self.min_angle), ("max_angle", self.max_angle)):
-            servo_deg = self.servo_angle(angle)
-            # Position mode covers one turn around the centre: a limit beyond it can
-            # never be reached and would wrap around on the servo.
-            if not -180.0 <= servo_deg <= 180.0:
-                raise ServoConfigError(
-                    key_path=key, value=angle,
-                    expected=f"an angle whose servo angle (zero_offset + direction * angle = {servo_deg:g}) "
-                             "lies within [-180, 180]",
-                )
-
-    @classmethod
-    def from_mapping(cls, data: Any, key_path: str) -> "JointConfig":
-        return read_config(cls, data, key_path)
-
-    def servo_angle(self, joint_angle: float) -> float:
-        return self.zero_offset + self.direction * joint_angle
-
-    def joint_angle(self, servo_angle: float) -> float:
-        return self.direction * (servo_angle - self.zero_offset)
-
-
-@dataclass(frozen=True)
-class ServoBusConfig:
-    """The servo bus: backend, port, wire settings, policies, and the four joints.
-
-    `watchdog_ms` arms the servos' Bus Watchdog while torque is on (0 = off; 20 ms steps):
-    a host that falls silent that long stops the head. `latency_timer_ms` is the USB
-    adapter's latency timer (the udev rule sets 1 ms); reply timeouts are computed from it.
-    `key_path` is where the section was read (`servo_bus`), for messages.
-    """
-
-    joints: Mapping[str, JointConfig] = field(metadata=config_meta(keys=JOINTS))
-    backend: str = "dynamixel"
-    port: str = "/dev/head-servos"
-    baud: int = setting(1_000_000, choices=SUPPORTED_BAUDS)
-    protocol: float = 2.0
-    retries: int = setting(2, lo=0, hi=10)
-    limit_policy: str = setting("clamp", choices=LIMIT_POLICIES)
-    reboot_on_hardware_error: bool = True
-    torque_on_close: bool = False
-    watchdog_ms: int = setting(0, lo=0, hi=127 * 20, check=lambda ms: ms % 20 == 0,
-                               expected="a multiple of 20 in [0, 2540] (the servo counts in 20 ms steps), 0 = off")
-    return_delay_us: int = setting(0, lo=0, hi=508, check=lambda us: us % 2 == 0,
-                                   expected="an even number in [0, 508] (the servo counts in 2 us steps)")
-    latency_timer_ms: float = setting(1.0, lo=0.0, hi=255.0)
-    reboot_timeout_s: float = setting(2.0, lo=0.1, hi=60.0)
-    key_path: str = setting("servo_bus", source="key_path")
-
-    CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
-
-    def __post_init__(self) -> None:
-        check_settings(self)
-        if self.protocol != 2.0:
-            raise ServoConfigError(key_path="protocol", value=self.protocol,
-                                   expected=_PROTOCOL_1_REFUSED if self.protocol == 1.0 else "2.0")
-        seen: dict[int, str] = {}
-        for joint, jc in self.joints.items():
-            if jc.servo_id in seen:
-                raise ServoConfigError(key_path=f"joints.{joint}.id", value=jc.servo_id,
-                                       expected=f"an id not already used by joint {seen[jc.servo_id]}")
-            seen[jc.servo_id] = joint
-
-    @classmethod
-    def from_mapping(cls, data: Any, key_path: str = "servo_bus") -> "ServoBusConfig":
-        return read_config(cls, data, key_path)
-
-    def joint_path(self, joint: str) -> str:
-        return f"{self.key_path}.joints.{joint}"
 
 
 # --- state -----------------------------------------------------------------------------
@@ -238,10 +140,22 @@ class ServoBus(Device, abc.ABC):
     If the bus goes down (adapter unplugged), calls raise `BusDownError` and the bus
     reopens itself with a growing back-off on later calls; once back, torque is restored
     (if the bus was enabled) only after positions have been read back.
+
+    Hardware errors: `fault_log` (`drivers.servo_faults.FaultLog`) records every episode,
+    even one rebooted away inside a single `read_state()`, with what recovery did and when
+    it cleared; `recovery.reboots` counts automatic reboots by (joint, reason) and
+    `recovery.given_up` names the joints left to a person. All three may be read from any
+    thread without the bus's lock.
     """
 
     # What a backend offers, declared rather than discovered by exceptions.
     capabilities: ClassVar[frozenset[str]] = frozenset()
+    # Config keys this backend uses beyond the common ones (`drivers.servo_config.COMMON_KEYS`,
+    # `COMMON_JOINT_KEYS`); others set in a config are refused when it loads.
+    CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
+    JOINT_CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
+    # The servo models (`joints.<joint>.model`) this backend drives; None: it does not check models.
+    MODELS: ClassVar[frozenset[str] | None] = None
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
         super().__init__(name or config.port)
@@ -255,6 +169,8 @@ class ServoBus(Device, abc.ABC):
         self._faults: dict[str, int] = {}        # joint -> hardware error bits, last read
         self._shut_down: set[str] = set()          # faulted joints whose torque is off
         self.recovery = FaultRecovery()  # the one owner of automatic reboots
+        self.fault_log = FaultLog()
+        self._episodes = EpisodeRecorder(self.fault_log, self.name)
         self._clamping: set[str] = set()
         self._torque_off_pending = False  # disable() failed while the bus was down
 
@@ -272,8 +188,10 @@ class ServoBus(Device, abc.ABC):
         """Position, velocity, moving flag, hardware errors, temperature and input voltage
         of every joint, read in one bus transaction.
 
-        A hardware error is logged with its meaning; with `reboot_on_hardware_error` the
-        servo is rebooted and (if enabled) re-torqued before the state is returned.
+        A hardware error is logged with its meaning and recorded in `fault_log`; with
+        `reboot_on_hardware_error` the servo is rebooted as the recovery policy says and (if
+        enabled) re-torqued before the state is returned, so the state may read clear while
+        the log holds the episode.
         """
         with self._lifecycle_lock:
             self.require_open()
@@ -303,6 +221,7 @@ class ServoBus(Device, abc.ABC):
             self._check_joint(joint)
             self._io(lambda: self._reboot_and_restore(joint, "requested"))
             self.recovery.rebooted_by_hand(joint)
+            self._episodes.rebooted_by_hand(joint)
 
     # -- lifecycle hooks of Device, as templates over the servo hooks --------------------
     def _open(self) -> None:
@@ -319,12 +238,22 @@ class ServoBus(Device, abc.ABC):
 
     def _enable_now(self) -> None:
         state = self._read_state_once()
-        if self.config.reboot_on_hardware_error:
-            for joint, joint_state in state.joints.items():
-                if joint_state.hardware_error_bits and joint not in self.recovery.given_up:
-                    self.recovery.note_reboot(joint, "at enable: " + ", ".join(joint_state.hardware_errors),
-                                              self.clock.monotonic())
-                    self._reboot_and_restore(joint, "hardware error at enable")
+        now_s = self.clock.monotonic()
+        verdicts: dict[str, str] = {}
+        for joint, joint_state in state.joints.items():
+            if not joint_state.hardware_error_bits:
+                continue
+            if not self.config.reboot_on_hardware_error:
+                verdicts[joint] = REPORTED
+            elif joint in self.recovery.given_up:
+                verdicts[joint] = LEFT_TO_A_PERSON
+            else:
+                verdicts[joint] = REBOOTING
+                self.recovery.note_reboot(joint, "at enable: " + ", ".join(joint_state.hardware_errors), now_s)
+        self._record_episodes(state, now_s, verdicts)
+        for joint, verdict in verdicts.items():
+            if verdict == REBOOTING:
+                self._auto_reboot(joint, "hardware error at enable")
         try:
             # A servo whose error cut its torque refuses it: the backend raises
             # ServoHardwareError naming it.
@@ -426,7 +355,8 @@ class ServoBus(Device, abc.ABC):
 
     def _after_read(self, state: BusState) -> BusState:
         """Log hardware errors once per change; reboot as the recovery policy says
-        (`drivers.servo_recovery`); restore torque lost without an error."""
+        (`drivers.servo_recovery`); record every episode and what was done about it
+        (`fault_log`); restore torque lost without an error."""
         for joint, joint_state in state.joints.items():
             bits = joint_state.hardware_error_bits
             if bits and self._faults.get(joint) != bits:
@@ -434,11 +364,17 @@ class ServoBus(Device, abc.ABC):
             elif not bits and joint in self._faults:
                 log.info("%s: hardware error cleared", self.describe(joint))
         self._note_faults(state)
-        acted = False
+        now_s = self.clock.monotonic()
+        faults = {j: Fault(decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
         if self.config.reboot_on_hardware_error:
-            faults = {j: Fault(decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
-            for joint, reason in self.recovery.due(faults, self.clock.monotonic()):
-                self._io(functools.partial(self._reboot_and_restore, joint, reason))
+            verdicts = self.recovery.assess(faults, now_s)
+        else:
+            verdicts = {joint: REPORTED for joint in faults}
+        self._record_episodes(state, now_s, verdicts)
+        acted = False
+        for joint, verdict in verdicts.items():
+            if verdict == REBOOTING:
+                self._io(functools.partial(self._auto_reboot, joint, faults[joint].reason))
                 acted = True
         if self.is_enabled:
             # Torque found off without a hardware error: the servo lost power and came
@@ -451,7 +387,57 @@ class ServoBus(Device, abc.ABC):
         if acted:
             state = self._io(self._read_state_once)
             self._note_faults(state)
+            self._record_episodes(state, self.clock.monotonic(), {})
         return state
+
+    def _record_episodes(self, state: BusState, now_s: float, verdicts: Mapping[str, str]) -> None:
+        """Open, update and close the joints' episodes in `fault_log` from a state just read.
+        A faulted joint without a verdict keeps what recovery last did (the read right after
+        its reboot)."""
+        for joint, joint_state in state.joints.items():
+            bits = joint_state.hardware_error_bits
+            if not bits:
+                self._episodes.clear(joint, now_s, functools.partial(self._cleared_detail, now_s))
+                continue
+            verdict = verdicts.get(joint)
+            current = self._episodes.current(joint)
+            shown = verdict or (current.recovery if current else REPORTED)
+            self._episodes.seen(joint, self.config.joints[joint].servo_id, bits, joint_state.hardware_errors,
+                                joint_state.torque_on, now_s, verdict,
+                                self._episode_detail(joint, bits, joint_state.torque_on, shown))
+
+    def _auto_reboot(self, joint: str, reason: str) -> None:
+        """An automatic reboot, recorded in the joint's episode whether it works or not."""
+        try:
+            self._reboot_and_restore(joint, reason)
+        except (DriverError, OSError) as err:
+            self._episodes.acted(joint, REBOOT_FAILED, self.clock.monotonic(),
+                                 f"{self.describe(joint)}: automatic reboot failed: {err}")
+            raise
+        self._episodes.acted(joint, REBOOTED, self.clock.monotonic(),
+                             f"{self.describe(joint)}: rebooted ({reason})"
+                             + (", torque restored at the position read back" if self.is_enabled else ""))
+
+    def _episode_detail(self, joint: str, bits: int, torque_on: bool, recovery: str) -> str:
+        limits = self.recovery.limits
+        what = {
+            REPORTED: "reported (automatic reboot is off: reboot it by hand)",
+            WAITING: f"torque kept; rebooted if it lasts {limits.persist_s:g} s",
+            HELD_OFF: f"back within {limits.holdoff_s:g} s of a reboot; reported, rebooted once that has passed",
+            REBOOTING: "rebooting",
+            REBOOTED: "rebooted, and the error is back",
+            LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
+                              "person (reboot it by hand once the cause is fixed)",
+        }.get(recovery, recovery)
+        meanings = "; ".join(decode_hardware_error(bits))
+        torque = "torque on" if torque_on else "torque off"
+        return f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), {torque}: {what}"
+
+    def _cleared_detail(self, now_s: float, episode: HardwareErrorEpisode, by: str) -> str:
+        how = {BY_AUTOMATIC_REBOOT: "by an automatic reboot", BY_HAND: "by a reboot by hand",
+               BY_ITSELF: "without a reboot by this bus"}.get(by, by)
+        return (f"{self.describe(episode.joint)}: hardware error 0x{episode.bits:02x} "
+                f"({'; '.join(episode.meanings)}) cleared {how} after {now_s - episode.first_seen_s:.3f} s")
 
     def _note_faults(self, state: BusState) -> None:
         self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}

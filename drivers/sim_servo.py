@@ -20,7 +20,8 @@ from collections.abc import Iterable, Mapping
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, ServoHardwareError
-from drivers.servo_bus import JOINTS, JointState, ServoBus, ServoBusConfig, decode_hardware_error
+from drivers.servo_bus import JOINTS, JointState, ServoBus, decode_hardware_error
+from drivers.servo_config import ServoBusConfig
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +116,9 @@ class SimulatedServoBus(ServoBus):
 
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
                               "fault_injection"})
+    # No wire and no servo models: the simulation has no use for baud, retries, latency or model.
+    CONFIG_KEYS = frozenset({"watchdog_ms"})
+    JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
                  initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:

@@ -1,6 +1,6 @@
-"""The daemon's HTTP control API and dashboard (FastAPI on uvicorn, on its own thread).
+"""The daemon's HTTP control API and dashboard: the FastAPI app (`headctl.api_server` serves it).
 
-Routes (docs/api.md); all JSON, under /api/v1:
+Routes (docs/api.md); JSON but for the streams and the frames, under /api/v1:
 
     GET  /state                     joints, pose, fixation, learning, faults, servo loop, cameras
     GET  /learning?since=N          learning-curve points after point N
@@ -19,7 +19,12 @@ Routes (docs/api.md); all JSON, under /api/v1:
     GET  /metrics                   Prometheus exposition (not under /api/v1)
     GET  /                          the dashboard (headctl/dashboard/)
 
-A refused request is a 4xx JSON object {"error", "field", "reason"}, never a traceback.
+A refused request is a JSON object {"error", "field", "reason"} with a 4xx status, or 503
+(the only 5xx), never a traceback. Request bodies are strict JSON (a bool is not a number, a
+number or a string is not a bool). Limits a hostile client meets, held by `headctl.api_server`
+and documented here: bodies over MAX_BODY_BYTES (413, refused before they are read), request
+heads over MAX_HEAD_BYTES (431), a request not all arrived within REQUEST_TIMEOUT_S of its
+connection or of its first byte (408, closed), and over MAX_CONNECTIONS open connections (503).
 Bound to loopback by default; with a token configured every route but the dashboard's static
 files needs `Authorization: Bearer <token>` (or `?token=`, for a browser's <img> and
 EventSource). Nothing here holds a lock the servo loop waits on: state is read from the
@@ -31,9 +36,6 @@ import asyncio
 import hmac
 import json
 import logging
-import math
-import socket
-import ssl
 import threading
 import time
 from http import HTTPStatus
@@ -42,7 +44,6 @@ from typing import Any, AsyncIterator, Literal
 
 import cv2
 import numpy as np
-import uvicorn
 from fastapi import Depends, FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
@@ -51,8 +52,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from headctl.errors import (ControlError, HeadctlError, InvalidRequestError, NotFoundError, QueueFullError,
-                            UnavailableError)
+from headctl.errors import ControlError, InvalidRequestError, NotFoundError, QueueFullError, UnavailableError
 from headctl.service.control import HeadService, SimFault
 from headctl.service.events import plain
 from headctl.service.looks import LookJob, LookKind, LookRequest
@@ -62,11 +62,17 @@ log = logging.getLogger(__name__)
 DASHBOARD_DIR = Path(__file__).resolve().parent / "dashboard"
 MAX_WAIT_S = 60.0
 SSE_PING_S = 15.0
+MAX_BODY_BYTES = 64 * 1024  # the largest body a route takes is well under 1 KiB
+MAX_HEAD_BYTES = 32 * 1024  # request line and headers
+REQUEST_TIMEOUT_S = 10.0    # to send a whole request, from the connection (or its first byte when kept alive)
+MAX_CONNECTIONS = 64        # open at once: the dashboard holds three streams, a tracker one or two
 
 
 # --- request bodies ----------------------------------------------------------------------------
 class _Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")  # a misspelt key is an error, not ignored
+    # A misspelt key is an error, not ignored; strict: a bool is not a number nor a number or a
+    # string a bool (an int is still a float); NaN and infinities are no coordinates.
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
 class _Waitable(_Body):
@@ -94,10 +100,6 @@ class AnglesLook(_Waitable):
         if missing and not self.relative:
             raise ValueError(f"{', '.join(missing)} missing: an absolute look needs pan, tilt and vergence "
                              "(or send relative: true, where a missing angle means 0)")
-        for k in ("pan", "tilt", "vergence"):
-            value = getattr(self, k)
-            if value is not None and not math.isfinite(value):
-                raise ValueError(f"{k} must be a finite number of degrees")
         return self
 
 
@@ -110,11 +112,11 @@ class MapFile(_Body):
 
 
 class MapReset(_Body):
-    seed: int | None = Field(None, ge=0, description="the random map's seed (default: gaze_map.seed)")
+    seed: int | None = Field(None, ge=0, le=2**63 - 1, description="the random map's seed (default: gaze_map.seed)")
 
 
 class Fault(_Body):
-    fault: SimFault
+    fault: SimFault = Field(strict=False)  # strict would take only an enum member, never its JSON string
     joint: str | None = None
     camera: Literal["left", "right"] | None = None
     bits: int = Field(0, ge=0, le=255)
@@ -129,17 +131,44 @@ class ErrorBody(BaseModel):
     reason: str
 
 
+ERROR_TEXT = {
+    400: "not a valid HTTP request, or a body that is not text (not UTF-8)",
+    401: "no token, or a wrong one",
+    404: "no such look or map file",
+    408: f"the request did not all arrive within {REQUEST_TIMEOUT_S:g} s (the connection is closed)",
+    409: "not possible now (a map for another head, a look that has ended)",
+    413: f"a body over {MAX_BODY_BYTES // 1024} KiB (refused before it is read; the connection is closed)",
+    422: "a field missing, mistyped or out of range; malformed JSON",
+    429: "the look queue is full",
+    431: f"a request line and headers over {MAX_HEAD_BYTES // 1024} KiB (the connection is closed)",
+    503: f"the daemon is not running (starting, stopping), or over {MAX_CONNECTIONS} connections are open",
+}
+# What any route may answer: the server's own limits, the token, and a daemon not running.
+COMMON_ERRORS = (400, 401, 408, 413, 431, 503)
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody, "description": text} for code, text in (
-        (401, "no token, or a wrong one"), (404, "no such route, look or map file"),
-        (409, "not possible now (a map for another head, a look no longer queued)"),
-        (422, "a field missing, mistyped or out of range"), (429, "the look queue is full"),
-        (503, "the daemon is not running (starting, stopping)"))}
+    code: {"model": ErrorBody, "description": ERROR_TEXT[code]} for code in COMMON_ERRORS}
 
 
-def _error(status: int, field: str | None, reason: str, **extra: Any) -> JSONResponse:
+def answers(*codes: int, ok: str | None = None, media_type: str | None = None,
+            accepted: bool = False) -> dict[int | str, dict[str, Any]]:
+    """A route's answers beyond COMMON_ERRORS for its OpenAPI schema: its own refusals, 202 for
+    a look not finished yet, and the 200's media type when it is not JSON."""
+    documented: dict[int | str, dict[str, Any]] = {
+        code: {"model": ErrorBody, "description": ERROR_TEXT[code]} for code in codes}
+    if ok is not None or media_type is not None:
+        documented[200] = {"description": ok or "Successful Response"}
+        if media_type is not None:
+            documented[200]["content"] = {media_type: {"schema": {"type": "string", "format": "binary"}}}
+    if accepted:
+        documented[202] = {"description": "the look, not finished yet (queued or running): ask again by its id",
+                           "content": {"application/json": {"schema": {"type": "object"}}}}
+    return documented
+
+
+def error_response(status: int, field: str | None, reason: str, *, close: bool = False, **extra: Any) -> JSONResponse:
+    """The answer to a refused request (`close`: and the connection closed after it)."""
     return JSONResponse({"error": HTTPStatus(status).phrase, "field": field, "reason": reason, **extra},
-                        status_code=status)
+                        status_code=status, headers={"Connection": "close"} if close else None)
 
 
 def _field_of(loc: tuple[Any, ...]) -> str | None:
@@ -154,7 +183,7 @@ async def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     first: dict[str, Any] = errors[0] if errors else {"field": None, "reason": "invalid request"}
     if any(e.get("type") == "json_invalid" for e in exc.errors()):
         first = {"field": "body", "reason": "the body is not valid JSON"}
-    return _error(422, first["field"], first["reason"], errors=errors)
+    return error_response(422, first["field"], first["reason"], errors=errors)
 
 
 # What each refusal of the service becomes; a ControlError of no other kind is a conflict.
@@ -169,13 +198,16 @@ def control_status(exc: ControlError) -> int:
 
 async def _on_control(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ControlError)
-    return _error(control_status(exc), exc.field, str(exc))
+    return error_response(control_status(exc), exc.field, str(exc))
 
 
 async def _on_http(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
     headers = getattr(exc, "headers", None)
-    response = _error(exc.status_code, None, str(exc.detail))
+    field, reason = getattr(exc, "field", None), str(exc.detail)
+    if exc.status_code == 400 and exc.__cause__ is not None:  # FastAPI could not read the body as JSON
+        field, reason = "body", f"the body is not JSON text: {str(exc.__cause__)[:200]}"
+    response = error_response(exc.status_code, field, reason)
     if headers:
         response.headers.update(headers)
     return response
@@ -183,7 +215,7 @@ async def _on_http(request: Request, exc: Exception) -> JSONResponse:
 
 async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
     log.exception("%s %s failed", request.method, request.url.path)
-    return _error(500, None, f"internal error ({type(exc).__name__}); the daemon's log has the details")
+    return error_response(500, None, f"internal error ({type(exc).__name__}); the daemon's log has the details")
 
 
 class _Unauthorized(StarletteHTTPException):
@@ -238,9 +270,22 @@ class EyeImages:
 
 
 # --- the app ---------------------------------------------------------------------------------
+class JpegResponse(Response):
+    media_type = "image/jpeg"
+
+
+class MjpegResponse(StreamingResponse):
+    media_type = "multipart/x-mixed-replace"
+
+
+class EventStreamResponse(StreamingResponse):
+    media_type = "text/event-stream"
+
+
 def create_app(service: HeadService, token: str | None = None, stream_fps: float = 10.0,
                jpeg_quality: int = 80) -> FastAPI:
-    """The API over `service` (a `headctl.service.control.ServiceControl`)."""
+    """The API over `service` (a `headctl.service.control.ServiceControl`); `ApiServer` adds
+    the body size cap (`headctl.api_server.BodyCap`) when it serves it."""
     app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None, responses=ERROR_RESPONSES,
                   description="Control API of a calibration-free stereo camera head.")
     app.state.closing = threading.Event()
@@ -268,7 +313,7 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
     def dashboard() -> Response:
         index = DASHBOARD_DIR / "index.html"
         if not index.exists():
-            return _error(404, None, f"{index}: the dashboard is not installed")
+            return error_response(404, None, f"{index}: the dashboard is not installed")
         return FileResponse(index, headers={"Cache-Control": "no-cache"})
 
     if DASHBOARD_DIR.is_dir():
@@ -282,7 +327,7 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
         # On the event loop, not a worker thread: one thread fewer contending for the GIL.
         return Response(state_cache.body(), media_type="application/json")
 
-    @app.get("/api/v1/learning", dependencies=guarded)
+    @app.get("/api/v1/learning", dependencies=guarded, responses=answers(422))
     def learning(since: int = Query(0, ge=0), limit: int = Query(5000, ge=0, le=5000)) -> Response:
         return _json(service.learning_since(since, limit))
 
@@ -293,75 +338,84 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
         body = plain(job.as_dict())
         return _json(body, status=200 if job.done.is_set() else 202)
 
-    @app.post("/api/v1/look/target", dependencies=guarded)
+    look_answers = answers(422, 429, ok="the look, finished (with wait_s)", accepted=True)
+
+    @app.post("/api/v1/look/target", dependencies=guarded, responses=look_answers)
     async def look_target(body: TargetLook) -> Response:
         job = await run_in_threadpool(service.look, LookRequest(LookKind.TARGET, (body.x, body.y, body.d)),  # type: ignore[arg-type]
                                       body.replace)
         return await answer_look(job, body.wait_s)
 
-    @app.post("/api/v1/look/angles", dependencies=guarded)
+    @app.post("/api/v1/look/angles", dependencies=guarded, responses=look_answers)
     async def look_angles(body: AnglesLook) -> Response:
         values = tuple(float(getattr(body, k) or 0.0) for k in ("pan", "tilt", "vergence"))
         job = await run_in_threadpool(service.look, LookRequest(LookKind.ANGLES, values, body.relative),  # type: ignore[arg-type]
                                       body.replace)
         return await answer_look(job, body.wait_s)
 
-    @app.get("/api/v1/looks/{look_id}", dependencies=guarded)
-    async def get_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
+    @app.get("/api/v1/looks/{look_id}", dependencies=guarded,
+             responses=answers(404, 422, ok="the look, finished", accepted=True))
+    async def get_look(look_id: int,
+                       wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S, allow_inf_nan=False)) -> Response:
         return await answer_look(service.get_look(look_id), wait_s)
 
-    @app.delete("/api/v1/looks/{look_id}", dependencies=guarded)
-    async def cancel_look(look_id: int, wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S)) -> Response:
+    @app.delete("/api/v1/looks/{look_id}", dependencies=guarded,
+                responses=answers(404, 409, 422, ok="the look, cancelled", accepted=True))
+    async def cancel_look(look_id: int,
+                          wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S, allow_inf_nan=False)) -> Response:
         # A queued look ends at once; a running one stops at its next servo cycle or frame wait.
         return await answer_look(service.cancel_look(look_id), wait_s)
 
     # -- switches and the map ---------------------------------------------------------
-    @app.post("/api/v1/exploration", dependencies=guarded)
+    @app.post("/api/v1/exploration", dependencies=guarded, responses=answers(422))
     def exploration(body: Switch) -> Response:
         return _json({"enabled": service.set_exploration(body.enabled)})
 
-    @app.post("/api/v1/torque", dependencies=guarded)
+    @app.post("/api/v1/torque", dependencies=guarded, responses=answers(409, 422))
     def torque(body: Switch) -> Response:
         return _json({"enabled": service.set_torque(body.enabled)})
 
-    @app.post("/api/v1/map/save", dependencies=guarded)
+    @app.post("/api/v1/map/save", dependencies=guarded, responses=answers(409, 422))
     def map_save(body: MapFile | None = None) -> Response:
         return _json(service.save_map(body.name if body else None))
 
-    @app.post("/api/v1/map/load", dependencies=guarded)
+    @app.post("/api/v1/map/load", dependencies=guarded, responses=answers(404, 409, 422))
     def map_load(body: MapFile | None = None) -> Response:
         return _json(service.load_map(body.name if body else None))
 
-    @app.post("/api/v1/map/reset", dependencies=guarded)
+    @app.post("/api/v1/map/reset", dependencies=guarded, responses=answers(422))
     def map_reset(body: MapReset | None = None) -> Response:
         return _json(service.reset_map(body.seed if body else None))
 
-    @app.post("/api/v1/sim/faults", dependencies=guarded)
+    @app.post("/api/v1/sim/faults", dependencies=guarded, responses=answers(422))
     def inject(body: Fault) -> Response:
         return _json({"injected": service.inject_fault(body.fault, joint=body.joint, camera=body.camera,
                                                        bits=body.bits)})
 
     # -- streams ----------------------------------------------------------------------
-    @app.get("/api/v1/events", dependencies=guarded)
+    @app.get("/api/v1/events", dependencies=guarded, response_class=EventStreamResponse,
+             responses=answers(422, ok="the events as they come (Server-Sent Events)", media_type="text/event-stream"))
     async def events(request: Request, after: int | None = Query(None, ge=0)) -> Response:
         last_id = request.headers.get("last-event-id")
         if after is None and last_id is not None and last_id.isdigit():
             after = int(last_id)
-        return StreamingResponse(_event_stream(app, service, after), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+        return EventStreamResponse(_event_stream(app, service, after),
+                                   headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
-    @app.get("/api/v1/eyes/{side}.jpg", dependencies=guarded)
+    @app.get("/api/v1/eyes/{side}.jpg", dependencies=guarded, response_class=JpegResponse,
+             responses=answers(422, ok="the eye's newest frame, marked", media_type="image/jpeg"))
     async def eye_jpeg(side: Literal["left", "right"]) -> Response:
         encoded = await run_in_threadpool(eyes.jpeg, side)
         if encoded is None:
             raise UnavailableError(f"camera {side}: no frame yet")
-        return Response(encoded[1], media_type="image/jpeg", headers={"Cache-Control": "no-cache"})
+        return JpegResponse(encoded[1], headers={"Cache-Control": "no-cache"})
 
-    @app.get("/api/v1/eyes/{side}.mjpg", dependencies=guarded)
+    @app.get("/api/v1/eyes/{side}.mjpg", dependencies=guarded, response_class=MjpegResponse,
+             responses=answers(422, ok="the eye live, one JPEG a part", media_type="multipart/x-mixed-replace"))
     async def eye_mjpeg(side: Literal["left", "right"],
-                        fps: float = Query(stream_fps, gt=0, le=60)) -> Response:
-        return StreamingResponse(_mjpeg(app, eyes, side, fps), media_type="multipart/x-mixed-replace; boundary=frame",
-                                 headers={"Cache-Control": "no-cache"})
+                        fps: float = Query(stream_fps, ge=0.1, le=60, allow_inf_nan=False)) -> Response:
+        return MjpegResponse(_mjpeg(app, eyes, side, fps), media_type="multipart/x-mixed-replace; boundary=frame",
+                             headers={"Cache-Control": "no-cache"})
 
     @app.get("/metrics", dependencies=guarded, include_in_schema=False)
     def metrics() -> Response:
@@ -371,6 +425,21 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
 
     from headctl.metrics import registry_for
     app.state.registry = registry_for(service)
+
+    def openapi() -> dict[str, Any]:
+        # Every refusal is JSON, whatever the route's own media type (FastAPI would give an
+        # error model the route's: image/jpeg for the eyes' frames).
+        if app.openapi_schema is None:
+            error_body = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
+            for operations in FastAPI.openapi(app)["paths"].values():
+                for operation in operations.values():
+                    for code, answer in operation.get("responses", {}).items():
+                        if code[:1] in ("4", "5"):
+                            answer["content"] = error_body
+        assert app.openapi_schema is not None
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
     return app
 
 
@@ -468,93 +537,3 @@ async def _mjpeg(app: FastAPI, eyes: EyeImages, side: str, fps: float) -> AsyncI
             yield (b"--frame\r\nContent-Type: image/jpeg\r\nContent-Length: " + str(len(encoded[1])).encode()
                    + b"\r\n\r\n" + encoded[1] + b"\r\n")
         await asyncio.sleep(max(0.0, period_s - (time.monotonic() - started)))
-
-
-# --- the server thread -------------------------------------------------------------------------
-class ApiServer(threading.Thread):
-    """uvicorn serving `create_app(service)` on its own thread and event loop; a context manager.
-
-    `__enter__` returns once the socket listens (the port is taken, or the address is wrong:
-    HeadctlError naming it); `url` is then the address clients use (with port 0, the port
-    the kernel chose)."""
-
-    def __init__(self, service: HeadService, host: str = "127.0.0.1", port: int = 8765, token: str | None = None,
-                 stream_fps: float = 10.0, jpeg_quality: int = 80, tls_cert: str | None = None,
-                 tls_key: str | None = None) -> None:
-        super().__init__(name="api-server", daemon=True)
-        self.host, self.port = host, port
-        self.tls_cert, self.tls_key = tls_cert, tls_key
-        self.app = create_app(service, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
-        self._sock: socket.socket | None = None
-        self._server: uvicorn.Server | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self.url = ""
-        self.error: BaseException | None = None
-
-    def __enter__(self) -> "ApiServer":
-        family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
-        # IPPROTO_TCP named: asyncio sets TCP_NODELAY on the accepted sockets only when the
-        # listening socket says it is TCP; without it, every answer on a kept-open connection
-        # waits ~40 ms for the client's delayed ACK.
-        sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            sock.bind((self.host, self.port))
-        except OSError as err:
-            sock.close()
-            raise HeadctlError(f"api: cannot listen on {self.host}:{self.port} ({err.strerror}); "
-                               "is another headctl running? (api.port in the config)") from err
-        sock.listen(128)
-        sock.set_inheritable(True)
-        self._sock = sock
-        port = sock.getsockname()[1]
-        host = {"0.0.0.0": "127.0.0.1", "::": "::1", "": "127.0.0.1"}.get(self.host, self.host)
-        scheme = "https" if self.tls_cert else "http"
-        self.url = f"{scheme}://[{host}]:{port}" if ":" in host else f"{scheme}://{host}:{port}"
-        config = uvicorn.Config(self.app, log_level="warning", access_log=False, lifespan="off",
-                                timeout_graceful_shutdown=2, http="httptools",
-                                ssl_certfile=self.tls_cert, ssl_keyfile=self.tls_key)
-        try:
-            config.load()  # the TLS context: a bad certificate is an error now, not in the thread
-        except (OSError, ssl.SSLError) as err:
-            sock.close()
-            self._sock = None
-            raise HeadctlError(f"api.tls_cert {self.tls_cert}, api.tls_key {self.tls_key}: "
-                               f"cannot serve HTTPS ({err})") from err
-        self._server = uvicorn.Server(config)
-        self.start()
-        log.info("control API and dashboard on %s", self.url)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def run(self) -> None:
-        assert self._server is not None and self._sock is not None
-        loop = asyncio.new_event_loop()
-        self._loop = loop
-        try:
-            loop.run_until_complete(self._server.serve(sockets=[self._sock]))
-        except Exception as err:  # reported through the status, never lost
-            self.error = err
-            log.exception("%s: the API server failed", self.name)
-        finally:
-            loop.close()
-
-    def stop(self, timeout_s: float = 4.0) -> None:
-        """End the streams, stop serving, close the socket. Safe to call twice."""
-        self.app.state.closing.set()
-        for loop, put in list(self.app.state.streams):
-            try:
-                loop.call_soon_threadsafe(put, None)
-            except RuntimeError:  # its loop is already closed
-                pass
-        if self._server is not None:
-            self._server.should_exit = True
-        if self.is_alive() and threading.current_thread() is not self:
-            self.join(timeout_s)
-            if self.is_alive():
-                log.warning("%s did not stop within %.1f s", self.name, timeout_s)
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None

@@ -2,8 +2,11 @@
 
 `run [--config F]` runs the daemon (`headctl.service.Daemon`) until SIGTERM/SIGINT; without
 `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a
-config and connects to the servos and cameras it names, reporting each. `status` and `look`
-are clients of the running daemon's HTTP API (`headctl.client`).
+config and connects to the servos and cameras it names, reporting each. Both prepare the
+config in one way (`_prepare`), so `check`, with or without `--no-connect`, refuses a config
+exactly where `run` would: exit 2 naming the file, the key path, the value and what was
+expected. `status` and `look` are clients of the running daemon's HTTP API
+(`headctl.client`).
 """
 from __future__ import annotations
 
@@ -15,8 +18,8 @@ import sys
 import time
 from typing import Any
 
-from drivers.errors import BackendImportError, CameraConfigError, DriverError, ServoConfigError
-from headctl.config import HeadConfig, load_config
+from drivers.errors import DriverError
+from headctl.config import HeadConfig, check_runtime, load_config
 from headctl.errors import ConfigError, HeadctlError
 
 log = logging.getLogger(__name__)
@@ -38,8 +41,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "check", help="validate a head's config, then connect and report each servo and camera",
         description="Validate a config (file, key path, value and what was expected on error); unless "
                     "--no-connect, open the servo bus and both cameras and report each.")
-    _config_args(check, state_dir=False)
-    check.add_argument("--no-connect", action="store_true", help="only validate the file")
+    _config_args(check)
+    check.add_argument("--no-connect", action="store_true",
+                       help="validate only: the file, the state directory and log file, the devices built but not "
+                            "opened")
     check.add_argument("--timeout", type=float, default=5.0, metavar="S", help="seconds to wait for frames")
     check.set_defaults(func=_check)
 
@@ -108,6 +113,46 @@ def _load(args: argparse.Namespace, command: str) -> HeadConfig | None:
     return config
 
 
+def _prepare(args: argparse.Namespace, command: str) -> tuple[HeadConfig | None, int]:
+    """The config as `run` uses it, checked as far as `run` checks it before it starts
+    anything: the file (`load_config`), the command line's overrides, what running needs of
+    this machine (`check_runtime`), and the devices built through their backends, not opened.
+    (config, 0), or (None, the exit status): 2 for a config error, 1 for any other failure."""
+    config = _load(args, command)
+    if config is None:
+        return None, 2
+    api_port = getattr(args, "api_port", None)
+    if api_port is not None:
+        if not 0 <= api_port <= 65535:
+            print(f"headctl {command}: --api-port {api_port}: expected a TCP port, 0 for an ephemeral one",
+                  file=sys.stderr)
+            return None, 2
+        config = config.with_api(port=api_port)
+    try:
+        check_runtime(config)
+        _build_devices(config)
+    except ConfigError as err:
+        if err.file is None:
+            err.file = config.path
+        print(f"headctl {command}: {err}", file=sys.stderr)
+        return None, 2
+    except (HeadctlError, DriverError, OSError) as err:
+        print(f"headctl {command}: {err}", file=sys.stderr)
+        return None, 1
+    except Exception as err:  # a backend class of the user's own whose constructor fails
+        print(f"headctl {command}: {config.path}: building the devices failed: {err!r}", file=sys.stderr)
+        return None, 1
+    return config, 0
+
+
+def _build_devices(config: HeadConfig) -> None:
+    """Build (not open) the servo bus and the cameras as `run` will: a backend's own checks of
+    its config (a pixel format it does not know) are met here, before anything starts."""
+    from headctl.service.build import HeadDevices
+
+    HeadDevices.build(config)
+
+
 def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
     root = logging.getLogger()
     if args.log_level == "INFO":  # the CLI's default: the config decides
@@ -122,16 +167,15 @@ def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
 def _run(args: argparse.Namespace) -> int:
     from headctl.service import Daemon
 
-    config = _load(args, "run")
+    config, status = _prepare(args, "run")
     if config is None:
+        return status
+    try:
+        _apply_logging(config, args)
+    except OSError as err:  # the log file went away since check_runtime looked
+        print(f"headctl run: {config.path}: logging.file: got {config.logging.file!r}, expected a file that can be "
+              f"written ({err.strerror})", file=sys.stderr)
         return 2
-    if args.api_port is not None:
-        if not 0 <= args.api_port <= 65535:
-            print(f"headctl run: --api-port {args.api_port}: expected a TCP port, 0 for an ephemeral one",
-                  file=sys.stderr)
-            return 2
-        config = config.with_api(port=args.api_port)
-    _apply_logging(config, args)
     try:
         return Daemon(config).run()
     except (HeadctlError, DriverError, OSError) as err:
@@ -142,9 +186,9 @@ def _run(args: argparse.Namespace) -> int:
 
 # --- check -------------------------------------------------------------------------------------
 def _check(args: argparse.Namespace) -> int:
-    config = _load(args, "check")
+    config, status = _prepare(args, "check")
     if config is None:
-        return 2
+        return status
     params = config.map_params()
     print(f"{config.path}: valid")
     print(f"  servo bus: {config.servo_bus.backend} on {config.servo_bus.port} at {config.servo_bus.baud} baud")
@@ -166,13 +210,14 @@ def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
     failures = 0
     try:
         devices = HeadDevices.build(config)  # as `run` builds them (the simulated head's too)
-    except (CameraConfigError, BackendImportError, ServoConfigError) as err:
-        print(f"  FAILED: {config.path}: {err}")
+    except (DriverError, OSError) as err:  # `_prepare` built them already: not the config's fault
+        print(f"  FAILED: {err}")
         return 1
     with contextlib.ExitStack() as stack:
         try:
-            stack.enter_context(devices.bus)
             bus = devices.bus
+            assert bus is not None  # built here, not owned by a servo process
+            stack.enter_context(bus)
             state = bus.read_state()
             for joint in JOINTS:
                 jc, js = config.servo_bus.joints[joint], state[joint]
@@ -181,6 +226,14 @@ def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
                       f"(limits {jc.min_angle:g}..{jc.max_angle:g}), {js.temperature_c:.0f} C, "
                       f"{js.input_voltage_v:.1f} V, {errors}")
                 failures += bool(js.hardware_error_bits)
+            # What the read itself recovered from (a servo rebooted inside it) reads clear in the
+            # state: the bus's fault log still tells it.
+            latest = {r.episode: r for r in bus.fault_log.since(0)}  # each episode as it stands now
+            for episode in latest.values():
+                if not episode.is_open:  # an open one shows in the state above
+                    print(f"  {bus.describe(episode.joint)}: had {', '.join(episode.meanings)} (0x{episode.bits:02x}) "
+                          f"while connecting; {episode.recovery}, cleared by {episode.cleared_by}")
+                    failures += 1
         except (DriverError, OSError) as err:
             print(f"  servo bus: FAILED: {err}")
             return 1
@@ -193,9 +246,6 @@ def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
                 h, w = frame.image.shape[:2]
                 print(f"  camera {side} ({camera.backend_name} {camera.name}): {w} x {h}, "
                       f"first frame after {time.monotonic() - started:.2f} s, {camera.health.value}")
-            except (CameraConfigError, BackendImportError) as err:
-                print(f"  camera {side}: FAILED: {config.path}: {err}")
-                failures += 1
             except (DriverError, OSError) as err:
                 print(f"  camera {side}: FAILED: {err}")
                 failures += 1

@@ -1,12 +1,14 @@
 """Subcommands of `headctl` for the servos: `emulate-servos` and `scan`.
 
 `emulate-servos` serves virtual Protocol 2.0 servos on a pseudo-terminal (see
-`drivers.dxl_emulator`) so anyone can develop without a head; `scan` finds the servos on a
+`drivers.dxl_emulator`) so anyone can develop without a head, and with `--control` takes
+injected faults from outside (`drivers.dxl_emulator_control`); `scan` finds the servos on a
 port, which is what people do first with a new head.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -40,6 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                          help="the servos' baud rate (default 1000000)")
     emulate.add_argument("--link", metavar="PATH",
                          help="also keep a symlink PATH pointing at the pty (a stable name, like a udev rule's)")
+    emulate.add_argument("--control", metavar="PATH", action="append", default=[],
+                         help="take fault-injection commands (drop, corrupt, delay, hwerror, powercycle, vanish, "
+                              "reappear, clear, status, help; one a line, one answer a line) on a Unix socket at "
+                              "PATH, or on stdin with answers on stdout for '-'; may be given twice")
     emulate.set_defaults(func=_emulate)
 
     scan = sub.add_parser(
@@ -56,14 +62,34 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _emulate(args: argparse.Namespace) -> int:
     from drivers.dxl_emulator import DxlEmulator
+    from drivers.dxl_emulator_control import ControlSocket, EmulatorControl, serve_stream
 
+    sockets = [path for path in args.control if path != "-"]
+    if len(args.control) - len(sockets) > 1 or len(set(sockets)) != len(sockets):
+        print("headctl emulate-servos: --control: each PATH (and '-') at most once", file=sys.stderr)
+        return 2
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with DxlEmulator(args.ids, model=args.model, baud=args.baud, link=args.link) as emulator:
+        with contextlib.ExitStack() as stack:
+            emulator = stack.enter_context(DxlEmulator(args.ids, model=args.model, baud=args.baud, link=args.link))
+            control = EmulatorControl(emulator)
+            for path in sockets:
+                try:
+                    stack.enter_context(ControlSocket(control, path))
+                except OSError as err:
+                    print(f"headctl emulate-servos: --control {path}: {err}", file=sys.stderr)
+                    return 2
             print(emulator.pty_path, flush=True)
             if args.link:
                 print(f"{args.link} -> {emulator.pty_path}", file=sys.stderr, flush=True)
+            for path in sockets:
+                print(f"fault control on {path} (`help` lists the commands)", file=sys.stderr, flush=True)
+            if "-" in args.control:
+                # Answers go to stdout after the pty line; end of input ends this control only.
+                threading.Thread(target=serve_stream, args=(control, sys.stdin, sys.stdout),
+                                 name="dxl-emulator-control(stdin)", daemon=True).start()
+                print("fault control on stdin (`help` lists the commands)", file=sys.stderr, flush=True)
             print(f"serving {len(args.ids)} {args.model} servo(s), ids {','.join(map(str, args.ids))}, "
                   f"{args.baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
             try:

@@ -35,7 +35,8 @@ from calib_free.fixation import FixationInterrupted, FixationOutcome, HeadTimeou
 from calib_free.kinematics import joints_of, pose_of
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, CameraError, CameraTimeoutError, DeviceStateError, DriverError
-from drivers.servo_bus import BusState, JointConfig
+from drivers.servo_bus import BusState
+from drivers.servo_config import JointConfig
 from drivers.stereo import StereoPair
 from headctl.errors import ServoLoopStoppedError
 

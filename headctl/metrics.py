@@ -57,6 +57,8 @@ class ServiceCollector(Collector):
         yield CounterMetricFamily("headctl_servo_loop_cycles", "servo loop cycles", timing["cycles"])
         yield CounterMetricFamily("headctl_servo_loop_overruns", "cycles that overran their period",
                                   timing["overruns"])
+        yield CounterMetricFamily("headctl_servo_loop_long_periods", "periods over 1.2 times the nominal one "
+                                  "(12 ms at 100 Hz)", timing.get("long_periods", 0))
         for name, what in (("period", "servo loop period"), ("jitter", "|period - nominal|")):
             family = GaugeMetricFamily(f"headctl_servo_loop_{name}_seconds",
                                        f"{what} over the last 6,000 cycles, by quantile", labels=["quantile"])
@@ -70,6 +72,13 @@ class ServiceCollector(Collector):
         errors.add_metric(["write"], timing["write_errors"])
         errors.add_metric(["down"], timing["bus_down_count"])
         yield errors
+        reboots = CounterMetricFamily("headctl_servo_reboots", "automatic reboots of a servo after a hardware "
+                                      "error, by joint and reason", labels=["joint", "reason"])
+        for entry in snap.hardware_errors["reboots"]:
+            reboots.add_metric([entry["joint"], entry["reason"]], entry["count"])
+        yield reboots
+        yield _gauge("headctl_servo_hardware_errors_open", "hardware-error episodes open now",
+                     len(snap.hardware_errors["open"]))
         yield _gauge("headctl_servo_bus_down", "1 while the servo bus is down", float(snap.bus_down))
         yield _gauge("headctl_torque_enabled", "1 while torque is on (as switched)",
                      None if snap.torque is None else float(snap.torque))

@@ -130,6 +130,7 @@ class SimulatedHeadRig:
         world = self.devices.world
         assert world is not None  # sim_config checked that the head is simulated
         self.model = world.model
+        assert self.devices.bus is not None  # built here, not owned by a servo process
         self.bus = self.devices.bus
         left, right = self.devices.cameras["left"], self.devices.cameras["right"]
         if not (isinstance(left, SimulatedCamera) and isinstance(right, SimulatedCamera)):

@@ -13,7 +13,7 @@ import contextlib
 import dataclasses
 import logging
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 from calib_free.kinematics import JOINTS
 from calib_free.sim import HeadModel, JointLimits
@@ -34,20 +34,30 @@ SIM_START_JOINTS: Mapping[str, float] = {"pan": 0.0, "tilt": 0.0, "left_eye": 5.
 SIM_VERGENCE_RANGE = (1.0, 20.0)
 
 
+class SimulatedServos(Protocol):
+    """The simulated servos as the simulated world sees them: a `SimulatedServoBus`, or the
+    servo process that runs one (`headctl.service.servo_process.ServoLoopProcess`)."""
+
+    def true_position(self, joint: str) -> float: ...
+
+    def inject_bus_down(self) -> None: ...
+
+    def restore_bus(self) -> None: ...
+
+    def inject_hardware_error(self, joint: str, bits: int) -> None: ...
+
+
 class SimulatedWorld:
     """What the simulated backends share: the head model the cameras render through, the
-    servos' true positions they render from, and the camera stalls a test may inject."""
+    servos' true positions they render from, and the faults a test may inject."""
 
-    def __init__(self, config: HeadConfig, bus: ServoBus) -> None:
-        if not isinstance(bus, SimulatedServoBus):
-            raise CameraError(f"{config.servo_bus.key_path}.backend: the simulated cameras need the simulated "
-                              f"servo bus, got {type(bus).__name__}")
+    def __init__(self, config: HeadConfig, servos: SimulatedServos) -> None:
         self.model = sim_head_model(config.cameras.left, config.fixation.vergence_range)
-        self.bus = bus
+        self.servos = servos
         self.stalled: set[str] = set()
 
     def true_joints(self) -> dict[str, float]:
-        return {joint: self.bus.true_position(joint) for joint in JOINTS}
+        return {joint: self.servos.true_position(joint) for joint in JOINTS}
 
     def pose_source(self, side: str) -> Callable[[], dict[str, float]]:
         def pose() -> dict[str, float]:
@@ -93,7 +103,7 @@ class HeadDevices:
     """A head's devices, built from its config; `open()` opens the bus and the cameras (states
     readable, nothing moves), `close()` closes what was opened, in reverse order."""
 
-    bus: ServoBus
+    bus: ServoBus | None  # None: a servo process owns it
     cameras: dict[str, Camera]
     world: SimulatedWorld | None
     _stack: contextlib.ExitStack = dataclasses.field(default_factory=contextlib.ExitStack, repr=False)
@@ -101,12 +111,26 @@ class HeadDevices:
     @classmethod
     def build(cls, config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> "HeadDevices":
         bus = build_servo_bus(config, clock)
-        world = SimulatedWorld(config, bus) if config.simulated else None
+        world = None
+        if config.simulated:
+            if not isinstance(bus, SimulatedServoBus):
+                raise CameraError(f"{config.servo_bus.key_path}.backend: the simulated cameras need the simulated "
+                                  f"servo bus, got {type(bus).__name__}")
+            world = SimulatedWorld(config, bus)
         return cls(bus, build_cameras(config, world, clock), world)
+
+    @classmethod
+    def cameras_of(cls, config: HeadConfig, servos: SimulatedServos | None,
+                   clock: Clock = SYSTEM_CLOCK) -> "HeadDevices":
+        """The cameras alone, for a service whose servo process owns the bus; simulated cameras
+        render the servos that process simulates."""
+        world = SimulatedWorld(config, servos) if config.simulated and servos is not None else None
+        return cls(None, build_cameras(config, world, clock), world)
 
     def open(self, cameras: bool = True) -> "HeadDevices":
         try:
-            self._stack.enter_context(self.bus)
+            if self.bus is not None:
+                self._stack.enter_context(self.bus)
             if cameras:
                 for camera in self.cameras.values():
                     self._stack.enter_context(camera)

@@ -275,14 +275,14 @@ class ServiceControl:
         if world is None:
             raise UnavailableError("fault injection needs the simulated head (servo_bus.backend: sim)", "fault")
         if fault is SimFault.BUS_DOWN:
-            world.bus.inject_bus_down()
+            world.servos.inject_bus_down()
         elif fault is SimFault.RESTORE_BUS:
-            world.bus.restore_bus()
+            world.servos.restore_bus()
         elif fault is SimFault.HARDWARE_ERROR:
             if joint not in JOINTS:
                 raise InvalidRequestError(f"hardware_error needs joint: one of {', '.join(JOINTS)}, got {joint!r}",
                                           "joint")
-            world.bus.inject_hardware_error(joint, bits or 0b0010_0000)
+            world.servos.inject_hardware_error(joint, bits or 0b0010_0000)
         elif camera not in ("left", "right"):
             raise InvalidRequestError(f"{fault} needs camera: left or right, got {camera!r}", "camera")
         elif fault is SimFault.CAMERA_STALL:

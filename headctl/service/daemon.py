@@ -8,7 +8,7 @@
   on the `Head` (whose bus is the servo loop and whose pairs come from the capture threads);
 - `gaze-adapter` (`calib_free.adapter.MapAdapter`): learns from the taught fixations, with
   atomic checkpoints (`persistence.Checkpointer`);
-- `api-server` (`headctl.api.ApiServer`): the HTTP control API and dashboard, over
+- `api-server` (`headctl.api_server.ApiServer`): the HTTP control API and dashboard, over
   `control.ServiceControl`;
 - `supervisor` (`supervisor.Supervisor`): systemd's status and watchdog, fault events,
   stalled cameras.
@@ -33,17 +33,20 @@ from calib_free.kinematics import JOINTS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from drivers.stereo import StereoPair
-from headctl.config import HeadConfig, is_loopback
+from headctl.config import HeadConfig
+from headctl.config_api import is_loopback
 from headctl.errors import HeadctlError
 from headctl.head import StereoPairSource
 from headctl.service.build import HeadDevices, build_head
 from headctl.service.control import ServiceControl
 from headctl.service.events import EventHub, EventLog
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
+from headctl.service.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
 from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
-from headctl.service.servo_loop import ServoLoop
+from headctl.service.servo_loop import ServoIO, ServoLoop
+from headctl.service.servo_process import ServoLoopProcess
 from headctl.service.status import FaultWatcher
 from headctl.service.supervisor import Supervisor, status_line
 from headctl.service.systemd import SystemdNotifier
@@ -57,11 +60,12 @@ class Daemon:
     def __init__(self, config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> None:
         self.config = config
         self.clock = clock
-        self.parts = ServiceParts(config=config, clock=clock, hub=EventHub(), warnings=EventLog(),
+        hub = EventHub()
+        self.parts = ServiceParts(config=config, clock=clock, hub=hub, warnings=EventLog(),
                                   looks=LookQueue(config.api.max_queued_looks), learning=LearningLog(clock),
-                                  started_s=clock.monotonic())
+                                  started_s=clock.monotonic(), hardware=HardwareFaults(hub))
         self.notifier = SystemdNotifier()
-        self.api_server: Any = None  # headctl.api.ApiServer once listening
+        self.api_server: Any = None  # headctl.api_server.ApiServer once listening
         self.control = ServiceControl(self.parts, self._api_faults)
         self.faults = FaultWatcher(self.parts, self.parts.hub, self._api_faults)
         self.stop_requested = threading.Event()
@@ -69,6 +73,9 @@ class Daemon:
         self._stack = contextlib.ExitStack()
         self._supervisor: Supervisor | None = None
         self._lifecycle = threading.Lock()
+        # The servo loop in a process of its own, unless the config says otherwise or time is
+        # not the system's (a test's manual clock cannot cross into another process).
+        self._servo_process = config.service.servo_process and clock is SYSTEM_CLOCK
 
     @property
     def phase(self) -> ServicePhase:
@@ -125,20 +132,33 @@ class Daemon:
         compile_s = gm.warm_up()
         (log.info if compile_s > 1.0 else log.debug)("gaze map inner loops ready in %.1f s", compile_s)
 
-        devices = stack.enter_context(HeadDevices.build(cfg, clock))
+        loop: ServoIO
+        if self._servo_process:
+            # The child opens and enables the bus; the cameras of a simulated head render the
+            # servos it simulates.
+            self.notifier.notify(status="starting: the servo process")
+            process = ServoLoopProcess(cfg, on_fault_change=self._fault_changed, clock=clock).start()
+            stack.callback(process.stop)
+            loop = process
+            devices = stack.enter_context(HeadDevices.cameras_of(cfg, process, clock))
+        else:
+            devices = stack.enter_context(HeadDevices.build(cfg, clock))
+            assert devices.bus is not None
+            devices.bus.enable()
+            thread = ServoLoop(devices.bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s,
+                               realtime_priority=cfg.service.realtime_priority, on_fault_change=self._fault_changed,
+                               clock=clock)
+            thread.start()
+            stack.callback(thread.stop)
+            loop = thread
         parts.devices = devices
-        devices.bus.enable()
         pair = stack.enter_context(StereoPair(devices.cameras["left"], devices.cameras["right"],
                                               cfg.cameras.tolerance_s))
         for camera in devices.cameras.values():
             camera.enable()
-        loop = ServoLoop(devices.bus, cfg.service.servo_rate_hz, cfg.service.input_timeout_s,
-                         realtime_priority=cfg.service.realtime_priority, on_fault_change=self._fault_changed,
-                         clock=clock)
-        loop.start()
-        stack.callback(loop.stop)
         adapter = MapAdapter(gm, on_adapted=self._on_adapted)
-        checkpointer = Checkpointer(adapter, cfg.map_path, cfg.service.checkpoint_every, clock=clock)
+        checkpointer = Checkpointer(adapter, cfg.map_path, cfg.service.checkpoint_every, clock=clock,
+                                    interval_s=cfg.service.checkpoint_interval_s)
         adapter.start()
         stack.callback(adapter.stop)
         interrupt = Interrupt(self._abort)
@@ -161,7 +181,7 @@ class Daemon:
         self.notifier.notify(ready=1, status=status_line(parts, self.faults.check()))
 
     def _start_api(self) -> None:
-        from headctl.api import ApiServer  # FastAPI and uvicorn: only when the API is on
+        from headctl.api_server import ApiServer  # FastAPI and uvicorn: only when the API is on
 
         cfg, api = self.config, self.config.api
         self.api_server = self._stack.enter_context(ApiServer(
@@ -226,6 +246,11 @@ class Daemon:
 
     def _safe_state(self, running: RunningParts) -> None:
         loop, bus = running.loop, running.devices.bus
+        safe_state = self.config.service.safe_state
+        if isinstance(loop, ServoLoopProcess):  # the child leaves its bus in the safe state
+            loop.stop(timeout_s=min(3.0, self.config.service.shutdown_timeout_s), safe_state=safe_state)
+            return
+        assert isinstance(loop, ServoLoop) and bus is not None
         state = loop.latest_state()
         if state is not None and loop.down_reason is None and loop.is_alive():
             try:
@@ -233,7 +258,7 @@ class Daemon:
             except (DriverError, HeadctlError) as err:
                 log.warning("could not hold the present position at shutdown: %s", err)
         loop.stop()
-        if self.config.service.safe_state == "torque_off":
+        if safe_state == "torque_off":
             try:
                 bus.disable()
             except DriverError as err:

@@ -22,9 +22,10 @@ from headctl.config import HeadConfig
 from headctl.service.build import HeadDevices
 from headctl.service.events import EventHub, EventLog, plain
 from headctl.service.fixation_thread import FixationThread, HeadEvents
+from headctl.service.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.persistence import Checkpointer
-from headctl.service.servo_loop import ServoLoop
+from headctl.service.servo_loop import ServoIO
 from headctl.head import Head
 
 
@@ -88,7 +89,7 @@ class RunningParts:
 
     devices: HeadDevices
     pair: StereoPair
-    loop: ServoLoop
+    loop: ServoIO
     adapter: MapAdapter
     checkpointer: Checkpointer
     head: Head
@@ -113,3 +114,4 @@ class ServiceParts:
     map_origin: MapOrigin = dataclasses.field(default_factory=MapOrigin)
     api_url: str | None = None
     camera_restarts: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
+    hardware: HardwareFaults | None = None  # the servos' hardware-error episodes, told as events

@@ -1,5 +1,11 @@
 """What the service keeps on disk: the gaze map (restored at start, checkpointed atomically)
-and the lock that allows one daemon per state directory."""
+and the lock that allows one daemon per state directory.
+
+No map file can keep the service from starting: `restore_map` takes the main file, else its
+`.prev`, else a fresh random map, and reports what it refused. `Checkpointer` saves a map
+that changed every `checkpoint_every` adaptations or `checkpoint_interval_s` seconds,
+whichever comes first, so a daemon killed often loses little.
+"""
 from __future__ import annotations
 
 import fcntl
@@ -12,6 +18,7 @@ from pathlib import Path
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter
 from calib_free.errors import MapFileError
+from calib_free.map_file import temporary_files
 from drivers.clock import SYSTEM_CLOCK, Clock
 from headctl.config import HeadConfig
 from headctl.errors import HeadctlError
@@ -19,79 +26,164 @@ from headctl.errors import HeadctlError
 log = logging.getLogger(__name__)
 
 
+def remove_temporary_files(state_dir: Path) -> list[Path]:
+    """Remove the temporary files of saves a killed process left in `state_dir`; those removed.
+    Called at start with the state directory locked, when no save of this directory runs."""
+    removed = []
+    for leftover in temporary_files(state_dir):
+        try:
+            size = leftover.stat().st_size
+            leftover.unlink()
+        except OSError as err:
+            log.error("%s: cannot remove this temporary file of an interrupted save: %s", leftover, err)
+            continue
+        log.warning("removed %s (%d bytes), the temporary file of an interrupted save", leftover, size)
+        removed.append(leftover)
+    return removed
+
+
 def restore_map(config: HeadConfig) -> tuple[GazeMap, str, list[str]]:
     """The saved map (or its .prev, or a fresh random one); where it came from; problems found.
 
-    A corrupt or incompatible main file is moved aside to `<path>.bad` so the next checkpoint
-    does not keep it as `.prev`.
+    Leftover temporary files of interrupted saves are removed first. A file that cannot be
+    used (corrupt, malformed, saved for other map parameters) is reported and moved aside to
+    `<file>.bad`, so that no checkpoint keeps it as `.prev`; when `.prev` is used, it is
+    written back as the main file. Never raises for what a file holds.
     """
     path = config.map_path
     wanted = config.map_params()
     problems: list[str] = []
-    moved_aside = False
+    remove_temporary_files(config.state_dir)
+    main_refused = False
     for candidate in (path, Path(f"{path}.prev")):
-        if not candidate.exists():
+        if not os.path.lexists(candidate):
             continue
         try:
             gm = GazeMap.load(candidate)
             if gm.params != wanted:
                 raise MapFileError(f"{candidate}: saved for other map parameters (image size {gm.params.image_size}, "
                                    f"grid {gm.params.grid_shape}, profile {gm.params.profile}) than {config.path} sets")
-        except MapFileError as err:
-            log.error("gaze map: %s", err)
-            problems.append(str(err))
-            if candidate == path:
-                os.replace(path, f"{path}.bad")
-                moved_aside = True
+        except Exception as err:  # MapFileError only, by read_map's contract; anything else is still a bad file
+            problem = str(err) if isinstance(err, MapFileError) else \
+                f"{candidate}: not a readable gaze map file ({type(err).__name__}: {err})"
+            log.error("gaze map: %s", problem, exc_info=not isinstance(err, MapFileError))
+            problems.append(problem)
+            _move_aside(candidate)
+            main_refused = main_refused or candidate == path
             continue
         log.info("gaze map restored from %s (%d adaptations)", candidate, gm.adaptations)
-        if moved_aside:
-            gm.save(path, keep_previous=False)
+        if main_refused:
+            try:
+                gm.save(path, keep_previous=False)
+            except OSError as err:
+                problems.append(f"{path}: cannot write the restored map back: {err}")
+                log.error("gaze map: %s", problems[-1])
         return gm, str(candidate), problems
-    log.info("gaze map: none saved in %s; starting from a random map (seed %d)", config.state_dir,
+    log.info("gaze map: none usable in %s; starting from a random map (seed %d)", config.state_dir,
              config.gaze_map.seed)
     return GazeMap(wanted, seed=config.gaze_map.seed), "new", problems
 
 
-class Checkpointer:
-    """Atomic map checkpoints every N adaptations (on the adapter thread) and at shutdown."""
+def _move_aside(path: Path) -> None:
+    try:
+        os.replace(path, f"{path}.bad")
+    except OSError as err:
+        log.error("%s: cannot move it aside to %s.bad: %s", path, path, err)
 
-    def __init__(self, adapter: MapAdapter, path: Path, every: int, clock: Clock = SYSTEM_CLOCK) -> None:
+
+class Checkpointer:
+    """Atomic checkpoints of the adapter's map: when it changed, every `every` adaptations or
+    every `interval_s` seconds (0: by count only), whichever comes first; and on request
+    (`save`: at shutdown, from the API).
+
+    `maybe()` runs on the adapter thread after each adaptation; `maybe_on_time()` is for a
+    thread that runs whether or not adaptations come (the supervisor). Both skip a checkpoint
+    while one is being written, and both count from the last attempt, so a failing disk is
+    retried at the same pace and not after every adaptation.
+    """
+
+    def __init__(self, adapter: MapAdapter, path: Path, every: int, clock: Clock = SYSTEM_CLOCK,
+                 interval_s: float = 30.0) -> None:
         self.adapter = adapter
         self.clock = clock
         self.path = path
         self.every = every
+        self.interval_s = interval_s
         self.count = 0
         self.last_adaptations = -1
         self.last_time_s: float | None = None
         self.last_duration_s: float | None = None
         self.error: str | None = None
         self._lock = threading.Lock()
+        # The map as the state directory holds it (the restored one at start), and the last attempt.
+        self._saved: tuple[GazeMap, int] = (adapter.map, adapter.map.adaptations)
+        self._attempt: tuple[GazeMap, int, float] = (adapter.map, adapter.map.adaptations, clock.monotonic())
 
-    def maybe(self, adaptations: int) -> None:
-        if adaptations > 0 and adaptations % self.every == 0:
-            self.save()
+    def changed(self) -> bool:
+        """The adapter's map differs from the last one saved (adapted since, or replaced)."""
+        saved_map, saved_adaptations = self._saved
+        gm = self.adapter.map
+        return gm is not saved_map or gm.adaptations != saved_adaptations
+
+    def due(self, now_s: float | None = None) -> bool:
+        """A checkpoint is due: the map changed, and `every` adaptations or `interval_s` seconds
+        have passed since the last attempt (`now_s` on this checkpointer's clock)."""
+        if not self.changed():
+            return False
+        now_s = self.clock.monotonic() if now_s is None else now_s
+        attempt_map, attempt_adaptations, attempt_s = self._attempt
+        gm = self.adapter.map
+        since = gm.adaptations - attempt_adaptations if gm is attempt_map else gm.adaptations
+        return since >= self.every or (self.interval_s > 0 and now_s - attempt_s >= self.interval_s)
+
+    def maybe(self, adaptations: int | None = None) -> bool:
+        """After an adaptation (on the adapter thread): checkpoint if one is due. True if saved.
+        `adaptations` is accepted for the caller's convenience; the count is read from the adapter."""
+        return self._save_if_due(None)
+
+    def maybe_on_time(self, now_s: float | None = None) -> bool:
+        """Checkpoint if one is due, whether or not adaptations come (call it every second or
+        so). True if saved."""
+        return self._save_if_due(now_s)
+
+    def _save_if_due(self, now_s: float | None) -> bool:
+        if not self.due(now_s) or not self._lock.acquire(blocking=False):
+            return False
+        try:
+            if not self.due(now_s):  # another thread saved it meanwhile
+                return False
+            return self._save()
+        finally:
+            self._lock.release()
 
     def save(self) -> None:
+        """Checkpoint now, changed or not (at shutdown, on request); failures land in `error`."""
         with self._lock:
-            started = self.clock.monotonic()
-            try:
-                adaptations = self.adapter.with_map(self._save_map)
-            except OSError as err:
-                self.error = f"{self.path}: checkpoint failed: {err}"
-                log.error("%s", self.error)
-                return
-            self.error = None
-            self.count += 1
-            self.last_adaptations = int(adaptations)
-            self.last_time_s = time.time()
-            self.last_duration_s = self.clock.monotonic() - started
-            log.info("gaze map checkpoint %d: %s (%d adaptations, %.0f ms)", self.count, self.path,
-                     adaptations, self.last_duration_s * 1e3)
+            self._save()
 
-    def _save_map(self, gm: GazeMap) -> int:
+    def _save(self) -> bool:
+        started = self.clock.monotonic()
+        try:
+            gm, adaptations = self.adapter.with_map(self._save_map)
+        except OSError as err:
+            self._attempt = (self.adapter.map, self.adapter.map.adaptations, started)
+            self.error = f"{self.path}: checkpoint failed: {err}"
+            log.error("%s", self.error)
+            return False
+        self._saved = (gm, adaptations)
+        self._attempt = (gm, adaptations, started)
+        self.error = None
+        self.count += 1
+        self.last_adaptations = adaptations
+        self.last_time_s = time.time()
+        self.last_duration_s = self.clock.monotonic() - started
+        log.info("gaze map checkpoint %d: %s (%d adaptations, %.0f ms)", self.count, self.path,
+                 adaptations, self.last_duration_s * 1e3)
+        return True
+
+    def _save_map(self, gm: GazeMap) -> tuple[GazeMap, int]:
         gm.save(self.path)
-        return gm.adaptations
+        return gm, gm.adaptations
 
 
 def write_atomically(path: Path, text: str) -> None:

@@ -13,16 +13,80 @@ import collections
 import logging
 import os
 import threading
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, DriverError, JointLimitError, ServoHardwareError
 from drivers.servo_bus import BusState, ServoBus
+from drivers.servo_faults import HardwareErrorEpisode
 from headctl.errors import ServoLoopStoppedError, StaleStateError
 
 log = logging.getLogger(__name__)
+
+# A period longer than this many nominal periods counts as long (12 ms at 100 Hz): a goal written
+# that much late is a servo holding a stale goal while the controller thinks it moved.
+LONG_PERIOD = 1.2
+
+
+class ServoIO(Protocol):
+    """What the service reads and asks of its servo loop, in a thread (`ServoLoop`) or in a
+    process of its own (`headctl.service.servo_process.ServoLoopProcess`)."""
+
+    @property
+    def down_reason(self) -> str | None: ...
+
+    @property
+    def faults(self) -> dict[str, tuple[str, ...]]: ...
+
+    @property
+    def last_read_error(self) -> str: ...
+
+    @property
+    def error(self) -> BaseException | None: ...
+
+    @property
+    def last_read_s(self) -> float: ...
+
+    @property
+    def last_cycle_s(self) -> float: ...
+
+    @property
+    def torque_enabled(self) -> bool: ...
+
+    def is_alive(self) -> bool: ...
+
+    def latest_state(self) -> BusState | None: ...
+
+    def fresh_state(self, timeout_s: float = 1.0) -> BusState: ...
+
+    def read_state(self) -> BusState: ...
+
+    def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]: ...
+
+    def request_goals(self, goals: Mapping[str, float], timeout_s: float = 1.0) -> dict[str, float]: ...
+
+    def goals(self) -> dict[str, float]: ...
+
+    def set_torque(self, on: bool, timeout_s: float = 2.0) -> None: ...
+
+    def timing(self) -> dict[str, Any]: ...
+
+    def describe(self, joint: str) -> str: ...
+
+    def fault_records(self, since: int) -> tuple[HardwareErrorEpisode, ...]:
+        """The bus's hardware-error records after `since` (`drivers.servo_faults`)."""
+
+
+def period_quantiles(periods_s: np.ndarray, nominal_s: float) -> dict[str, float | None]:
+    """p50, p99 and max of the periods and of |period - nominal|, in ms (None without periods)."""
+    quantiles: dict[str, float | None] = {}
+    for name, values in (("period", periods_s), ("jitter", np.abs(periods_s - nominal_s))):
+        qs = np.quantile(values, (0.5, 0.99, 1.0)) if len(values) else (None, None, None)
+        for label, q in zip(("p50", "p99", "max"), qs):
+            quantiles[f"{name}_{label}_ms"] = None if q is None else round(float(q) * 1e3, 3)
+    return quantiles
 
 
 def join_thread(thread: threading.Thread, timeout_s: float) -> None:
@@ -34,21 +98,34 @@ def join_thread(thread: threading.Thread, timeout_s: float) -> None:
 
 
 class _WriteRequest:
-    def __init__(self, goals: Mapping[str, float]) -> None:
+    def __init__(self, goals: Mapping[str, float],
+                 callback: Callable[["_WriteRequest"], None] | None = None) -> None:
         self.goals = dict(goals)
         self.done = threading.Event()
         self.sent: dict[str, float] | None = None
         self.error: BaseException | None = None
+        self.callback = callback  # called on the loop's thread once done
+
+    def finish(self) -> None:
+        self.done.set()
+        if self.callback is not None:
+            self.callback(self)
 
 
 class _LoopAction:
     """A call to run on the loop thread between two cycles (the bus has one user)."""
 
-    def __init__(self, fn: Callable[[ServoBus], Any]) -> None:
+    def __init__(self, fn: Callable[[ServoBus], Any], callback: Callable[["_LoopAction"], None] | None = None) -> None:
         self.fn = fn
         self.done = threading.Event()
         self.result: Any = None
         self.error: BaseException | None = None
+        self.callback = callback  # called on the loop's thread once done
+
+    def finish(self) -> None:
+        self.done.set()
+        if self.callback is not None:
+            self.callback(self)
 
 
 class ServoLoop(threading.Thread):
@@ -71,6 +148,10 @@ class ServoLoop(threading.Thread):
         self.period_s = 1.0 / rate_hz
         self.input_timeout_s = input_timeout_s
         self._stop_event = threading.Event()
+        # Called on the loop's thread before and after each cycle (a servo process exchanges
+        # requests and the published state there).
+        self.before_cycle: Callable[[], None] | None = None
+        self.after_cycle: Callable[[], None] | None = None
         self._cond = threading.Condition()
         self._state: BusState | None = None
         self._state_seq = 0
@@ -91,6 +172,7 @@ class ServoLoop(threading.Thread):
         self.last_read_s = self.clock.monotonic()
         self.cycles = 0
         self.overruns = 0
+        self.long_periods = 0  # periods longer than LONG_PERIOD times the nominal one, since the start
         self.periods_s: collections.deque[float] = collections.deque(maxlen=history)
         self._timing_cache: tuple[float, dict[str, float | None]] | None = None
         self.last_cycle_s = self.clock.monotonic()
@@ -98,6 +180,16 @@ class ServoLoop(threading.Thread):
     # -- what the controller calls (through LoopBus) ----------------------------------------
     def touch(self) -> None:
         self._last_input_s = self.clock.monotonic()
+
+    def touch_at(self, at_s: float) -> None:
+        """The controller was last heard of at `at_s` (a servo process's heartbeat)."""
+        if at_s > self._last_input_s:
+            self._last_input_s = at_s
+
+    @property
+    def state_seq(self) -> int:
+        """How many states the loop has read."""
+        return self._state_seq
 
     def fresh_state(self, timeout_s: float = 1.0) -> BusState:
         """The first state read after this call."""
@@ -137,6 +229,29 @@ class ServoLoop(threading.Thread):
         assert request.sent is not None
         return request.sent
 
+    def post_goals(self, goals: Mapping[str, float], callback: Callable[[_WriteRequest], None]) -> None:
+        """Have the next cycle write `goals` without waiting: `callback(request)` on the loop's
+        thread once written (`request.sent`) or refused (`request.error`)."""
+        self.touch()
+        request = _WriteRequest(goals, callback)
+        with self._cond:
+            if self.down_reason is None:
+                self._requests.append(request)
+                return
+        request.error = BusDownError(f"{self.bus.name}: {self.down_reason}")
+        request.finish()
+
+    def post_call(self, fn: Callable[[ServoBus], Any], callback: Callable[[_LoopAction], None]) -> None:
+        """Run `fn(bus)` before the next cycle without waiting: `callback(action)` once done."""
+        with self._cond:
+            self._actions.append(_LoopAction(fn, callback))
+
+    def describe(self, joint: str) -> str:
+        return self.bus.describe(joint)
+
+    def fault_records(self, since: int) -> tuple[HardwareErrorEpisode, ...]:
+        return self.bus.fault_log.since(since)
+
     def goals(self) -> dict[str, float]:
         with self._cond:
             return dict(self._goals)
@@ -154,16 +269,19 @@ class ServoLoop(threading.Thread):
             raise action.error
         return action.result
 
-    def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
-        """Torque on (each goal set to the present position first: no jump) or off, all joints.
-        The goal slot is emptied either way, so no goal from before is written afterwards."""
+    def torque_switch(self, on: bool) -> Callable[[ServoBus], None]:
+        """The action that switches torque on (each goal set to the present position first: no
+        jump) or off on all joints, emptying the goal slot so no earlier goal is written after."""
         def switch(bus: ServoBus) -> None:
             bus.enable() if on else bus.disable()
             with self._cond:
                 self._goals = {}
             self.torque_enabled = on
-        self.call(switch, timeout_s)
-        log.warning("%s: torque %s on all joints (requested)", self.name, "on" if on else "off")
+            log.warning("%s: torque %s on all joints (requested)", self.name, "on" if on else "off")
+        return switch
+
+    def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
+        self.call(self.torque_switch(on), timeout_s)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop_event.set()
@@ -191,7 +309,10 @@ class ServoLoop(threading.Thread):
             while not self._stop_event.is_set():
                 started = self.clock.monotonic()
                 if previous_s is not None:
-                    self.periods_s.append(started - previous_s)
+                    period_s = started - previous_s
+                    self.periods_s.append(period_s)
+                    if period_s > LONG_PERIOD * self.period_s:
+                        self.long_periods += 1
                 previous_s = started
                 self.step()
                 next_s += self.period_s
@@ -211,17 +332,21 @@ class ServoLoop(threading.Thread):
                 waiting: list[_WriteRequest | _LoopAction] = [*self._requests, *self._actions]
                 for pending in waiting:
                     pending.error = stopped
-                    pending.done.set()
+                    pending.finish()
                 self._requests.clear()
                 self._actions.clear()
                 self._cond.notify_all()
 
     def step(self) -> None:
         """One cycle: the calls waiting for the bus, one read, one write."""
+        if self.before_cycle is not None:
+            self.before_cycle()
         self._run_actions()
         self._cycle()
         self.cycles += 1
         self.last_cycle_s = self.clock.monotonic()
+        if self.after_cycle is not None:
+            self.after_cycle()
 
     def _run_actions(self) -> None:
         with self._cond:
@@ -231,7 +356,7 @@ class ServoLoop(threading.Thread):
                 action.result = action.fn(self.bus)
             except Exception as err:  # the caller gets it
                 action.error = err
-            action.done.set()
+            action.finish()
 
     def _cycle(self) -> None:
         try:
@@ -298,7 +423,7 @@ class ServoLoop(threading.Thread):
                     request.error = ServoHardwareError(
                         f"{self.bus.name}: {', '.join(self.bus.describe(j) for j in held)} held after a hardware "
                         f"error ({'; '.join(', '.join(self.faults[j]) for j in held)}); nothing sent")
-                    request.done.set()
+                    request.finish()
                     continue
                 self._goals.update(request.goals)
             requests = [r for r in requests if not r.done.is_set()]
@@ -306,7 +431,7 @@ class ServoLoop(threading.Thread):
         if not goals:
             for request in requests:
                 request.error = ServoHardwareError(f"{self.bus.name}: torque off on {', '.join(request.goals)}")
-                request.done.set()
+                request.finish()
             return
         try:
             sent = self.bus.write_goals(goals)
@@ -334,7 +459,7 @@ class ServoLoop(threading.Thread):
             if len(request.sent) != len(request.goals):
                 request.error = ServoHardwareError(
                     f"{self.bus.name}: {', '.join(set(request.goals) - set(sent))} held (torque off)")
-            request.done.set()
+            request.finish()
 
     def _went_down(self, reason: str) -> None:
         first = self.down_reason is None
@@ -353,7 +478,7 @@ class ServoLoop(threading.Thread):
                 self._cond.notify_all()
         for request in requests:
             request.error = err
-            request.done.set()
+            request.finish()
 
     TIMING_MAX_AGE_S = 0.25
 
@@ -364,14 +489,10 @@ class ServoLoop(threading.Thread):
         now = self.clock.monotonic()
         cached = self._timing_cache
         if cached is None or now - cached[0] > self.TIMING_MAX_AGE_S:
-            periods = np.array(self.periods_s, dtype=float)
-            quantiles: dict[str, float | None] = {}
-            for name, values in (("period", periods), ("jitter", np.abs(periods - self.period_s))):
-                qs = np.quantile(values, (0.5, 0.99, 1.0)) if len(values) else (None, None, None)
-                for label, q in zip(("p50", "p99", "max"), qs):
-                    quantiles[f"{name}_{label}_ms"] = None if q is None else round(float(q) * 1e3, 3)
+            quantiles = period_quantiles(np.array(self.periods_s, dtype=float), self.period_s)
             self._timing_cache = cached = (now, quantiles)
         return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
+                "long_periods": self.long_periods,
                 "read_errors": self.read_errors, "write_errors": self.write_errors,
                 "bus_down_count": self.bus_down_count, **cached[1]}
 

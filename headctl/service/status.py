@@ -105,6 +105,7 @@ class StatusSnapshot:
     learning: LearningStatus | None
     map: MapStatus
     cameras: dict[str, CameraStatus]
+    hardware_errors: dict[str, Any]  # the servos' error episodes: open now, the last ended, reboots
     warnings: list[dict[str, Any]]  # the last warnings and errors logged
     warning_counts: dict[str, int]
     event_counts: dict[str, int]  # events published, by type
@@ -121,6 +122,7 @@ class StatusSnapshot:
             "learning": dataclasses.asdict(self.learning) if self.learning is not None else {},
             "map": dataclasses.asdict(self.map),
             "cameras": {side: dataclasses.asdict(c) for side, c in self.cameras.items()},
+            "hardware_errors": self.hardware_errors,
             "events": self.warnings, "event_counts": self.warning_counts})
         return out
 
@@ -155,7 +157,7 @@ def fault_items(parts: ServiceParts) -> dict[str, str]:
         if loop.down_reason is not None:
             out["servo_bus"] = f"servo bus down: {loop.down_reason}"
         for joint, meanings in loop.faults.items():
-            out[f"servo:{joint}"] = f"{loop.bus.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)"
+            out[f"servo:{joint}"] = f"{loop.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)"
         if loop.down_reason is None and now - loop.last_read_s > FAILING_READS_S:
             out["servo_reads"] = f"servo reads failing for {now - loop.last_read_s:.1f} s: {loop.last_read_error}"
         if loop.error is not None:
@@ -232,6 +234,8 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
         uptime_s=round(now - parts.started_s, 3), faults=faults, api=parts.api_url, events_seq=parts.hub.seq,
         image_size=config.image_size, joints=joints, pose=pose, torque=torque, servo_loop=servo_loop,
         bus_down=bus_down, fixation=fixation, learning=learning, map=map_status, cameras=cameras,
+        hardware_errors=parts.hardware.status() if parts.hardware is not None else {"open": [], "ended": [],
+                                                                                    "reboots": []},
         warnings=list(parts.warnings.events), warning_counts=dict(parts.warnings.counts),
         event_counts=dict(parts.hub.counts))
 
@@ -294,6 +298,9 @@ class FaultWatcher:
         self._lock = threading.Lock()
 
     def check(self) -> dict[str, str]:
+        running, hardware = self.parts.running, self.parts.hardware
+        if running is not None and hardware is not None:  # every hardware error, rebooted or not
+            hardware.add(running.loop.fault_records(hardware.cursor))
         with self._lock:
             items = {**fault_items(self.parts), **(self.more_faults() if self.more_faults is not None else {})}
             for key in items.keys() - self._seen:

@@ -72,6 +72,8 @@ class Supervisor(threading.Thread):
             fields["status"] = line
             self._last_line, self._last_line_s = line, now
         running = self.parts.running
+        if running is not None:  # a map changed but not adapted since (loaded, reset) is saved on time too
+            running.checkpointer.maybe_on_time(now)
         # Only a live servo loop keeps systemd from restarting the service.
         if (self.notifier.watchdog_s and running is not None and running.loop.is_alive()
                 and now - running.loop.last_cycle_s < WATCHDOG_LOOP_S):

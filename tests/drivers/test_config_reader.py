@@ -1,6 +1,8 @@
-"""The one config reader (`drivers.config`) and the one config error type it raises."""
+"""The one config reader (`drivers.config`), the one config error type it raises, and reading a
+config file strictly (`drivers.config_file`: size, encoding, duplicate keys, nesting)."""
 from __future__ import annotations
 
+import codecs
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -11,17 +13,20 @@ import pytest
 
 import headctl.errors
 from drivers.config import (
-    HIDDEN,
     check_settings,
     config_error_from,
     config_keys,
     config_meta,
+    declare_settings,
     describe,
     read_config,
     read_fields,
     read_value,
+    secret_keys,
     setting,
 )
+from drivers.config_file import read_yaml_file
+from drivers.config_messages import HIDDEN, Shown, key_text
 from drivers.errors import CameraConfigError, ConfigError, DriverError, ServoConfigError
 
 
@@ -291,3 +296,132 @@ def test_a_secret_is_hidden_where_a_whole_section_is_shown():
     assert err.expected == "valid settings (reserved for this test: port 81 (and not <hidden>))"
     assert err.__cause__ is None and err.__suppress_context__
     assert SECRET not in repr(read_config(Api, {"token": SECRET}))
+
+
+def test_a_misspelt_secret_key_is_refused_without_its_value():
+    err = error_of(Api, {"tokn": SECRET}, key_path="api")
+    assert (err.key_path, err.value) == ("api.tokn", HIDDEN) and SECRET not in str(err)
+    assert error_of(Every, {"tokn": "shown"}).value == "shown"  # a section without secrets shows it
+
+
+def test_a_secret_is_hidden_at_any_depth_of_a_value_shown_whole():
+    err = error_of(Head, [{"api": {"token": SECRET}}], key_path="", file=Path("h.yaml"))
+    assert err.key_path == "" and SECRET not in str(err) and "'token': <hidden>" in str(err)
+    err = error_of(Head, {"bus": {"joints": {}}, "apix": {"nested": [{"token": SECRET}]}}, key_path="")
+    assert err.key_path == "apix" and SECRET not in str(err)
+    assert secret_keys(Head) == frozenset({"token"})
+
+
+# --- what every value meets ------------------------------------------------------------------
+@pytest.mark.parametrize("data, key_path, expected", [
+    ({"count": 2**63}, "s.count", "an integer within +-2**63"),
+    ({"count": -2**63 - 1}, "s.count", "an integer within +-2**63"),
+    ({"ratio": 10**400}, "s.ratio", "a number"),  # beyond any float: refused, not an OverflowError
+    ({"name": "a\0b"}, "s.name", "a non-empty string of text (no NUL character, no lone surrogate)"),
+    ({"name": "\ud800"}, "s.name", "a non-empty string of text (no NUL character, no lone surrogate)"),
+    ({"where": "/tmp/\0"}, "s.where", "a path (a non-empty string) of text (no NUL character, no lone surrogate)"),
+])
+def test_integers_numbers_and_strings_are_bounded_whatever_the_field(data, key_path, expected):
+    err = error_of(Every, data)
+    assert (err.key_path, err.expected) == (key_path, expected)
+    assert read_config(Every, {"count": 2**63 - 1}).count == 2**63 - 1
+
+
+def test_a_long_value_is_shown_abbreviated_and_an_odd_key_as_its_repr():
+    err = error_of(Every, {"count": list(range(10_000))})
+    assert isinstance(err.value, Shown) and len(str(err)) < 400 and "characters)" in str(err)
+    err = error_of(Every, {"bad\x1b[2Jkey": 1})
+    assert err.key_path == "s.'bad\\x1b[2Jkey'" and "\x1b" not in str(err)
+    assert err.expected.endswith("; 'bad\\x1b[2Jkey' is an unknown key")
+    assert key_text("pan") == "pan" and key_text(3) == "3" and key_text("x" * 100).startswith("'xxx")
+
+
+def test_settings_can_be_declared_for_a_class_that_cannot_declare_its_own():
+    @dataclass(frozen=True)
+    class Foreign:
+        steps: int = 5
+        size: tuple[int, int] = (3, 3)
+
+    declare_settings(Foreign, steps=config_meta(lo=0, hi=100),
+                     size=config_meta(check=lambda s: max(s) <= 10, expected="at most 10 x 10"))
+    assert read_config(Foreign, {"steps": 100}).steps == 100
+    assert (error_of(Foreign, {"steps": 101}).expected, error_of(Foreign, {"size": [3, 11]}).expected) == (
+        "an integer in [0, 100]", "at most 10 x 10")
+    with pytest.raises(TypeError, match="no field 'stesp'"):
+        declare_settings(Foreign, stesp=config_meta(lo=0))
+
+
+# --- YAML files ------------------------------------------------------------------------------
+def yaml_error(tmp_path: Path, content: bytes | str) -> ConfigError:
+    path = tmp_path / "head.yaml"
+    path.write_bytes(content.encode() if isinstance(content, str) else content)
+    with pytest.raises(ConfigError) as err:
+        read_yaml_file(path)
+    assert str(err.value).startswith(f"{path}: ")
+    return err.value
+
+
+def test_a_yaml_file_is_read_as_plain_data(tmp_path):
+    path = tmp_path / "head.yaml"
+    path.write_bytes(codecs.BOM_UTF8 + b"base: &b {x: 1, y: 2}\nc:\n  <<: *b\n  x: 3\nd: [*b, *b]\n")
+    # A merged key may be overridden (YAML's merge), aliases are shared, a UTF-8 BOM is dropped.
+    assert read_yaml_file(path) == {"base": {"x": 1, "y": 2}, "c": {"x": 3, "y": 2}, "d": [{"x": 1, "y": 2}] * 2}
+
+
+@pytest.mark.parametrize("content, words", [
+    (b"\x80\x81", "not UTF-8: byte 0x80 at line 1, column 1 is not UTF-8 text"),
+    (b"a: 1\nb: caf\xe9\n", "not UTF-8: byte 0xe9 at line 2, column 7"),
+    ("a: 1\n".encode("utf-16"), "not UTF-8: UTF-16 text (it starts with a UTF-16 byte order mark)"),
+    ("a: 1\n".encode("utf-16-le"), "a NUL character at line 1, column 2 (UTF-16 without a byte order mark?)"),
+    ("a: 1\n".encode("utf-32"), "not UTF-8: UTF-32 text"),
+    ("a: \x07\n", "not valid YAML at line 1, column 4: character U+0007 is not allowed in YAML"),
+    ("servo_bus: [\n", "not valid YAML at line 2, column 1: "),
+    ("a: 1\n---\nb: 2\n", "not valid YAML at line 2, column 1"),
+    ("a: !!python/object:os.system x\n", "not valid YAML at line 1, column 4: could not determine a constructor"),
+    ("a: 2026-13-45\n", "not valid YAML at line 1, column 4: cannot read this value (month must be in 1..12)"),
+    ("a: " + "9" * 5000 + "\n", "not valid YAML at line 1, column 4: an integer of 5000 characters (at most 40)"),
+    ("a: *nowhere\n", "not valid YAML at line 1, column 4: found undefined alias 'nowhere'"),
+    ("? [1, 2]\n: 3\n", "not valid YAML at line 1, column 3: found unhashable key"),
+])
+def test_a_file_that_is_not_utf8_or_not_yaml_is_refused_with_where(tmp_path, content, words):
+    assert words in str(yaml_error(tmp_path, content))
+
+
+def test_duplicate_keys_are_refused_naming_the_key_path_and_both_lines(tmp_path):
+    err = yaml_error(tmp_path, "servo_bus:\n  joints:\n    pan: {id: 1, min_angle: -40}\n    tilt: {id: 2}\n"
+                               "    pan: {id: 3, min_angle: -20}\n")
+    assert err.key_path == "servo_bus.joints.pan"
+    assert str(err).endswith("servo_bus.joints.pan: got a second 'pan' key at line 5, column 5 (the first is at "
+                             "line 3, column 5), expected each key once in servo_bus.joints (YAML would silently "
+                             "keep the last)")
+    err = yaml_error(tmp_path, "a:\n  b: {min_angle: 1, max_angle: 2, min_angle: 3}\n")
+    assert err.key_path == "a.b.min_angle" and "line 2, column 35 (the first is at line 2, column 7)" in str(err)
+    assert yaml_error(tmp_path, "1: x\n01: y\n").key_path == "1"  # equal as integers: one key
+
+
+@pytest.mark.parametrize("content, words", [
+    ("a: " + "[" * 100 + "]" * 100, "a[0][0][0][0][0][0][0]...: nested deeper than 32 levels at line 1, column 36"),
+    ("a: " + "[" * 5000 + "]" * 5000, "at line 1, column "),  # libyaml may refuse it first, as too deep too
+    ("a: " + "{b: " * 100 + "1" + "}" * 100, "a.b.b.b.b.b.b.b...: nested deeper than 32 levels"),
+    ("a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{n}: &{n} [{', '.join([f'*{p}'] * 10)}]\n" for p, n in zip("abcde", "bcdef")),
+     "more than 100000 values (aliases expanded) at line 5"),
+    ("a: &a [1, *a]\n", "a recursive alias at line 1, column 4"),
+    ("a: &a " + "[" * 20 + "]" * 20 + "\nb: " + "[" * 15 + "*a" + "]" * 15 + "\n",
+     "aliases nest deeper than 32 levels"),
+])
+def test_nesting_and_size_are_bounded_aliases_expanded(tmp_path, content, words):
+    assert words in str(yaml_error(tmp_path, content))
+
+
+def test_a_file_is_read_no_further_than_its_bound(tmp_path):
+    big = tmp_path / "big.yaml"
+    big.write_bytes(b"# " + b"x" * (1 << 20) + b"\n")
+    with pytest.raises(ConfigError, match=r"big\.yaml: larger than 1048576 bytes \(1 MiB\)"):
+        read_yaml_file(big)
+    with pytest.raises(ConfigError, match=r"^/dev/zero: larger than 1048576 bytes"):
+        read_yaml_file("/dev/zero")
+    with pytest.raises(ConfigError, match=r"cannot read: Is a directory"):
+        read_yaml_file(tmp_path)
+    with pytest.raises(ConfigError, match=r"cannot read: embedded null byte"):
+        read_yaml_file("a\0b")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import pytest
 
 from drivers.errors import BackendNotFoundError, ServoConfigError
-from drivers.servo_bus import JOINTS, JointConfig, ServoBusConfig, create_servo_bus, decode_hardware_error
+from drivers.servo_bus import JOINTS, create_servo_bus, decode_hardware_error
+from drivers.servo_config import JointConfig, ServoBusConfig
 from tests.support.servo_rigs import config_mapping
 
 

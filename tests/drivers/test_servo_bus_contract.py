@@ -248,6 +248,11 @@ class TestFaultContract:
             assert state["tilt"].hardware_error_bits == 0
             assert state["tilt"].torque_on
             assert state["tilt"].position == pytest.approx(-15.0, abs=TICK_DEG)
+            # Rebooted inside the read, so the state reads clear; the fault log saw it all.
+            [episode] = bus.fault_log.episodes().values()
+            assert (episode.joint, episode.servo_id, episode.bits, episode.meanings) == ("tilt", 2, 0x04,
+                                                                                       ("overheating",))
+            assert (episode.recovery, episode.cleared_by) == ("rebooted", "automatic reboot")
 
     @pytest.mark.parametrize("auto_reboot", [False, True])
     def test_an_error_that_keeps_torque_is_rebooted_only_once_it_lasts(self, make, auto_reboot):

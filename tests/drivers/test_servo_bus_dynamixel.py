@@ -12,14 +12,11 @@ import pytest
 
 from drivers.dxl_control_table import READ_BLOCK_ADDRESSES, XAddr
 from drivers.dxl_emulator import DxlEmulator
-from drivers.dynamixel import (
-    DynamixelBus,
-    _BlockingPortHandler,
-    port_access_hint,
-    scan,
-)
+from drivers.dxl_sdk import BlockingPortHandler, port_access_hint
+from drivers.dynamixel import DynamixelBus, scan
 from drivers.errors import ServoCommError, ServoConfigError, ServoModelError, ServoTimeoutError
-from drivers.servo_bus import JOINTS, ServoBusConfig
+from drivers.servo_bus import JOINTS
+from drivers.servo_config import ServoBusConfig
 from headctl import cmd_servos
 from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping
 
@@ -100,6 +97,71 @@ def test_late_replies_are_drained_before_a_retry(rig):
         assert bus._read("pan", XAddr.PRESENT_TEMPERATURE, 1) == 35
 
 
+@pytest.mark.parametrize("fault", ["late", "dropped"])
+def test_a_failed_sync_read_blames_the_servo_that_failed_not_the_one_read_first(rig, fault):
+    # Id 4 answers last; late (a second, much longer than the three attempts), it holds up
+    # the replies to the retries behind it, so that in those the others look silent too.
+    # The blame still goes to id 4.
+    r = rig(retries=2)
+    with r.bus as bus:
+        if fault == "late":
+            r.emulator.delay_replies(IDS["right_eye"], 1.0, count=1)
+        else:
+            r.emulator.drop_replies(IDS["right_eye"], count=3)
+        with pytest.raises(ServoTimeoutError) as info:
+            bus.read_state()
+        message = str(info.value)
+        assert message.startswith(f"joint right_eye (id 4) on {r.link}: sync read failed after 3 attempt(s)")
+        assert "pan" not in message and "id 1" not in message
+        r.emulator.wait_idle()
+        assert bus.read_state()["right_eye"].position == pytest.approx(0.0, abs=0.1)  # and it recovers
+
+
+def test_a_reply_that_comes_after_the_timeout_is_named_late(rig):
+    # Timeout ~43 ms, then the line is drained until quiet for as long: a reply 65 ms late
+    # arrives while draining, and says whose it was; so in each attempt.
+    r = rig(retries=2, latency_timer_ms=20)
+    with r.bus as bus:
+        r.emulator.delay_replies(IDS["right_eye"], 0.065, count=3)
+        with pytest.raises(ServoTimeoutError, match=r"^joint right_eye \(id 4\) .*came after the timeout"):
+            bus.read_state()
+
+
+def test_two_failing_servos_are_both_named_with_what_each_did(rig):
+    r = rig(retries=1)
+    with r.bus as bus:
+        r.emulator.corrupt_replies(IDS["tilt"], count=2)
+        r.emulator.drop_replies(IDS["right_eye"], count=2)
+        with pytest.raises(ServoCommError) as info:
+            bus.read_state()
+        assert not isinstance(info.value, ServoTimeoutError)  # one of them answered, corrupt
+        message = str(info.value)
+        assert message.startswith(f"{r.link}: sync read failed after 2 attempt(s): ")
+        assert "joint tilt (id 2): [TxRxResult] Incorrect status packet" in message
+        assert "joint right_eye (id 4): [TxRxResult] There is no status packet" in message
+        assert "pan" not in message and "left_eye" not in message
+
+
+def test_the_blame_over_attempts():
+    from drivers.dxl_sdk import SyncReadAttempt, blame_sync_read
+
+    timeout, corrupt = sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT
+    everyone = frozenset({1, 2, 3, 4})
+
+    def attempt(failures, late=()):
+        return SyncReadAttempt(everyone - set(failures), failures, late)
+
+    silent = SyncReadAttempt(frozenset(), {i: timeout for i in everyone}, ())
+    # Late: the retries found the line busy; they say nothing about any one servo.
+    assert blame_sync_read([attempt({4: timeout}), silent, silent]) == {4: timeout}
+    # One servo recovered on the retry, the other did not.
+    assert blame_sync_read([attempt({2: corrupt, 4: timeout}), attempt({4: timeout})]) == {4: timeout}
+    # The failures moved (the others held up behind the first culprit): the first attempt's word.
+    assert blame_sync_read([attempt({4: timeout}), attempt({1: timeout, 2: timeout})]) == {4: timeout}
+    # Nobody ever answered: everyone (the caller names the first in turn, or a late one).
+    assert blame_sync_read([silent, silent]) == {i: timeout for i in everyone}
+
+
 def test_waiting_for_a_reply_does_not_busy_wait(rig):
     r = rig(retries=0, latency_timer_ms=50)
     with r.bus as bus:
@@ -113,7 +175,7 @@ def test_waiting_for_a_reply_does_not_busy_wait(rig):
 
 
 def test_reply_timeout_follows_latency_timer_and_return_delay():
-    handler = _BlockingPortHandler("/dev/null", latency_timer_ms=1.0, reply_slack_ms=3.0)
+    handler = BlockingPortHandler("/dev/null", latency_timer_ms=1.0, reply_slack_ms=3.0)
     handler.tx_time_per_byte = 0.01  # 1 Mbps
     handler.setPacketTimeout(4 * 27)
     assert handler.packet_timeout == pytest.approx(1.08 + 2.0 + 3.0)

@@ -7,7 +7,8 @@ import pytest
 
 from drivers.clock import ManualClock
 from drivers.errors import BusDownError
-from drivers.servo_bus import ServoBusConfig, create_servo_bus
+from drivers.servo_bus import create_servo_bus
+from drivers.servo_config import ServoBusConfig
 from drivers.sim_servo import ProfileAxis, SimulatedServoBus
 from tests.support.servo_rigs import config_mapping
 

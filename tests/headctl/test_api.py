@@ -12,6 +12,7 @@ import contextlib
 import http.client
 import json
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -24,11 +25,12 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from calib_free import GazeMap
+from headctl.api_server import ApiServer
 from headctl.cli import main
 from headctl.client import ApiClient, ApiError
 from headctl.config import load_config
 from headctl.service import Daemon
-from tests.conftest import sim_head_config
+from tests.conftest import sim_head_config, wait_until
 from headctl.errors import HeadctlError
 from tests.support import TLS
 
@@ -257,6 +259,257 @@ def test_malformed_bodies_are_4xx_json_never_a_traceback(head):
     assert status == 404 and answer["error"] == "Not Found"
     status, answer, _ = raw(client, "DELETE", "/api/v1/state")
     assert status == 405 and answer["reason"]
+
+
+# --- a hostile client ----------------------------------------------------------------------------
+@pytest.mark.parametrize("path, body, field", [
+    ("/api/v1/exploration", {"enabled": 0}, "enabled"),
+    ("/api/v1/exploration", {"enabled": "yes"}, "enabled"),
+    ("/api/v1/torque", {"enabled": 1}, "enabled"),
+    ("/api/v1/look/target", {"x": True, "y": 100, "d": 0}, "x"),
+    ("/api/v1/look/target", {"x": 100, "y": "100", "d": 0}, "y"),
+    ("/api/v1/look/target", {"x": 100, "y": 100, "d": 0, "replace": 1}, "replace"),
+    ("/api/v1/look/target", {"x": 100, "y": 100, "d": 0, "wait_s": False}, "wait_s"),
+    ("/api/v1/look/angles", {"pan": 0, "tilt": 0, "vergence": 5, "relative": "false"}, "relative"),
+    ("/api/v1/map/reset", {"seed": False}, "seed"),
+    ("/api/v1/map/reset", {"seed": 1.5}, "seed"),
+    ("/api/v1/map/save", {"name": True}, "name"),
+    ("/api/v1/sim/faults", {"fault": "hardware_error", "joint": "pan", "bits": False}, "bits"),
+])
+def test_loose_types_are_refused_naming_the_field(head, path, body, field):
+    """Strict bodies: a bool is not a number, a number or a string is not a bool; nothing is
+    done with a refused body (no map reset, no torque off, no look queued)."""
+    daemon, client = head
+    adaptations = client.state()["learning"]["adaptations"]
+    status, answer, _ = raw(client, "POST", path, json.dumps(body))
+    assert status == 422 and answer["field"] == field, answer
+    assert answer["error"] == "Unprocessable Entity" and answer["reason"].startswith("Input should be")
+    state = client.state()
+    assert state["torque"] is True and state["fixation"]["looks_queued"] == 0
+    assert state["learning"]["adaptations"] >= adaptations  # not reset
+
+
+@pytest.mark.parametrize("body, words", [(b"\x9dJ7\xba", "'utf-8' codec can't decode"),
+                                         (b'{"seed": ' + b"9" * 5000 + b"}", "integer string conversion"),
+                                         (b"[" * 20000 + b"]" * 20000, "maximum recursion depth")])
+def test_a_body_json_cannot_read_is_400_naming_the_body(head, body, words):
+    daemon, client = head
+    adaptations = client.state()["learning"]["adaptations"]
+    status, answer, _ = raw(client, "POST", "/api/v1/map/reset", body)
+    assert status == 400 and answer["field"] == "body" and words in answer["reason"], answer
+    assert client.state()["learning"]["adaptations"] >= adaptations  # not reset
+
+
+def test_an_int_is_still_a_number(head):
+    _, client = head
+    status, answer, _ = raw(client, "POST", "/api/v1/look/angles",
+                            json.dumps({"pan": 2, "tilt": -1, "vergence": 6, "wait_s": 30}))
+    assert status == 200 and answer["state"] == "done" and answer["request"]["pan"] == 2.0, answer
+
+
+@pytest.mark.parametrize("body, field", [({"fault": "hardware_error"}, "joint"),
+                                         ({"fault": "hardware_error", "joint": "elbow"}, "joint"),
+                                         ({"fault": "camera_stall"}, "camera"),
+                                         ({"fault": "camera_resume", "camera": "middle"}, "camera")])
+def test_a_fault_without_its_joint_or_camera_is_422(head, body, field):
+    _, client = head
+    status, answer, _ = raw(client, "POST", "/api/v1/sim/faults", json.dumps(body))
+    assert status == 422 and answer["field"] == field, answer
+    assert client.state()["state"] == "running"
+
+
+def test_the_openapi_schema_lists_every_answer_and_media_type(head):
+    _, client = head
+    status, spec, _ = raw(client, "GET", "/openapi.json")
+    assert status == 200
+    paths = spec["paths"]
+
+    def answers(path, method):
+        return paths[path][method]["responses"]
+
+    for path in ("/api/v1/look/target", "/api/v1/look/angles"):
+        assert {"200", "202", "400", "408", "413", "422", "429", "431", "503"} <= set(answers(path, "post")), path
+    assert {"202", "404", "422"} <= set(answers("/api/v1/looks/{look_id}", "get"))
+    assert {"202", "404", "409", "422"} <= set(answers("/api/v1/looks/{look_id}", "delete"))
+    for path, ops in paths.items():
+        for method, op in ops.items():
+            assert {"400", "413", "503"} <= set(op["responses"]), (method, path)
+            for code, answer in op["responses"].items():
+                if code >= "400":  # every refusal is the JSON error shape, whatever the route serves
+                    assert answer["content"] == {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
+            if op.get("requestBody") or op.get("parameters"):
+                assert "422" in op["responses"], (method, path)
+    assert set(answers("/api/v1/eyes/{side}.jpg", "get")["200"]["content"]) == {"image/jpeg"}
+    assert set(answers("/api/v1/eyes/{side}.mjpg", "get")["200"]["content"]) == {"multipart/x-mixed-replace"}
+    assert set(answers("/api/v1/events", "get")["200"]["content"]) == {"text/event-stream"}
+    assert set(answers("/api/v1/state", "get")["200"]["content"]) == {"application/json"}
+
+
+def connect(url: str) -> socket.socket:
+    parts = urllib.parse.urlsplit(url)
+    return socket.create_connection((parts.hostname, parts.port), timeout=10)
+
+
+def read_to_eof(sock: socket.socket, timeout_s: float) -> tuple[bytes, float]:
+    """Everything the server sends until it closes the connection, and when that was
+    (time.monotonic()); fails if it is still open after `timeout_s`."""
+    data = b""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            chunk = sock.recv(65536)
+        except TimeoutError:
+            raise AssertionError(f"still open after {timeout_s} s; received {data[:200]!r}") from None
+        except ConnectionResetError:
+            chunk = b""
+        if not chunk:
+            return data, time.monotonic()
+        data += chunk
+
+
+def answer_of(data: bytes) -> tuple[int, dict[str, str], dict]:
+    """The status, headers and JSON body of one HTTP answer."""
+    head, _, body = data.partition(b"\r\n\r\n")
+    lines = head.decode("latin-1").split("\r\n")
+    headers = {k.strip().lower(): v.strip() for k, v in (line.split(":", 1) for line in lines[1:])}
+    return int(lines[0].split()[1]), headers, json.loads(body)
+
+
+def test_a_50_mb_body_is_refused_before_it_is_read(head):
+    _, client = head
+    post = (b"POST /api/v1/look/target HTTP/1.1\r\nHost: head\r\nContent-Type: application/json\r\n"
+            b"Content-Length: %d\r\n\r\n" % (50 << 20))
+    # By its Content-Length: 413 as soon as the head is read, not a byte of the body awaited.
+    with connect(client.url) as sock:
+        sent = time.monotonic()
+        sock.sendall(post)
+        data, closed = read_to_eof(sock, 5.0)
+    status, headers, answer = answer_of(data)
+    assert status == 413 and answer["field"] == "body" and "52428800 bytes" in answer["reason"], answer
+    assert headers["connection"] == "close" and closed - sent < 0.5
+
+    # Sent whole by a client that does not wait for an answer: the server stops reading near
+    # the cap and closes the connection, so the client cannot push 50 MB.
+    with connect(client.url) as sock:
+        pushed = 0
+        body = b"1" * (1 << 20)
+        started = time.monotonic()
+        sock.sendall(post)
+        try:
+            while pushed < 50 << 20:
+                pushed += sock.send(body)
+        except OSError:  # reset by the server (it closed with the rest unread)
+            pass
+        elapsed = time.monotonic() - started
+    assert pushed < 25 << 20 and elapsed < 2.0, (pushed, elapsed)
+
+    # Chunked (no Content-Length): counted as it arrives, refused once past the cap.
+    with connect(client.url) as sock:
+        chunk = b"1" * 16384
+        sock.sendall(b"POST /api/v1/look/target HTTP/1.1\r\nHost: head\r\nContent-Type: application/json\r\n"
+                     b"Transfer-Encoding: chunked\r\n\r\n" + b"4000\r\n" + chunk + b"\r\n")
+        for _ in range(4):
+            sock.sendall(b"4000\r\n" + chunk + b"\r\n")
+        data, _ = read_to_eof(sock, 5.0)
+    status, headers, answer = answer_of(data)
+    assert status == 413 and answer["field"] == "body" and "over 65536 bytes" in answer["reason"], answer
+    assert headers["connection"] == "close"
+
+
+def test_malformed_http_and_oversized_heads_get_the_error_shape(head):
+    _, client = head
+    for request, status in ((b"GET /api/v1/state HTTP/1.1\r\nHost: head\r\nContent-Length: x\r\n\r\n", 400),
+                            (b"\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03", 400),  # a TLS hello
+                            (b"GET /api/v1/state HTTP/1.1\r\nHost: head\r\nX-Big: " + b"a" * 40000, 431),
+                            (b"GET /api/v1/state HTTP/1.1\r\nHost: head\r\nX-Big: " + b"a" * 40000 + b"\r\n\r\n",
+                             431)):
+        with connect(client.url) as sock:
+            sock.sendall(request)
+            data, _ = read_to_eof(sock, 5.0)
+        code, headers, answer = answer_of(data)
+        assert code == status and headers["content-type"] == "application/json", data[:300]
+        assert set(answer) == {"error", "field", "reason"} and answer["reason"]
+    status, answer, _ = raw(client, "OPTIONS", "/api/v1/state")
+    assert status == 405 and answer["error"] == "Method Not Allowed"
+
+
+@pytest.fixture
+def strict_server(head):
+    """A second API server over the module's daemon, with short limits to test them."""
+    daemon, _ = head
+    with ApiServer(daemon.control, port=0, request_timeout_s=0.5, max_connections=4) as server:
+        yield server
+
+
+def test_half_open_connections_are_answered_408_and_closed(strict_server):
+    opened = time.monotonic()
+    silent, half_line, half_body = (connect(strict_server.url) for _ in range(3))
+    half_line.sendall(b"GET /api/v1/sta")
+    half_body.sendall(b"POST /api/v1/look/target HTTP/1.1\r\nHost: head\r\nContent-Type: application/json\r\n"
+                      b"Content-Length: 40\r\n\r\n{\"x\": 1")
+    for sock in (silent, half_line, half_body):
+        with sock:
+            data, closed = read_to_eof(sock, 5.0)
+        status, headers, answer = answer_of(data)
+        assert status == 408 and headers["connection"] == "close" and "within 0.5 s" in answer["reason"]
+        assert 0.5 <= closed - opened < 3.0
+    # A kept-alive connection: answered, then half a request; its time starts at its first byte.
+    with connect(strict_server.url) as kept:
+        kept.sendall(b"GET /api/v1/state HTTP/1.1\r\nHost: head\r\n\r\n")
+        kept.settimeout(5)
+        reply = kept.recv(65536)
+        assert reply.startswith(b"HTTP/1.1 200")
+        started = time.monotonic()
+        kept.sendall(b"GET /api/v1/state HTTP/1.1\r\nHo")
+        data, closed = read_to_eof(kept, 5.0)
+    rest = data[data.index(b"HTTP/1.1 408"):]  # after what remained of the first answer
+    assert answer_of(rest)[0] == 408 and 0.5 <= closed - started < 3.0
+
+
+def test_the_request_timeout_does_not_cut_a_long_answer(strict_server):
+    """The timeout covers reading the request; an event stream lasts."""
+    with connect(strict_server.url) as sock:
+        sock.sendall(b"GET /api/v1/events?after=0 HTTP/1.1\r\nHost: head\r\n\r\n")
+        started = time.monotonic()
+        received = b""
+        while time.monotonic() - started < 1.5:  # three request timeouts
+            sock.settimeout(0.1)
+            try:
+                chunk = sock.recv(65536)
+            except TimeoutError:
+                continue
+            assert chunk, "the server closed the event stream"
+            received += chunk
+    assert received.startswith(b"HTTP/1.1 200") and b"event: " in received
+
+
+def test_beyond_the_connection_cap_requests_are_answered_503(strict_server):
+    parts = urllib.parse.urlsplit(strict_server.url)
+    held = [http.client.HTTPConnection(parts.hostname, parts.port, timeout=5) for _ in range(4)]
+
+    def one_more() -> tuple[int, dict]:
+        conn = http.client.HTTPConnection(parts.hostname, parts.port, timeout=5)
+        try:
+            conn.request("GET", "/api/v1/state")
+            response = conn.getresponse()
+            return response.status, json.loads(response.read())
+        finally:
+            conn.close()
+
+    try:
+        for conn in held:  # four connections open (kept alive once answered): the cap
+            conn.request("GET", "/api/v1/state")
+            response = conn.getresponse()
+            assert response.status == 200
+            response.read()
+        status, answer = one_more()
+        assert status == 503 and answer["field"] is None and "over 4 connections" in answer["reason"], answer
+        held.pop().close()
+        wait_until(lambda: one_more()[0] == 200, 5.0, "a connection served once one closed")
+    finally:
+        for conn in held:
+            conn.close()
 
 
 def test_unknown_looks_and_cancelling(head):
@@ -547,6 +800,27 @@ def test_a_fault_and_its_clearing_are_events_and_state(head):
     wait_state(client, lambda s: s["state"] == "running", what="running again")
     code, answer, _ = raw(client, "POST", "/api/v1/sim/faults", json.dumps({"fault": "meteor"}))
     assert code == 422 and answer["field"] == "fault"
+
+
+def test_an_overload_rebooted_at_once_is_still_a_fault_an_event_and_a_count(head):
+    """The bus reboots a servo whose overload cut its torque inside one read: the state never
+    reads the error, and the episode is told all the same."""
+    daemon, client = head
+    seq = client.state()["events_seq"]
+    client.request("POST", "/api/v1/sim/faults", {"fault": "hardware_error", "joint": "tilt", "bits": 0x20})
+
+    def tilt(es, kind):
+        return [e for e in es if e["type"] == kind and e.get("key", "").startswith("servo:tilt:")]
+
+    events = events_after(client, seq, lambda es: bool(tilt(es, "fault_cleared")))
+    fault, cleared = tilt(events, "fault")[0], tilt(events, "fault_cleared")[0]
+    assert fault["key"] == cleared["key"] and fault["meanings"] == ["overload"] and fault["servo_id"] == 2
+    assert "rebooted" in [e["recovery"] for e in tilt(events, "fault_update")]
+    assert cleared["cleared_by"] == "automatic reboot"
+    reboots = client.state()["hardware_errors"]["reboots"]
+    assert any(r["joint"] == "tilt" and r["reason"] == "overload" and r["count"] >= 1 for r in reboots)
+    status, text, _ = raw(client, "GET", "/metrics")
+    assert status == 200 and b'headctl_servo_reboots_total{joint="tilt",reason="overload"}' in text
 
 
 # --- many clients at once -------------------------------------------------------------------------

@@ -9,7 +9,7 @@ import yaml
 
 from calib_free.fixation import FixationParams
 from headctl.cli import main
-from headctl.config import DEFAULT_CONFIG, load_config
+from headctl.config import DEFAULT_CONFIG, check_runtime, load_config
 from headctl.errors import ConfigError
 from tests.support import CONFIGS, TLS
 
@@ -215,3 +215,285 @@ def test_a_token_file_beside_the_config_allows_any_address(tmp_path):
     api = load_config(_write(tmp_path, data)).api
     assert api.token == "0123456789abcdef0123" and api.token_file == str(tmp_path / "api-token")
     assert "0123456789abcdef" not in repr(api)  # never in a log line
+
+
+# --- refused when loaded, not when built: backends, resources, physical sense ---------------------
+def _dynamixel(data):
+    """The simulated head's config on the dynamixel backend with two USB cameras."""
+    data["servo_bus"].update(backend="dynamixel", port="/dev/null")
+    for side in ("left", "right"):
+        camera = data["cameras"][side]
+        for key in ("eye", "lens", "seed", "noise_std"):
+            camera.pop(key)
+        camera.update(backend="opencv", device=0)
+    return data
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["cameras"]["left"].update(backend="nosuch"),
+     "cameras.left.backend: got 'nosuch', expected one of aravis, opencv, sim, a name registered under the "
+     "entry-point group headctl.cameras, or 'package.module:Class'"),
+    (lambda d: d["cameras"]["left"].update(backend="no_such_pkg:Cam"),
+     "cameras.left.backend: got 'no_such_pkg:Cam', expected a camera backend that imports (camera backend "
+     "'no_such_pkg:Cam' failed to import no_such_pkg: No module named 'no_such_pkg')"),
+    (lambda d: d["cameras"]["left"].update(backend="collections:OrderedDict"),
+     "cameras.left.backend: got 'collections:OrderedDict', expected a Camera backend class "
+     "('collections:OrderedDict' is the class collections.OrderedDict, not a Camera)"),
+    (lambda d: d["cameras"]["right"].update(backend="os:sep"), "cameras.right.backend: got 'os:sep', expected a "
+                                                               "Camera backend class ('os:sep' is a str, not a Camera)"),
+    (lambda d: d["cameras"]["left"].update(backend="..x:Y"), "cameras.left.backend: got '..x:Y', expected a "
+                                                             "'package.module:Class' that exists"),
+    (lambda d: d["servo_bus"].update(backend="collections:OrderedDict"),
+     "servo_bus.backend: got 'collections:OrderedDict', expected a ServoBus backend class"),
+    (lambda d: d["servo_bus"].update(backend="drivers.servo_bus:ServoBus"),
+     "servo_bus.backend: got 'drivers.servo_bus:ServoBus', expected a ServoBus backend class that can be built "
+     "(ServoBus is abstract: "),
+    (lambda d: d["servo_bus"].update(backend="canbus"), "servo_bus.backend: got 'canbus', expected one of dynamixel, "
+                                                        "sim, a name registered under the entry-point group "
+                                                        "headctl.servo_buses"),
+    (lambda d: [d["cameras"][s].update(backend="drivers.sim_camera:SimulatedCamera") for s in ("left", "right")],
+     "cameras.left.backend: got 'drivers.sim_camera:SimulatedCamera', expected sim: SimulatedCamera is the "
+     "simulated camera, named sim"),
+    (lambda d: d["servo_bus"].update(baud=57600), "servo_bus.baud: got 57600, expected nothing: baud is not used by "
+                                                  "the 'sim' backend, which uses backend, joints, limit_policy, port, "
+                                                  "reboot_on_hardware_error, torque_on_close, watchdog_ms"),
+    (lambda d: d["servo_bus"].update(retries=2), "servo_bus.retries: got 2, expected nothing: retries is not used"),
+    (lambda d: d["servo_bus"]["joints"]["tilt"].update(model="XM430-W350"),
+     "servo_bus.joints.tilt.model: got 'XM430-W350', expected nothing: model is not used by the 'sim' backend"),
+    (lambda d: _dynamixel(d)["servo_bus"]["joints"]["pan"].update(model="AX-12A"),
+     "servo_bus.joints.pan.model: got 'AX-12A', expected one of XL430-W250, XM430-W350, XM540-W150, XM540-W270 "
+     "(the models the 'dynamixel' backend drives)"),
+    (lambda d: _dynamixel(d)["cameras"]["left"].update(seed=0),
+     "cameras.left.seed: got 0, expected nothing: seed is not used by the 'opencv' backend"),
+    (lambda d: d["cameras"]["left"].pop("eye"),
+     "cameras.left.eye: missing, expected left or right: which eye of the simulated head the camera is"),
+    (lambda d: d["cameras"]["left"].update(eye="right"), "cameras.left.eye: got 'right', expected 'left'"),
+])
+def test_backends_are_resolved_and_checked_when_the_config_loads(tmp_path, edit, message):
+    data = _sim()
+    edit(data)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value).startswith(f"{path}: ") and message in str(err.value)
+
+
+def test_a_backend_named_in_full_is_the_same_backend(tmp_path):
+    data = _sim()
+    data["servo_bus"]["backend"] = "drivers.sim_servo:SimulatedServoBus"
+    with pytest.raises(ConfigError, match="simulated cameras render the simulated head"):
+        load_config(_write(tmp_path, data))  # the simulated cameras need it by its name, sim
+    data = _dynamixel(_sim())
+    data["servo_bus"]["backend"] = "drivers.dynamixel:DynamixelBus"
+    assert load_config(_write(tmp_path, data)).servo_bus.backend == "drivers.dynamixel:DynamixelBus"
+
+
+def _both(key, value):
+    return lambda d: [d["cameras"][side].update({key: value}) for side in ("left", "right")]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_both("width", 1_000_000_000), "cameras.left.width: got 1000000000, expected at most 16384 pixels"),
+    (lambda d: (_both("width", 8192)(d), _both("height", 8192)(d)),
+     "cameras.left.height: got 8192, expected an image of at most 16777216 pixels (4096 x 4096); 8192 x 8192 is "
+     "67108864"),
+    (lambda d: (_both("width", 4096)(d), _both("height", 4096)(d), _both("history", 32)(d)),
+     "cameras.left.history: got 32, expected history + buffers (32 + 8) of at most 21 frames of 4096 x 4096"),
+    (_both("history", 10**6), "cameras.left.history: got 1000000, expected at least 2 frames, at most 64"),
+    (_both("fps", 0), "cameras.left.fps: got 0.0, expected a positive rate, from 0.01 to 10000 frames a second"),
+    (_both("seed", -1), "cameras.left.seed: got -1, expected a seed >= 0"),
+    (_both("grab_timeout_s", 1e300), "cameras.left.grab_timeout_s: got 1e+300, expected a positive time, at most 60"),
+    (lambda d: d["cameras"].update(tolerance_s=1e9), "cameras.tolerance_s: got 1000000000.0, expected at most 10 s"),
+    (lambda d: d["gaze_map"].update(grid_shape=[100000, 100000, 1000]),
+     "gaze_map.grid_shape: got (100000, 100000, 1000), expected [nx, ny, nd], 2 to 1024 nodes each"),
+    (lambda d: d["gaze_map"].update(grid_shape=[1000, 1000, 1000]),
+     "gaze_map.grid_shape: got (1000, 1000, 1000), expected at most 4194304 nodes in all (1000000000 asked)"),
+    (lambda d: d["gaze_map"].update(global_degree=1000), "gaze_map.global_degree: got 1000, expected an integer in "
+                                                         "[0, 8]"),
+    (lambda d: d["gaze_map"].update(error_window=10**9), "gaze_map.error_window: got 1000000000, expected an integer "
+                                                         "in [1, 10000]"),
+    (lambda d: d["gaze_map"].update(gaussian_cutoff=0), "gaze_map.gaussian_cutoff: got 0.0, expected a number in "
+                                                        "(0, 1)"),
+    (lambda d: d["gaze_map"].update(global_memory=0.5), "gaze_map.global_memory: got 0.5, expected a number in "
+                                                        "[1, 1e+06]"),
+    (lambda d: d["gaze_map"].update(seed=-1), "gaze_map.seed: got -1, expected a seed >= 0"),
+    (lambda d: d["gaze_map"].update(seed=2**64), "gaze_map.seed: got 18446744073709551616, expected an integer "
+                                                 "within +-2**63"),
+    (lambda d: d["fixation"].update(vergence_range=[-100, 100]),
+     "fixation.vergence_range: got (-100.0, 100.0), expected [low, high] within [-30, 30] deg, the vergence the eye "
+     "joints' limits allow"),
+    (lambda d: [d["servo_bus"]["joints"][j].update(min_angle=10, max_angle=20) for j in ("left_eye", "right_eye")],
+     "servo_bus.joints.right_eye: got (10.0, 20.0), expected limits that with left_eye's (10, 20) allow some "
+     "vergence"),
+    (lambda d: d["fixation"].update(settle_timeout_s=-1), "fixation.settle_timeout_s: got -1.0, expected a positive "
+                                                          "time, at most 60 s"),
+    (lambda d: d["fixation"].update(frame_timeout_s=1e300), "fixation.frame_timeout_s: got 1e+300, expected a "
+                                                            "positive time, at most 60 s"),
+    (lambda d: d["fixation"].update(max_vergence_steps=10**9), "fixation.max_vergence_steps: got 1000000000, "
+                                                               "expected an integer in [0, 100]"),
+    (lambda d: d["fixation"].update(vergence_patch_size=[400, 20]),
+     "fixation.vergence_patch_size: got (400, 20), expected a patch within the 320 x 240 image"),
+    (lambda d: d["fixation"].update(correspondence={"pyramid_levels": 64}),
+     "fixation.correspondence.pyramid_levels: got 64, expected an integer in [0, 8]"),
+    (lambda d: d["fixation"].update(rate_hz=1e9), "fixation.rate_hz: got 1000000000.0, expected a rate >= 0"),
+    (lambda d: d["service"].update(input_timeout_s=1e300), "service.input_timeout_s: got 1e+300, expected a positive "
+                                                           "time, at most 60 s"),
+    (lambda d: d["service"].update(checkpoint_every=10**30), "service.checkpoint_every: got "
+                                                             "1000000000000000000000000000000, expected an integer "
+                                                             "within +-2**63"),
+    (lambda d: d["service"].update(camera_stall_s=1e9), "service.camera_stall_s: got 1000000000.0, expected a "
+                                                        "positive time, at most 3600 s"),
+    (lambda d: d["api"].update(host="not a host"), "api.host: got 'not a host', expected an IP address or a host "
+                                                   "name"),
+    (lambda d: d["servo_bus"].update(port="a\0b"), "servo_bus.port: got 'a\\x00b', expected a non-empty string of "
+                                                   "text (no NUL character, no lone surrogate)"),
+])
+def test_allocations_waits_and_physical_ranges_are_bounded_when_the_config_loads(tmp_path, edit, message):
+    data = _sim()
+    edit(data)
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    assert str(err.value).startswith(f"{path}: ") and message in str(err.value)
+
+
+def test_duplicate_keys_and_broken_files_are_refused_where_they_are(tmp_path):
+    text = (CONFIGS / "sim.yaml").read_text()
+    path = tmp_path / "head.yaml"
+    path.write_text(text.replace("    tilt:", "    pan:       {id: 9, min_angle: -5, max_angle: 5}\n    tilt:", 1))
+    with pytest.raises(ConfigError, match=r"head\.yaml: servo_bus\.joints\.pan: got a second 'pan' key at line 10, "
+                                          r"column 5 \(the first is at line 9, column 5\)"):
+        load_config(path)
+    path.write_bytes(b"\x80\x81")
+    with pytest.raises(ConfigError, match=r"head\.yaml: not UTF-8: byte 0x80 at line 1, column 1"):
+        load_config(path)
+    path.write_text(text, encoding="utf-16")
+    with pytest.raises(ConfigError, match=r"head\.yaml: not UTF-8: UTF-16 text"):
+        load_config(path)
+    path.write_text("servo_bus: " + "[" * 5000 + "]" * 5000)
+    with pytest.raises(ConfigError, match=r"head\.yaml: .*(nested deeper than 32|nesting depth).* at line 1, col"):
+        load_config(path)
+
+
+SECRET = "hostile-secret-0123456789"
+
+
+@pytest.mark.parametrize("api", [
+    {"token": SECRET, "bogus": 1},
+    {"tokn": SECRET},
+    {"token": SECRET, "port": "x"},
+    {"token": [SECRET]},
+    {"token": {"nested": SECRET}},
+    {"token": SECRET + "\n"},
+    {"token": SECRET, "token_file": "also"},
+])
+def test_the_token_is_never_shown_whatever_is_wrong(tmp_path, api):
+    data = _sim()
+    data["api"] = api
+    with pytest.raises(ConfigError) as err:
+        load_config(_write(tmp_path, data))
+    assert SECRET not in str(err.value) and SECRET not in repr(err.value)
+
+
+@pytest.mark.parametrize("section", [lambda d: d.update(api=[{"token": SECRET}]),
+                                     lambda d: d.update(apix={"token": SECRET}),
+                                     lambda d: d.update(api={"host": "0.0.0.0", "tokens": [{"token": SECRET}]})])
+def test_the_token_is_hidden_where_a_whole_section_is_shown(tmp_path, section):
+    data = _sim()
+    section(data)
+    with pytest.raises(ConfigError) as err:
+        load_config(_write(tmp_path, data))
+    assert SECRET not in str(err.value) and "<hidden>" in str(err.value)
+
+
+@pytest.mark.parametrize("content, words", [
+    (b"\xff\xfe" + SECRET.encode("utf-16-le"), "it is not UTF-8 text"),
+    ((SECRET + "\n") * 300, "it holds more than 4096 bytes"),
+    ("short", "a token of at least 16 characters"),
+    (SECRET + "\x1b[2J", "a token of at least 16 characters, printable"),
+])
+def test_the_token_file_is_read_bounded_and_its_content_never_shown(tmp_path, content, words):
+    token_file = tmp_path / "api-token"
+    token_file.write_bytes(content.encode() if isinstance(content, str) else content)
+    data = _sim()
+    data["api"] = {"token_file": "api-token"}
+    with pytest.raises(ConfigError) as err:
+        load_config(_write(tmp_path, data))
+    assert "api.token_file: got 'api-token', expected a" in str(err.value) and words in str(err.value)
+    assert SECRET not in str(err.value) and "\x1b" not in str(err.value)
+
+
+@pytest.mark.parametrize("token_file, words", [("/dev/zero", "/dev/zero is not a regular file"),
+                                               (".", "is not a regular file")])
+def test_a_token_file_that_is_not_a_file_is_refused_unread(tmp_path, token_file, words):
+    data = _sim()
+    data["api"] = {"token_file": token_file}
+    with pytest.raises(ConfigError, match=words):
+        load_config(_write(tmp_path, data))
+
+
+def test_a_tls_file_that_is_not_a_regular_file_is_refused_unread(tmp_path):
+    data = _sim()
+    data["api"] = {"tls_cert": "/dev/zero", "tls_key": str(TLS / "head-key.pem")}
+    with pytest.raises(ConfigError, match=r"api\.tls_cert: got '/dev/zero', expected a PEM file \(a regular file"):
+        load_config(_write(tmp_path, data))
+
+
+def test_a_home_directory_that_cannot_be_found_is_a_located_error(tmp_path, monkeypatch):
+    data = _sim()
+    path = _write(tmp_path, data)
+
+    def no_home(self):
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(type(tmp_path), "expanduser", no_home)
+    with pytest.raises(ConfigError, match=r"state_dir: got '~/.local/state/headctl/sim', expected a path that can "
+                                          r"be expanded \(Could not determine home directory\.\)"):
+        load_config(path)
+
+
+# --- what running needs of this machine: check_runtime -------------------------------------------
+@pytest.mark.parametrize("edit, words", [
+    (lambda d, tmp: d.update(state_dir="/etc/passwd"),
+     "state_dir: got '/etc/passwd', expected a writable directory, or one that can be created (/etc/passwd is a file)"),
+    (lambda d, tmp: d.update(state_dir="/etc/passwd/sub/dir"), "(/etc/passwd is a file, not a directory)"),
+    (lambda d, tmp: d.update(state_dir="/proc/headctl/state"), "(cannot create anything in /proc: "),
+    (lambda d, tmp: d["logging"].update(file="/nonexistent/x.log"),
+     "logging.file: got '/nonexistent/x.log', expected a file that can be written, in an existing directory "
+     "(/nonexistent: No such file or directory)"),
+    (lambda d, tmp: d["logging"].update(file=str(tmp)), "is a directory)"),
+    (lambda d, tmp: d["logging"].update(file="/proc/headctl.log"), "cannot create headctl.log in /proc: "),
+])
+def test_check_runtime_refuses_a_state_dir_or_log_file_that_cannot_be_written(tmp_path, edit, words):
+    data = _sim()
+    edit(data, tmp_path)
+    path = _write(tmp_path, data)
+    config = load_config(path)  # the file is fine: clients (status, look) read it as it is
+    with pytest.raises(ConfigError) as err:
+        check_runtime(config)
+    assert str(err.value).startswith(f"{path}: ") and words in str(err.value)
+
+
+def test_check_runtime_accepts_a_state_dir_to_create_and_creates_nothing(tmp_path):
+    data = _sim()
+    data.update(state_dir="state/of/the/head", logging={"file": str(tmp_path / "head.log")})
+    config = load_config(_write(tmp_path, data))
+    check_runtime(config)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["head.yaml"]
+    check_runtime(config.with_state_dir(tmp_path))  # an existing directory
+    with pytest.raises(ConfigError, match="state_dir: got '/etc/passwd'"):
+        check_runtime(config.with_state_dir("/etc/passwd"))  # --state-dir is checked as the key
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d.update(state_dir="/etc/passwd"), "state_dir: got '/etc/passwd'"),
+    (lambda d: d["logging"].update(file="/nonexistent/x"), "logging.file: got '/nonexistent/x'"),
+    (lambda d: d["cameras"]["left"].update(backend="no_such_pkg:Cam"), "cameras.left.backend"),
+    (lambda d: d["servo_bus"].update(latency_timer_ms=1), "servo_bus.latency_timer_ms"),
+])
+def test_check_no_connect_fails_where_run_would(tmp_path, capsys, edit, words):
+    data = _sim()
+    edit(data)
+    path = _write(tmp_path, data)
+    assert main(["check", "--no-connect", "--config", str(path)]) == 2
+    assert f"headctl check: {path}: {words}" in capsys.readouterr().err

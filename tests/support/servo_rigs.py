@@ -23,7 +23,8 @@ from drivers.clock import ManualClock, MonotonicClock
 from drivers.dxl_control_table import DEG_PER_TICK, XAddr, ticks_to_deg
 from drivers.dxl_emulator import DxlEmulator
 from drivers.dynamixel import DynamixelBus
-from drivers.servo_bus import JOINTS, ServoBusConfig
+from drivers.servo_bus import JOINTS
+from drivers.servo_config import ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 
 IDS = {"pan": 1, "tilt": 2, "left_eye": 3, "right_eye": 4}

@@ -1,12 +1,28 @@
-"""Map restore with its fallbacks and atomic checkpoints (headctl.service.persistence)."""
+"""Map restore with its fallbacks, leftover temporary files, and atomic checkpoints by count and on
+time (headctl.service.persistence)."""
 from __future__ import annotations
 
+import io
+import json
+import logging
+import re
+import zipfile
+from pathlib import Path
+
 import numpy as np
+import pytest
+import yaml
 
 from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
+from drivers.clock import ManualClock
+from headctl.client import ApiClient, ApiError
 from headctl.config import load_config
+from headctl.errors import ConfigError, ControlError
+from headctl.service.parts import MapOrigin
 from headctl.service.persistence import Checkpointer, restore_map
+from tests.conftest import sim_head_config
+from tests.support import CONFIGS
 
 
 def _config(tmp_path):
@@ -60,3 +76,211 @@ def test_checkpoints_every_n_adaptations_are_loadable(tmp_path):
     assert GazeMap.load(f"{config.map_path}.prev").adaptations == 2
 
 
+
+
+# --- no map file takes the service down ---------------------------------------------------------
+def _rewritten(path, **entries):
+    """`path` rewritten with `entries` (name -> .npy bytes) replacing or adding members."""
+    with zipfile.ZipFile(path) as archive:
+        members = {info.filename: archive.read(info) for info in archive.infolist()}
+    members.update({f"{name}.npy": data for name, data in entries.items()})
+    with zipfile.ZipFile(path, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+
+
+def _npy(array):
+    buffer = io.BytesIO()
+    np.lib.format.write_array(buffer, np.asanyarray(array))
+    return buffer.getvalue()
+
+
+_HUGE_GRID = (b"\x93NUMPY\x01\x00v\x00{'descr': '<f8', 'fortran_order': False, 'shape': (3, 1099511627776), }"
+              + b" " * 43 + b"\n")
+
+BAD_FILES = {
+    "adaptations of two": lambda p: _rewritten(p, adaptations=_npy(np.array([1, 2]))),
+    "a 2**40-element grid": lambda p: _rewritten(p, grid=_HUGE_GRID),
+    "nan in recent errors": lambda p: _rewritten(p, recent_errors=_npy(np.array([0.1, np.nan]))),
+    "nan in the grid": lambda p: _rewritten(p, grid=_npy(np.full((3, 100, 75, 21), np.nan))),
+    "an unknown entry": lambda p: _rewritten(p, extra=_npy(np.zeros(2))),
+    "not a zip": lambda p: p.write_bytes(b"not a map"),
+    "an empty file": lambda p: p.write_bytes(b""),
+    "truncated": lambda p: p.write_bytes(p.read_bytes()[:1000]),
+}
+
+
+def _good_main_and_prev(config):
+    gm, _, _ = restore_map(config)
+    gm.save(config.map_path)
+    gm.adapt((160, 120, -10), (1.0, 2.0, -1.0))
+    gm.save(config.map_path)  # the first save (0 adaptations) is now .prev
+
+
+@pytest.mark.parametrize("bad", sorted(BAD_FILES))
+def test_a_malformed_main_file_falls_back_to_prev(tmp_path, bad):
+    config = _config(tmp_path)
+    _good_main_and_prev(config)
+    BAD_FILES[bad](config.map_path)
+    gm, source, problems = restore_map(config)
+    assert source == f"{config.map_path}.prev" and gm.adaptations == 0
+    assert len(problems) == 1 and problems[0].startswith(f"{config.map_path}: ")
+    assert (tmp_path / "gaze_map.npz.bad").exists() and GazeMap.load(config.map_path).adaptations == 0
+
+
+def test_both_files_malformed_give_a_random_map_and_both_are_moved_aside(tmp_path):
+    config = _config(tmp_path)
+    _good_main_and_prev(config)
+    BAD_FILES["adaptations of two"](config.map_path)
+    BAD_FILES["nan in recent errors"](Path(f"{config.map_path}.prev"))
+    gm, source, problems = restore_map(config)
+    assert source == "new" and gm.adaptations == 0 and len(problems) == 2
+    assert "'adaptations'" in problems[0] and "'recent_errors' holds nan" in problems[1]
+    assert sorted(p.name for p in tmp_path.glob("gaze_map.npz*")) == ["gaze_map.npz.bad", "gaze_map.npz.prev.bad"]
+
+
+def test_leftover_temporary_files_are_removed_at_start_and_logged(tmp_path, caplog):
+    config = _config(tmp_path)
+    _good_main_and_prev(config)
+    leftovers = [tmp_path / "gaze_map.npz.k2j4_x9a.tmp", tmp_path / "gaze_map.npz.k2j4_x9a.tmp.prev",
+                 tmp_path / "before-reset.npz.00aa11bb.tmp"]
+    for leftover in leftovers:
+        leftover.write_bytes(b"\0" * 1000)
+    with caplog.at_level(logging.WARNING, logger="headctl.service.persistence"):
+        gm, source, problems = restore_map(config)
+    assert source == str(config.map_path) and not problems
+    assert not any(p.exists() for p in leftovers)
+    assert sum("temporary file of an interrupted save" in r.getMessage() for r in caplog.records) == 3
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gaze_map.npz", "gaze_map.npz.prev"]
+
+
+@pytest.mark.parametrize("prev_good", [True, False])
+def test_the_service_starts_whatever_the_map_files_hold(tmp_path, start_service, prev_good):
+    state = tmp_path / "state"
+    config = sim_head_config(state)
+    state.mkdir()
+    _good_main_and_prev(config)
+    BAD_FILES["a 2**40-element grid"](config.map_path)
+    if not prev_good:
+        BAD_FILES["nan in the grid"](Path(f"{config.map_path}.prev"))
+    (state / "gaze_map.npz.abcdefgh.tmp").write_bytes(b"\0" * 100)
+    daemon = start_service(config)
+    status = daemon.control.snapshot().as_dict()
+    json.dumps(status, allow_nan=False)
+    assert status["state"] in ("running", "degraded")
+    assert status["map"]["restored_from"] == (f"{config.map_path}.prev" if prev_good else "new")
+    assert len(status["map"]["problems"]) == (1 if prev_good else 2)
+    assert "'grid'" in status["map"]["problems"][0]
+    assert not (state / "gaze_map.npz.abcdefgh.tmp").exists()
+
+
+def test_loading_a_malformed_file_through_the_api_is_a_conflict_naming_the_file(tmp_path, start_service):
+    config = sim_head_config(tmp_path / "state")
+    daemon = start_service(config)
+    client = ApiClient(daemon.api_url, timeout_s=10.0)
+    for bad in ("adaptations of two", "a 2**40-element grid", "nan in recent errors", "not a zip"):
+        path = config.state_dir / "bad.npz"
+        GazeMap(config.map_params(), seed=1).save(path, keep_previous=False)
+        BAD_FILES[bad](path)
+        with pytest.raises(ControlError) as caught:
+            daemon.control.load_map("bad.npz")
+        assert caught.value.field == "name" and str(caught.value).startswith(f"{path}: ")
+        with pytest.raises(ApiError) as answer:
+            client.request("POST", "/api/v1/map/load", {"name": "bad.npz"})
+        assert answer.value.status == 409 and answer.value.field == "name", bad
+    # Every float of the map's in the status goes through `plain`: non-finite ones become null.
+    daemon.parts.map_origin = MapOrigin("x", [], 3, [0.1, float("nan"), float("inf")])
+    assert daemon.control.snapshot().as_dict()["map"]["restored"]["recent_retinal_errors"] == [0.1, None, None]
+    assert client.state()["map"]["restored"]["recent_retinal_errors"] == [0.1, None, None]
+
+
+# --- checkpoints on time ---------------------------------------------------------------------------
+def _sample(i=0):
+    return Sample(np.array([100.0 + i, 120.0, -5.0]), np.array([1.0, 0.5, -0.5]), 1.0)
+
+
+def _learn(adapter, count):
+    for i in range(count):
+        adapter.submit(_sample(i))
+    assert adapter.wait_idle(10)
+
+
+def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, config.map_path, every=1000, clock=clock, interval_s=30.0)
+        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+        clock.advance(60.0)
+        assert not cp.due() and not cp.maybe_on_time() and cp.count == 0  # nothing learned: nothing to save
+        _learn(adapter, 3)  # 60 s since the last checkpoint: the adapter thread saves after the first
+        assert cp.count == 1 and cp.last_adaptations == 1
+        clock.advance(29.0)
+        assert not cp.maybe_on_time()  # changed (3 vs 1) but not yet due
+        clock.advance(1.0)
+        assert cp.due() and cp.maybe_on_time() and cp.count == 2 and cp.last_adaptations == 3
+        clock.advance(300.0)
+        assert not cp.changed() and not cp.maybe_on_time() and cp.count == 2
+        assert GazeMap.load(config.map_path).adaptations == 3
+        adapter.replace_map(GazeMap(config.map_params(), seed=5))  # a reset is a change too
+        assert cp.changed() and cp.maybe_on_time() and cp.last_adaptations == 0
+
+
+def test_the_count_and_the_time_whichever_comes_first(tmp_path):
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, config.map_path, every=4, clock=clock, interval_s=30.0)
+        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+        _learn(adapter, 6)
+        assert cp.count == 1 and cp.last_adaptations == 4  # by count, at 4
+        clock.advance(30.0)
+        assert cp.maybe_on_time() and cp.last_adaptations == 6  # by time, 2 adaptations later
+        _learn(adapter, 4)
+        assert cp.count == 3 and cp.last_adaptations == 10  # by count again, counted from the last one
+
+
+def test_an_interval_of_0_checkpoints_by_count_only(tmp_path):
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, config.map_path, every=50, clock=clock, interval_s=0.0)
+        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+        _learn(adapter, 3)
+        clock.advance(1e6)
+        assert cp.changed() and not cp.due() and not cp.maybe_on_time() and cp.count == 0
+
+
+def test_a_failing_checkpoint_is_retried_at_the_same_pace_not_after_every_adaptation(tmp_path):
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, tmp_path / "absent" / "gaze_map.npz", every=2, clock=clock, interval_s=30.0)
+        attempts = []
+        adapter.on_adapted = lambda s, r: attempts.append(cp.maybe(adapter.map.adaptations))
+        _learn(adapter, 3)
+        assert cp.error and "checkpoint failed" in cp.error and cp.count == 0
+        assert attempts == [False, False, False]
+        (tmp_path / "absent").mkdir()
+        _learn(adapter, 1)  # 2 adaptations since the failed attempt
+        assert cp.count == 1 and cp.error is None and cp.last_adaptations == 4
+
+
+@pytest.mark.parametrize("value, error", [(None, None), (0, None), (5.5, None), (-1, "got -1"),
+                                          (1e6, "expected a time in [0, 86400] s (0: off)")])
+def test_the_checkpoint_interval_is_a_service_setting(tmp_path, value, error):
+    data = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    if value is not None:
+        data["service"]["checkpoint_interval_s"] = value
+    path = tmp_path / "head.yaml"
+    path.write_text(yaml.safe_dump(data))
+    if error is None:
+        assert load_config(path).service.checkpoint_interval_s == (30.0 if value is None else value)
+    else:
+        with pytest.raises(ConfigError, match=re.escape(f"service.checkpoint_interval_s: {error}")
+                           if error.startswith("got") else re.escape(error)):
+            load_config(path)

@@ -10,7 +10,8 @@ import pytest
 from calib_free.fixation import FixationInterrupted, FixationOutcome
 from drivers.clock import ManualClock
 from drivers.errors import BusDownError, ServoHardwareError
-from drivers.servo_bus import JOINTS, ServoBusConfig
+from drivers.servo_bus import JOINTS
+from drivers.servo_config import ServoBusConfig
 from drivers.sim_servo import SimulatedServoBus
 from headctl.head import Head
 from headctl.service.fixation_thread import Interrupt
