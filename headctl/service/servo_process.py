@@ -149,6 +149,7 @@ class _Child:
         self.loop: ServoLoop | None = None
         self.bus: ServoBus | None = None
         self._fault_seq = 0  # the last fault-log record sent to the service
+        self._answers: list[tuple[Any, ...]] = []  # answers of this cycle, sent once it is published
         self._sim = False  # a simulated bus: its servos' true positions are published too
 
     def send(self, message: tuple[Any, ...]) -> None:
@@ -217,6 +218,9 @@ class _Child:
             bus.close()
             self.values[_H["alive"]] = 0.0
             self.shared.write(self.values)
+            for answer in self._answers:  # requests the stopping loop refused
+                self.send(answer)
+            self._answers.clear()
             self.send(("stopped",))
             self.flush(block=True)
 
@@ -260,8 +264,10 @@ class _Child:
         self._answer(rid, request.sent, request.error)
 
     def _answer(self, rid: int, result: Any, error: BaseException | None) -> None:
-        self.send(("done", rid, result, None if error is None else type(error).__name__,
-                   None if error is None else str(error)))
+        # Sent after this cycle's state is published: a service told its goals were written
+        # then reads them as the goals in force, never the ones before.
+        self._answers.append(("done", rid, result, None if error is None else type(error).__name__,
+                              None if error is None else str(error)))
 
     def _publish(self) -> None:
         loop = self.loop
@@ -293,6 +299,9 @@ class _Child:
             if self._sim:
                 v[base + _J["true_position"]] = self.bus.true_position(joint)  # type: ignore[union-attr]
         self.shared.write(v)
+        answers, self._answers = self._answers, []
+        for answer in answers:
+            self.send(answer)
         assert self.bus is not None
         for record in self.bus.fault_log.since(self._fault_seq):  # a few records an episode, rarely
             self._fault_seq = record.seq

@@ -166,7 +166,9 @@ def test_a_queued_target_goes_where_it_was_meant_though_the_head_moved_first(hea
     client.set_exploration(False)
     try:
         wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)")
-        reference = client.look_angles(0.0, 0.0, 6.0, wait_s=30)["result"]["pose_after"]
+        move = client.look_angles(0.0, 0.0, 6.0, wait_s=30)
+        assert move["state"] == "done", move
+        reference = move["result"]["pose_after"]
         move = client.look_angles(15.0, 10.0, 6.0)  # queued first: the head will have moved
         target = client.look_target(200, 90, -4)
         assert target["request"]["reference_pose"] == pytest.approx(reference, abs=0.35)
