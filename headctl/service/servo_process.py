@@ -1,15 +1,14 @@
-"""The servo loop in a process of its own, so that nothing the rest of the service does can
-stall it.
+"""The servo loop in a process of its own, so that nothing the rest of the service does can stall it.
 
 In one process every thread shares one interpreter lock: a burst of API requests, a garbage
 collection of the learning thread's heap or a long numpy call in the renderer holds it for
 tens of milliseconds, and the servo loop's period with it. So the service runs the loop
-(`servo_loop.ServoLoop`, unchanged) in a child process that owns the bus, and talks to it
-through:
+(`servo_loop.ServoLoop`) in a child process that owns the bus, and talks to it through:
 
 - a shared-memory state block (`SharedState`), written by the child after every cycle under
   a sequence lock and read by the service without waiting: the latest joint states, the goals
-  in force, the loop's counters and period quantiles, the simulated servos' true positions;
+  in force, the loop's counters, the simulated servos' true positions; and a ring of the last
+  periods, from which the service computes the quantiles;
 - a heartbeat block written by the service whenever it reads or commands: the child's loop
   holds the present position when it goes stale for `service.input_timeout_s` (the loop's
   stale-input rule, as for a silent controller in one process);
