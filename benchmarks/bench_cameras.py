@@ -77,7 +77,8 @@ def aravis_baseline_rate(fps: float, seconds: float) -> tuple[float, float]:
 def aravis_driver_rate(fps: float, seconds: float) -> tuple[float, float, float, dict[str, int]]:
     """(frames/s Aravis completed meanwhile, frames/s the capture thread published, frames/s a
     consumer saw, stream counters), all over the same interval."""
-    from drivers.camera import CameraConfig, create_camera
+    from drivers.camera import create_camera
+    from drivers.camera_config import CameraConfig
 
     config = CameraConfig(backend="aravis", id="Fake_1", pixel_format="Mono8", width=640, height=480, fps=fps)
     with create_camera(config, name="fake") as camera:

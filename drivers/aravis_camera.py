@@ -30,7 +30,8 @@ import numpy as np
 gi.require_version("Aravis", "0.8")
 from gi.repository import Aravis, GLib  # noqa: E402  (after require_version, as PyGObject requires)
 
-from drivers.camera import Camera, CameraConfig, Capabilities, Grab  # noqa: E402
+from drivers.camera import Camera, Capabilities, Grab  # noqa: E402
+from drivers.camera_config import CameraConfig  # noqa: E402
 from drivers.errors import CameraConfigError, CameraError, CameraLostError  # noqa: E402
 
 log = logging.getLogger(__name__)

@@ -31,7 +31,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.camera import Camera, CameraConfig, Capabilities, Grab
+from drivers.camera import Camera, Capabilities, Grab
+from drivers.camera_config import CameraConfig
 from drivers.errors import CameraConfigError, CameraError, CameraLostError
 
 log = logging.getLogger(__name__)

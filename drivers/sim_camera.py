@@ -21,7 +21,8 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from drivers.camera import Camera, CameraConfig, Capabilities, ErrorCallback, Grab
+from drivers.camera import Camera, Capabilities, ErrorCallback, Grab
+from drivers.camera_config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraConfigError, CameraError, DeviceStateError
 from drivers.sim_scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene

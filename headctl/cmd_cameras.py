@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from drivers.camera import CameraConfig, StereoCamerasConfig, create_camera
+from drivers.camera import create_camera
+from drivers.camera_config import CameraConfig, StereoCamerasConfig
 from drivers.stereo import StereoPair
 from drivers.config import read_config
 from drivers.errors import BackendImportError, CameraError, ConfigError

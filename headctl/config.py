@@ -35,7 +35,7 @@ from typing import Any
 from calib_free.correspondence import CorrespondenceParams
 from calib_free.fixation import FixationParams
 from calib_free.gaze_map import PROFILES, GazeMapParams
-from drivers.camera import MAX_IMAGE_SIDE, CameraConfig, StereoCamerasConfig
+from drivers.camera_config import CameraConfig, MAX_IMAGE_SIDE, StereoCamerasConfig
 from drivers.config import check_settings, config_error_from, config_meta, declare_settings, read_config, setting
 from drivers.config_file import read_yaml_file
 from drivers.servo_config import ServoBusConfig

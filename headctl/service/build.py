@@ -17,7 +17,8 @@ from typing import Any, Protocol
 
 from calib_free.kinematics import JOINTS
 from calib_free.sim import HeadModel, JointLimits
-from drivers.camera import Camera, CameraConfig, create_camera
+from drivers.camera import Camera, create_camera
+from drivers.camera_config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraError
 from drivers.servo_bus import ServoBus, create_servo_bus

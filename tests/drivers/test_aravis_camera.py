@@ -18,7 +18,8 @@ try:
 except (ImportError, ValueError) as err:  # ValueError: gi without the Aravis 0.8 typelib
     pytest.fail(f"the Aravis backend does not import ({err}): {INSTALL}", pytrace=False)
 
-from drivers.camera import CameraConfig, StreamHealth, create_camera
+from drivers.camera import StreamHealth, create_camera
+from drivers.camera_config import CameraConfig
 from drivers.errors import CameraConfigError, CameraLostError
 
 FAKE_GV = "arv-fake-gv-camera-0.8"

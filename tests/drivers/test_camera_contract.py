@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from calib_free.sim import HeadModel
-from drivers.camera import Camera, CameraConfig, Capabilities, create_camera
+from drivers.camera import Camera, Capabilities, create_camera
+from drivers.camera_config import CameraConfig
 from drivers.stereo import StereoPair
 from drivers.errors import CameraConfigError, DeviceStateError
 from drivers.sim_camera import fixed_pose

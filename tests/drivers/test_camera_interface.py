@@ -8,7 +8,8 @@ import threading
 import numpy as np
 import pytest
 
-from drivers.camera import Camera, CameraConfig, Capabilities, Grab, StreamHealth, create_camera
+from drivers.camera import Camera, Capabilities, Grab, StreamHealth, create_camera
+from drivers.camera_config import CameraConfig
 from drivers.errors import (
     BackendNotFoundError,
     CameraConfigError,

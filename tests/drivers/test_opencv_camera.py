@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.camera import CameraConfig, create_camera
+from drivers.camera import create_camera
+from drivers.camera_config import CameraConfig
 from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError, CameraLostError
 from drivers.opencv_camera import OpenCVCamera, resolve_source

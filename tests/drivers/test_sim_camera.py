@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from calib_free.sim import HeadModel
-from drivers.camera import CameraConfig, StreamHealth, create_camera
+from drivers.camera import StreamHealth, create_camera
+from drivers.camera_config import CameraConfig
 from drivers.stereo import StereoPair
 from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError, CameraError, CameraTimeoutError

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import pytest
 
-from drivers.camera import StereoCamerasConfig
+from drivers.camera_config import StereoCamerasConfig
 from drivers.errors import CameraConfigError
 from headctl.cli import main
 from tests.support import CONFIGS
