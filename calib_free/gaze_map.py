@@ -102,6 +102,22 @@ class GazeMapParams:
             raise ValueError(f"error_window must be >= 1, got {self.error_window}")
         if self.profile not in PROFILES:
             raise ValueError(f"profile must be one of {', '.join(PROFILES)}, got {self.profile!r}")
+        # What a map needs to be built and adapted; a saved map's file is refused on the same
+        # grounds (calib_free.map_file), so a config can never make a map it cannot load again.
+        if len(self.output_resolution) != 3 or min(self.output_resolution) < 1:
+            raise ValueError(f"output_resolution must be 3 sizes >= 1, got {self.output_resolution}")
+        if self.global_degree < 0:
+            raise ValueError(f"global_degree must be >= 0, got {self.global_degree}")
+        if not (self.global_memory >= 1 and self.global_memory_min >= 1):
+            raise ValueError(f"global_memory must be >= 1 fixation (and global_memory_min too), got "
+                             f"{self.global_memory}, {self.global_memory_min}")
+        if not 0 < self.gaussian_cutoff < 1:
+            raise ValueError(f"gaussian_cutoff must be in (0, 1), got {self.gaussian_cutoff}")
+        for name in ("sigma_max_fraction", "retinal_error_max_fraction", "surprise_threshold"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be above 0, got {getattr(self, name)}")
+        if self.robust_scale < 0:
+            raise ValueError(f"robust_scale must be >= 0, got {self.robust_scale}")
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)

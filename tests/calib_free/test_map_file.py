@@ -244,7 +244,7 @@ def test_object_arrays_are_refused_and_their_pickles_never_run(tmp_path, entry):
     ("[1, 2]", "a JSON list, expected an object"),
     ('{"grid_shape": [6, 5]}', "invalid map parameters"),
     ('{"adaptation_rate": 2.0}', "adaptation_rate must be in (0, 1]"),
-    ('{"global_memory": 0}', "global_memory 0"),
+    ('{"global_memory": 0}', "global_memory must be >= 1"),
     ('{"disparity_range": [-6.0, NaN]}', "disparity_range"),
     ('{"grid_shape": [6.5, 5, 4]}', "grid_shape is (6.5, 5, 4)"),
     ('{"interpolate": "yes"}', "interpolate is 'yes'"),

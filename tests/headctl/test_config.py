@@ -497,3 +497,15 @@ def test_check_no_connect_fails_where_run_would(tmp_path, capsys, edit, words):
     path = _write(tmp_path, data)
     assert main(["check", "--no-connect", "--config", str(path)]) == 2
     assert f"headctl check: {path}: {words}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("key, value", [("global_memory", 0.5), ("gaussian_cutoff", 1.0), ("robust_scale", -1.0)])
+def test_map_parameters_a_saved_map_would_refuse_are_refused_in_the_config(tmp_path, key, value):
+    """What a map file may not hold, a config may not ask for: else the service would refuse its
+    own saved map at every start."""
+    data = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    data["gaze_map"][key] = value
+    path = tmp_path / "head.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=f"gaze_map.{key}"):
+        load_config(path)
