@@ -20,26 +20,10 @@ from drivers.errors import (
     ServoHardwareError,
 )
 from drivers.servo_bus import JOINTS, REOPEN_BACKOFF_MAX_S, BusState
-from tests.support.servo_rigs import make_rig
 
 BACKENDS = ["sim", "dynamixel-emulator", pytest.param("hardware", marks=pytest.mark.hardware)]
 FAULT_BACKENDS = ["sim", "dynamixel-emulator"]
 TICK_DEG = 360.0 / 4096
-
-
-@pytest.fixture
-def make(request, tmp_path):
-    """make(**config) -> an unopened rig of the parametrised backend, closed afterwards."""
-    rigs = []
-
-    def factory(**config):
-        rig = make_rig(request.param, tmp_path, **config)
-        rigs.append(rig)
-        return rig
-
-    yield factory
-    for rig in rigs:
-        rig.close()
 
 
 def _settle(rig, bus, timeout_s: float = 10.0) -> BusState:

@@ -34,20 +34,6 @@ from tests.support.servo_rigs import IDS, EmulatorRig, make_rig
 FAULT_BACKENDS = ["sim", "dynamixel-emulator"]
 
 
-@pytest.fixture
-def make(request, tmp_path):
-    rigs = []
-
-    def factory(**config):
-        rig = make_rig(request.param, tmp_path, **config)
-        rigs.append(rig)
-        return rig
-
-    yield factory
-    for rig in rigs:
-        rig.close()
-
-
 def _summary(records):
     return [(r.seq, r.episode, r.change, r.joint, r.bits, r.recovery, r.cleared_by) for r in records]
 
