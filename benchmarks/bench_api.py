@@ -52,8 +52,6 @@ import multiprocessing
 import os
 import queue
 import random
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -64,6 +62,8 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from daemon_process import BenchDaemon  # noqa: E402
 HISTORY_CYCLES = 6000  # ServoLoop's default history: what the state's percentiles cover
 JITTER_GOAL_MS = 1.0
 LONGEST_GOAL_MS = 20.0  # the longest period at 100 Hz, under any load
@@ -179,39 +179,16 @@ class Window:
     load: dict[str, Any] | None = None
 
 
-class Daemon:
+class Daemon(BenchDaemon):
     def __init__(self, config: Path, state_dir: Path) -> None:
-        self.state_dir = state_dir
-        self.log_path = state_dir.parent / "daemon.log"
-        self.log = open(self.log_path, "wb")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        env.pop("NOTIFY_SOCKET", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "run", "--config", str(config),
-                                      "--state-dir", str(state_dir), "--api-port", "0"], cwd=ROOT, env=env,
-                                     stdout=self.log, stderr=subprocess.STDOUT)
+        super().__init__(config, state_dir, BenchError)
         self.host = "127.0.0.1"
         self.port = 0
-        self.url = ""
         self._conn: http.client.HTTPConnection | None = None
 
-    def tail(self, lines: int = 20) -> str:
-        self.log.flush()
-        return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
-
-    def check_alive(self) -> None:
-        if self.proc.poll() is not None:
-            raise BenchError(f"the daemon exited with {self.proc.returncode}; its log ends:\n{self.tail()}")
-
     def wait_running(self, timeout_s: float = 60.0) -> None:
-        url_file = self.state_dir / "api.url"
         deadline = time.monotonic() + timeout_s
-        while not url_file.exists() or not url_file.read_text().strip():
-            self.check_alive()
-            if time.monotonic() > deadline:
-                raise BenchError(f"no {url_file} within {timeout_s:.0f} s; the daemon's log ends:\n{self.tail()}")
-            time.sleep(0.05)
-        self.url = url_file.read_text().strip()
-        parsed = urllib.parse.urlsplit(self.url)
+        parsed = urllib.parse.urlsplit(self.wait_url(deadline))
         self.host, self.port = parsed.hostname or "127.0.0.1", parsed.port or 80
         state: dict[str, Any] = {}
         while time.monotonic() < deadline:
@@ -323,18 +300,10 @@ class Daemon:
             out.append(percentile(times, 50) or 0.0)
         return out[0], out[1]
 
-    def stop(self) -> int | None:
+    def stop(self, timeout_s: float = 15.0) -> int | None:
         if self._conn is not None:
             self._conn.close()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self.log.close()
-        return self.proc.returncode
+        return super().stop(timeout_s)
 
 
 class EventCounter(threading.Thread):

@@ -38,9 +38,7 @@ import http.client
 import json
 import os
 import selectors
-import signal
 import socket
-import subprocess
 import sys
 import tempfile
 import threading
@@ -64,6 +62,8 @@ from schemathesis.specs.openapi.checks import (content_type_conformance, negativ
 from headctl.api import MAX_CONNECTIONS
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from daemon_process import BenchDaemon  # noqa: E402
 STREAMS = {("GET", "/api/v1/events"), ("GET", "/api/v1/eyes/{side}.mjpg")}
 # Those that change the head's state for the others come last.
 OPERATIONS = [
@@ -124,39 +124,13 @@ def error_shape_problem(status: int, content_type: str, body: bytes) -> str | No
 
 
 # --- the daemon --------------------------------------------------------------------------------
-class Daemon:
+class Daemon(BenchDaemon):
     def __init__(self, state_dir: Path) -> None:
-        self.state_dir = state_dir
-        self.log_path = state_dir.parent / "daemon.log"
-        self.log = open(self.log_path, "wb")
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        env.pop("NOTIFY_SOCKET", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "run", "--config",
-                                      str(ROOT / "configs" / "sim.yaml"), "--state-dir", str(state_dir),
-                                      "--api-port", "0"], cwd=ROOT, env=env, stdout=self.log,
-                                     stderr=subprocess.STDOUT)
-        self.url = ""
-
-    def tail(self, lines: int = 20) -> str:
-        self.log.flush()
-        return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
-
-    def check_alive(self) -> None:
-        if self.proc.poll() is not None:
-            raise BenchError(f"the daemon exited with {self.proc.returncode}; its log ends:\n{self.tail()}")
+        super().__init__(ROOT / "configs" / "sim.yaml", state_dir, BenchError)
 
     def wait_running(self, timeout_s: float = 60.0) -> None:
-        url_file = self.state_dir / "api.url"
         deadline = time.monotonic() + timeout_s
-        while not url_file.exists() or not url_file.read_text().strip():
-            self.check_alive()
-            if time.monotonic() > deadline:
-                raise BenchError(f"no {url_file} within {timeout_s:.0f} s; the daemon's log ends:\n{self.tail()}")
-            time.sleep(0.05)
-        self.url = url_file.read_text().strip()
-        host = urllib.parse.urlsplit(self.url).hostname
-        if host not in ("127.0.0.1", "::1", "localhost"):
-            raise BenchError(f"the daemon listens on {host}: this attacks loopback only")
+        self.wait_url(deadline)
         while time.monotonic() < deadline:
             self.check_alive()
             if self.state() == "running":
@@ -171,16 +145,8 @@ class Daemon:
         except (OSError, ValueError, KeyError):
             return None
 
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.log.close()
-        return self.proc.returncode
+    def stop(self, timeout_s: float = 30.0) -> int | None:
+        return super().stop(timeout_s)
 
     def tracebacks(self) -> int:
         text = self.log_path.read_text(errors="replace")
