@@ -97,14 +97,14 @@ def join_thread(thread: threading.Thread, timeout_s: float) -> None:
             log.warning("%s did not stop within %.1f s", thread.name, timeout_s)
 
 
-class _WriteRequest:
-    def __init__(self, goals: Mapping[str, float],
-                 callback: Callable[["_WriteRequest"], None] | None = None) -> None:
-        self.goals = dict(goals)
+class _Pending:
+    """Something waiting for the loop's thread: done once it ran (`error` if it failed), then
+    `callback(self)` on that thread."""
+
+    def __init__(self, callback: Callable[[Any], None] | None) -> None:
         self.done = threading.Event()
-        self.sent: dict[str, float] | None = None
         self.error: BaseException | None = None
-        self.callback = callback  # called on the loop's thread once done
+        self.callback = callback
 
     def finish(self) -> None:
         self.done.set()
@@ -112,20 +112,23 @@ class _WriteRequest:
             self.callback(self)
 
 
-class _LoopAction:
+class _WriteRequest(_Pending):
+    """Goals for the next cycle to write; `sent`: what the bus sent (clamped)."""
+
+    def __init__(self, goals: Mapping[str, float],
+                 callback: Callable[["_WriteRequest"], None] | None = None) -> None:
+        super().__init__(callback)
+        self.goals = dict(goals)
+        self.sent: dict[str, float] | None = None
+
+
+class _LoopAction(_Pending):
     """A call to run on the loop thread between two cycles (the bus has one user)."""
 
     def __init__(self, fn: Callable[[ServoBus], Any], callback: Callable[["_LoopAction"], None] | None = None) -> None:
+        super().__init__(callback)
         self.fn = fn
-        self.done = threading.Event()
         self.result: Any = None
-        self.error: BaseException | None = None
-        self.callback = callback  # called on the loop's thread once done
-
-    def finish(self) -> None:
-        self.done.set()
-        if self.callback is not None:
-            self.callback(self)
 
 
 class ServoLoop(threading.Thread):
@@ -329,7 +332,7 @@ class ServoLoop(threading.Thread):
         finally:
             with self._cond:
                 stopped = ServoLoopStoppedError(f"{self.name}: the servo loop stopped")
-                waiting: list[_WriteRequest | _LoopAction] = [*self._requests, *self._actions]
+                waiting: list[_Pending] = [*self._requests, *self._actions]
                 for pending in waiting:
                     pending.error = stopped
                     pending.finish()
