@@ -322,7 +322,7 @@ case("watchdog_ms 13", sect("servo_bus", watchdog_ms=13))
 case("dynamixel return_delay_us odd", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(return_delay_us=3)))
 case("dynamixel latency 1e9 ms", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(latency_timer_ms=1e9)))
 case("dynamixel retries 100", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(retries=100)))
-case("dynamixel protocol 1.0", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(protocol=1.0)))
+case("dynamixel protocol 1.0 with X-series models", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(protocol=1.0)))
 case("dynamixel baud 12", edit(lambda d, f: on_dynamixel(d)["servo_bus"].update(baud=12)))
 
 # What running needs of this machine, and the files the config names.

@@ -20,12 +20,17 @@ from drivers.errors import BackendImportError, BackendNotFoundError, ConfigError
 
 log = logging.getLogger(__name__)
 
-Kind = Literal["servo_bus", "camera"]
+Kind = Literal["servo_bus", "camera", "servo_probe"]
 
 # name -> (module, class, what to install when the import fails)
 SERVO_BUS_BACKENDS: dict[str, tuple[str, str, str]] = {
     "dynamixel": ("drivers.dynamixel", "DynamixelBus", "pip install dynamixel-sdk pyserial"),
     "sim": ("drivers.sim_servo", "SimulatedServoBus", ""),
+}
+# Servos by id for `headctl setup` (`drivers.servo_probe`), by the same names as the buses.
+SERVO_PROBE_BACKENDS: dict[str, tuple[str, str, str]] = {
+    "dynamixel": ("drivers.dxl_probe", "DynamixelProbe", "pip install dynamixel-sdk pyserial"),
+    "sim": ("drivers.sim_servo", "SimulatedServoProbe", ""),
 }
 CAMERA_BACKENDS: dict[str, tuple[str, str, str]] = {
     "aravis": (
@@ -36,8 +41,9 @@ CAMERA_BACKENDS: dict[str, tuple[str, str, str]] = {
     "opencv": ("drivers.opencv_camera", "OpenCVCamera", "pip install opencv-python-headless"),
     "sim": ("drivers.sim_camera", "SimulatedCamera", ""),
 }
-_TABLES = {"servo_bus": SERVO_BUS_BACKENDS, "camera": CAMERA_BACKENDS}
-_ENTRY_POINT_GROUPS = {"servo_bus": "headctl.servo_buses", "camera": "headctl.cameras"}
+_TABLES = {"servo_bus": SERVO_BUS_BACKENDS, "camera": CAMERA_BACKENDS, "servo_probe": SERVO_PROBE_BACKENDS}
+_ENTRY_POINT_GROUPS = {"servo_bus": "headctl.servo_buses", "camera": "headctl.cameras",
+                       "servo_probe": "headctl.servo_probes"}
 # `package.module:Class`: dotted identifiers, so a name never becomes a relative or empty import.
 _MODULE_CLASS = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
 

@@ -6,12 +6,13 @@ emulated bus agree by construction. Also here: the sync-read block the backend m
 indirect addressing, and the model numbers a scan can name.
 
 Everything here is for X-series servos on Protocol 2.0 (XM430, XL430, XM540), except
-`KNOWN_MODEL_NAMES`, which also names Protocol 1.0 servos a scan may find: those have other
-control tables.
+`KNOWN_MODEL_NAMES`, which also names the Protocol 1.0 servos of `drivers.dxl_control_table1`.
 """
 from __future__ import annotations
 
 import struct
+
+from drivers.dxl_control_table1 import P1_MODEL_NAMES
 
 
 class XAddr:
@@ -28,6 +29,7 @@ class XAddr:
     TEMPERATURE_LIMIT = 31
     MAX_VOLTAGE_LIMIT = 32      # 2 bytes
     MIN_VOLTAGE_LIMIT = 34      # 2 bytes
+    PWM_LIMIT = 36              # 2 bytes, 0-885 (100 %)
     VELOCITY_LIMIT = 44         # 4 bytes
     MAX_POSITION_LIMIT = 48     # 4 bytes
     MIN_POSITION_LIMIT = 52     # 4 bytes
@@ -38,6 +40,7 @@ class XAddr:
     STATUS_RETURN_LEVEL = 68
     HARDWARE_ERROR_STATUS = 70
     BUS_WATCHDOG = 98           # 20 ms units; 0 off; reads 255 after it fired
+    GOAL_PWM = 100              # 2 bytes: caps the motor's PWM in every operating mode, <= PWM Limit
     GOAL_VELOCITY = 104         # 4 bytes
     PROFILE_ACCELERATION = 108  # 4 bytes, 214.577 rev/min^2 units
     PROFILE_VELOCITY = 112      # 4 bytes, 0.229 rev/min units
@@ -56,6 +59,8 @@ class XAddr:
 
 
 OPERATING_MODE_POSITION = 3
+# X-series firmware from which Fast Sync Read (0x8A) is served.
+FAST_SYNC_READ_MIN_FIRMWARE = 45
 # Model name -> model number (ping reply), Protocol 2.0 X-series.
 X_MODELS: dict[str, int] = {
     "XM430-W350": 1020,
@@ -63,11 +68,8 @@ X_MODELS: dict[str, int] = {
     "XM540-W270": 1120,
     "XM540-W150": 1130,
 }
-# Model numbers a scan can name, including Protocol 1.0 servos this bus does not drive.
-KNOWN_MODEL_NAMES: dict[int, str] = {number: name for name, number in X_MODELS.items()} | {
-    12: "AX-12A",
-    29: "MX-28",
-}
+# Model numbers a scan can name, of both protocols (Protocol 1.0: `drivers.dxl_control_table1`).
+KNOWN_MODEL_NAMES: dict[int, str] = {number: name for name, number in X_MODELS.items()} | P1_MODEL_NAMES
 # X-series baud rate register values.
 X_BAUD_CODES: dict[int, int] = {9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4,
                                 3_000_000: 5, 4_000_000: 6, 4_500_000: 7}

@@ -1,12 +1,17 @@
-"""A Dynamixel Protocol 2.0 servo emulator serving virtual X-series servos on a pseudo-terminal.
+"""A Dynamixel servo emulator serving virtual servos on a pseudo-terminal, in Protocol 2.0
+(X-series) or Protocol 1.0 (AX, RX, MX).
 
-`DxlEmulator` serves any number of `drivers.dxl_servo.EmulatedServo` on an `os.openpty()`
-pseudo-terminal from its own named thread, speaking the wire format of
-`drivers.dxl_protocol`. The real dynamixel-sdk, or any other Protocol 2.0 client, talks to
-it exactly as to a real bus, so the backend is tested byte for byte without a head.
+`DxlEmulator` serves any number of emulated servos on an `os.openpty()` pseudo-terminal
+from its own named thread: `drivers.dxl_servo.EmulatedServo` speaking the wire format of
+`drivers.dxl_protocol`, or with `protocol=1.0` `drivers.dxl_servo1.EmulatedServo1`
+speaking `drivers.dxl_protocol1` (answered by `drivers.dxl_emulator1`). The real
+dynamixel-sdk, or any other client, talks to it exactly as to a real bus, so the backend
+is tested byte for byte without a head. Each id may have its own model and firmware.
 
-Instructions: Ping (also broadcast), Read, Write, Sync Read, Sync Write, Bulk Read, Bulk
-Write, Reboot; others get an Instruction Error status. Fast Sync Read is not served.
+Protocol 2.0 instructions: Ping (also broadcast), Read, Write, Sync Read, Fast Sync Read
+(servos with firmware >= 45; older ones ignore it, like real ones), Sync Write, Bulk Read,
+Bulk Write, Reboot; others get an Instruction Error status. Protocol 1.0: Ping, Read,
+Write, Sync Write, Bulk Read (MX models).
 
 Faults can be injected: dropped replies, corrupted CRCs, delayed replies, hardware error
 bits, a servo power cycle, and the port vanishing and coming back, by itself after a while
@@ -15,44 +20,34 @@ or when told (a stable symlink, like a udev rule's, follows the new pseudo-termi
 delays (Return Delay Time, injected delays) and how long the port stays away are wire
 timing and real time.
 
-Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos`; from outside,
-faults go in through `--control` (`drivers.dxl_emulator_control`).
+Run it with `headctl emulate-servos --ids 1,2,3,4 --link /tmp/head-servos` (`--protocol
+1.0` for AX-12A servos, `--model` for others); from outside, faults go in through
+`--control` (`drivers.dxl_emulator_control`).
 """
 from __future__ import annotations
 
+import collections
 import logging
 import os
 import queue
 import select
-import struct
 import termios
 import threading
 import time
 import tty
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.dxl_control_table import X_BAUD_CODES, XAddr
-from drivers.dxl_protocol import (
-    BROADCAST_ID,
-    ERR_CRC,
-    ERR_DATA_LENGTH,
-    ERR_INSTRUCTION,
-    INST_BULK_READ,
-    INST_BULK_WRITE,
-    INST_PING,
-    INST_READ,
-    INST_REBOOT,
-    INST_SYNC_READ,
-    INST_SYNC_WRITE,
-    INST_WRITE,
-    Packet,
-    PacketParser,
-    build_packet,
-    status_packet,
-)
+from drivers.dxl_control_table import X_BAUD_CODES, X_MODELS
+from drivers.dxl_control_table1 import P1_BAUD_CODES, P1_MODELS
+from drivers.dxl_emulator1 import dispatch1
+from drivers.dxl_emulator2 import dispatch2, fast_sync_read
+from drivers.dxl_protocol import BROADCAST_ID, INST_FAST_SYNC_READ, Packet, PacketParser, build_packet
+from drivers.dxl_protocol1 import PacketParser1
+from drivers.dxl_protocol1 import build_packet as build_packet1
 from drivers.dxl_servo import EmulatedServo
+from drivers.dxl_servo1 import EmulatedServo1
 from drivers.errors import DeviceStateError, DeviceTimeoutError
 from drivers.servo_bus import TRACE
 
@@ -60,7 +55,23 @@ log = logging.getLogger(__name__)
 
 # Not a Dynamixel instruction: the marker `DxlEmulator.wait_idle` sends itself.
 _INST_BARRIER = 0x7F
-_TERMIOS_SPEEDS = {baud: getattr(termios, f"B{baud}") for baud in X_BAUD_CODES if hasattr(termios, f"B{baud}")}
+_TERMIOS_SPEEDS = {baud: getattr(termios, f"B{baud}") for baud in X_BAUD_CODES | P1_BAUD_CODES
+                   if hasattr(termios, f"B{baud}")}
+DEFAULT_MODELS = {2.0: "XM430-W350", 1.0: "AX-12A"}
+DEFAULT_FIRMWARE = {2.0: 48, 1.0: 24}
+
+
+class _Parser:
+    """The packet parser of either protocol."""
+
+    def __init__(self, protocol: float) -> None:
+        self._parser: PacketParser | PacketParser1 = PacketParser1() if protocol == 1.0 else PacketParser()
+
+    def reset(self) -> None:
+        self._parser.reset()
+
+    def feed(self, data: bytes) -> Iterator[Packet]:
+        return self._parser.feed(data)
 
 
 class _Faults:
@@ -84,23 +95,42 @@ class DxlEmulator:
     passed to `on_error`; the emulator goes on serving.
     """
 
-    def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, model: str = "XM430-W350",
+    def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, protocol: float = 2.0, model: str | None = None,
+                 models: Mapping[int, str] | None = None, firmware: int | Mapping[int, int] | None = None,
                  clock: Clock = SYSTEM_CLOCK, link: str | None = None, baud: int = 1_000_000,
                  positions_ticks: dict[int, int] | None = None,
                  on_error: Callable[[BaseException], None] | None = None) -> None:
-        if baud not in X_BAUD_CODES:
-            raise ValueError(f"baud {baud}: an X-series servo offers {sorted(X_BAUD_CODES)}")
+        if protocol not in DEFAULT_MODELS:
+            raise ValueError(f"protocol {protocol}: expected 1.0 or 2.0")
+        known = P1_MODELS if protocol == 1.0 else X_MODELS
+        bauds = P1_BAUD_CODES if protocol == 1.0 else X_BAUD_CODES
+        if baud not in bauds:
+            raise ValueError(f"baud {baud}: a Protocol {protocol} servo here offers {sorted(bauds)}")
+        ids = sorted(set(ids))
+        model_of = {i: (models or {}).get(i, model or DEFAULT_MODELS[protocol]) for i in ids}
+        for servo_id, name in model_of.items():
+            if name not in known:
+                raise ValueError(f"servo id {servo_id}: model {name!r} does not speak Protocol {protocol}; "
+                                 f"expected one of {', '.join(known)}")
+        firmware_of = {i: firmware if isinstance(firmware, int) else
+                       (firmware or {}).get(i, DEFAULT_FIRMWARE[protocol]) for i in ids}
+        self.protocol = protocol
         self.clock = clock
         self.link = link
         self.baud = baud
         positions_ticks = positions_ticks or {}
-        self.servos = {
-            i: EmulatedServo(i, model, clock=clock, baud=baud, position_ticks=positions_ticks.get(i, 2048))
-            for i in sorted(set(ids))
-        }
+        self.servos: dict[int, Any] = {}  # EmulatedServo, or EmulatedServo1 on Protocol 1.0
+        for i in ids:
+            if protocol == 1.0:
+                self.servos[i] = EmulatedServo1(i, model_of[i], clock=clock, baud=baud, firmware=firmware_of[i],
+                                                position_ticks=positions_ticks.get(i))
+            else:
+                self.servos[i] = EmulatedServo(i, model_of[i], clock=clock, baud=baud, firmware=firmware_of[i],
+                                               position_ticks=positions_ticks.get(i, 2048))
         self.on_error = on_error
         self.last_error: BaseException | None = None
         self.packets_received = 0
+        self.instructions_received: collections.Counter[int] = collections.Counter()  # instruction -> packets
         self.replies_sent = 0
         self._faults = {i: _Faults() for i in self.servos}
         self._lock = threading.RLock()
@@ -235,7 +265,7 @@ class DxlEmulator:
                 servos[servo_id] = {
                     "drop": faults.drop, "corrupt": faults.corrupt, "delay_count": faults.delay_count,
                     "delay_s": faults.delay_s if faults.delay_count else 0.0,
-                    "hardware_error": servo.table[XAddr.HARDWARE_ERROR_STATUS],
+                    "hardware_error": servo.hardware_error_bits,
                     "torque_on": servo.torque_on, "booting": servo.is_booting(now),
                 }
             back_in_s = None
@@ -244,7 +274,7 @@ class DxlEmulator:
             return {"port": self._port, "link": self.link, "vanished": self._port is None,
                     "back_in_s": back_in_s, "servos": servos}
 
-    def servo(self, servo_id: int) -> EmulatedServo:
+    def servo(self, servo_id: int) -> Any:
         """The servo, its motion brought up to now, for inspection. Read it after
         `wait_idle()`: the emulator thread may change it while requests are in flight."""
         with self._lock:
@@ -264,13 +294,14 @@ class DxlEmulator:
                 return
             self._barrier_sent += 1
             token = self._barrier_sent
-            os.write(self._slave, build_packet(BROADCAST_ID, _INST_BARRIER, token.to_bytes(4, "little")))
+            build = build_packet1 if self.protocol == 1.0 else build_packet
+            os.write(self._slave, build(BROADCAST_ID, _INST_BARRIER, token.to_bytes(4, "little")))
             if not self._idle.wait_for(lambda: self._barrier_seen >= token or self._slave is None, timeout):
                 raise DeviceTimeoutError(f"dxl emulator on {self.port}: not idle after {timeout} s")
 
     # -- the thread ------------------------------------------------------------------------
     def _run(self) -> None:
-        parser = PacketParser()
+        parser = _Parser(self.protocol)
         while not self._stop.is_set():
             wait_s = self._reappear_if_due()
             master = self._master
@@ -320,7 +351,7 @@ class DxlEmulator:
         if self.on_error is not None:
             self.on_error(err)
 
-    def _run_commands(self, parser: PacketParser) -> None:
+    def _run_commands(self, parser: _Parser) -> None:
         while True:
             try:
                 name, done = self._commands.get_nowait()
@@ -343,7 +374,7 @@ class DxlEmulator:
         self._commands.put((name, done))
         self._wake()
         if self._thread is None:  # not started: do it here
-            self._run_commands(PacketParser())
+            self._run_commands(_Parser(self.protocol))
         if not done.wait(timeout):
             raise DeviceTimeoutError(f"dxl emulator: {name} not done in {timeout} s")
 
@@ -403,6 +434,7 @@ class DxlEmulator:
             return
         with self._lock:
             self.packets_received += 1
+            self.instructions_received[packet.instruction] += 1
             if not self._client_baud_matches():
                 log.log(TRACE, "dxl emulator: packet at another baud rate ignored")
                 return
@@ -410,117 +442,62 @@ class DxlEmulator:
             log.log(TRACE, "dxl emulator: rx id %d inst 0x%02x %s", packet.servo_id, packet.instruction,
                     packet.params.hex())
             replies = self._dispatch(packet, now)
-        for servo_id, reply in replies:
-            self._send(servo_id, reply)
-
-    def _dispatch(self, packet: Packet, now: float) -> list[tuple[int, bytes]]:
-        inst, params, target = packet.instruction, packet.params, packet.servo_id
-        if target == BROADCAST_ID:
-            addressed = list(self.servos.values())
-        else:
-            addressed = [self.servos[target]] if target in self.servos else []
-        if not packet.crc_ok:
-            return [(s.servo_id, status_packet(s.servo_id, s.error_byte(ERR_CRC)))
-                    for s in addressed if target != BROADCAST_ID and not s.is_booting(now)]
-        if inst == INST_SYNC_READ or inst == INST_SYNC_WRITE:
-            return self._sync(inst, params, now)
-        if inst == INST_BULK_READ or inst == INST_BULK_WRITE:
-            return self._bulk(inst, params, now)
-        replies = []
-        for servo in addressed:
-            if servo.is_booting(now):
-                continue
-            servo.contact(now)
-            error, data = self._single(servo, inst, params, now)
-            if target == BROADCAST_ID and inst != INST_PING:
-                continue  # broadcast: only Ping is answered
-            level = servo.table[XAddr.STATUS_RETURN_LEVEL]
-            if inst == INST_PING or level >= 2 or (level == 1 and inst == INST_READ):
-                replies.append((servo.servo_id, status_packet(servo.servo_id, servo.error_byte(error), data)))
-            if inst == INST_REBOOT:
-                servo.reboot(now)
-        return replies
-
-    def _single(self, servo: EmulatedServo, inst: int, params: bytes, now: float) -> tuple[int, bytes]:
-        if inst == INST_PING:
-            return 0, struct.pack("<HB", servo.get(XAddr.MODEL_NUMBER, 2), servo.table[XAddr.FIRMWARE_VERSION])
-        if inst == INST_READ:
-            if len(params) != 4:
-                return ERR_DATA_LENGTH, b""
-            addr, length = struct.unpack("<HH", params)
-            return servo.read(addr, length)
-        if inst == INST_WRITE:
-            if len(params) < 3:
-                return ERR_DATA_LENGTH, b""
-            return servo.write(struct.unpack_from("<H", params)[0], params[2:]), b""
-        if inst == INST_REBOOT:
-            return 0, b""
-        return ERR_INSTRUCTION, b""
-
-    def _sync(self, inst: int, params: bytes, now: float) -> list[tuple[int, bytes]]:
-        if len(params) < 4:
-            return []
-        addr, length = struct.unpack_from("<HH", params)
-        replies = []
-        if inst == INST_SYNC_READ:
-            for servo_id in params[4:]:
-                servo = self.servos.get(servo_id)
-                if servo is None or servo.is_booting(now):
-                    continue  # an absent servo: the client times out on its reply
-                servo.contact(now)
-                error, data = servo.read(addr, length)
-                replies.append((servo_id, status_packet(servo_id, servo.error_byte(error), data)))
-            return replies
-        stride = 1 + length
-        for offset in range(4, len(params) - stride + 1, stride):
-            servo = self.servos.get(params[offset])
-            if servo is not None and not servo.is_booting(now):
-                servo.contact(now)
-                servo.write(addr, params[offset + 1: offset + stride])
-        return []
-
-    def _bulk(self, inst: int, params: bytes, now: float) -> list[tuple[int, bytes]]:
-        replies = []
-        offset = 0
-        while offset + 5 <= len(params):
-            servo_id, addr, length = struct.unpack_from("<BHH", params, offset)
-            offset += 5
-            servo = self.servos.get(servo_id)
-            data = b""
-            if inst == INST_BULK_WRITE:
-                data = params[offset: offset + length]
-                offset += length
-            if servo is None or servo.is_booting(now):
-                continue
-            servo.contact(now)
-            if inst == INST_BULK_WRITE:
-                servo.write(addr, data)
+        for servo_id, reply, delay_s in replies:
+            if servo_id is None:
+                self._write_reply(reply, delay_s, "piece of a fast sync read reply")
             else:
-                error, data = servo.read(addr, length)
-                replies.append((servo_id, status_packet(servo_id, servo.error_byte(error), data)))
-        return replies
+                self._send(servo_id, reply)
+
+    def _dispatch(self, packet: Packet, now: float) -> list[tuple[int | None, bytes, float]]:
+        """The replies to one packet in the order they go out: (servo id, status packet,
+        0.0), or for a Fast Sync Read (None, each servo's piece of the packet they share,
+        the delay before it). Called with the lock held."""
+        if self.protocol == 1.0:
+            return [(i, reply, 0.0) for i, reply in dispatch1(self.servos, packet, now)]
+        if packet.instruction == INST_FAST_SYNC_READ and packet.crc_ok:
+            return [(None, piece, delay_s) for delay_s, piece in fast_sync_read(self.servos, packet.params, now, self)]
+        return [(i, reply, 0.0) for i, reply in dispatch2(self.servos, packet, now)]
+
+    def consume_drop(self, servo_id: int) -> bool:
+        faults = self._faults[servo_id]
+        if not faults.drop:
+            return False
+        faults.drop -= 1
+        log.debug("dxl emulator: injected fault: reply of id %d dropped", servo_id)
+        return True
+
+    def consume_corrupt(self, servo_id: int) -> bool:
+        faults = self._faults[servo_id]
+        if not faults.corrupt:
+            return False
+        faults.corrupt -= 1
+        log.debug("dxl emulator: injected fault: reply of id %d with a bad %s", servo_id,
+                  "checksum" if self.protocol == 1.0 else "CRC")
+        return True
+
+    def consume_delay(self, servo_id: int) -> float:
+        faults = self._faults[servo_id]
+        if not faults.delay_count:
+            return 0.0
+        faults.delay_count -= 1
+        log.debug("dxl emulator: injected fault: reply of id %d %.3f s late", servo_id, faults.delay_s)
+        return faults.delay_s
 
     def _send(self, servo_id: int, reply: bytes) -> None:
         with self._lock:
-            faults = self._faults[servo_id]
-            delay_s = self.servos[servo_id].return_delay_s
-            if faults.drop:
-                faults.drop -= 1
-                log.debug("dxl emulator: injected fault: reply of id %d dropped", servo_id)
+            if self.consume_drop(servo_id):
                 return
-            if faults.corrupt:
-                faults.corrupt -= 1
+            if self.consume_corrupt(servo_id):
                 reply = reply[:-1] + bytes([reply[-1] ^ 0xFF])
-                log.debug("dxl emulator: injected fault: reply of id %d with a bad CRC", servo_id)
-            if faults.delay_count:
-                faults.delay_count -= 1
-                delay_s += faults.delay_s
-                log.debug("dxl emulator: injected fault: reply of id %d %.3f s late", servo_id, faults.delay_s)
-            master = self._master
+            delay_s = self.servos[servo_id].return_delay_s + self.consume_delay(servo_id)
+        self._write_reply(reply, delay_s, f"reply of id {servo_id}")
+
+    def _write_reply(self, reply: bytes, delay_s: float, what: str) -> None:
         if delay_s > 0:
             # Wire timing (Return Delay Time, injected delays) is real time, not the
             # motion clock: the client's timeouts are real time too.
             time.sleep(delay_s)
+        master = self._master
         if master is None:
             return
         try:
@@ -528,4 +505,4 @@ class DxlEmulator:
             with self._lock:
                 self.replies_sent += 1
         except OSError as err:
-            log.debug("dxl emulator: reply of id %d not delivered: %s", servo_id, err)
+            log.debug("dxl emulator: %s not delivered: %s", what, err)

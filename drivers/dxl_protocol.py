@@ -6,9 +6,15 @@ and its parameters with byte stuffing (an FD inserted after every FF FF FD), and
 the servo's error byte: an error number in bits 0-6 and the Alert bit (a hardware error
 is present) in bit 7.
 
+Fast Sync Read (0x8A) is a Sync Read whose answer is one status packet from the broadcast
+id, without byte stuffing, holding one block per servo in turn: error byte, id, data, and
+the CRC of the whole packet up to that point (the last block's CRC ends the packet);
+`fast_sync_read_length` is its length field.
+
 The emulator (`drivers.dxl_emulator`) builds and parses packets with this; the backend
-(`drivers.dynamixel`) leaves framing to dynamixel-sdk and takes only the status error
-byte's meaning from here. Protocol 1.0 frames differently and is not covered.
+(`drivers.dynamixel`) leaves framing to dynamixel-sdk except for Fast Sync Read
+(`drivers.dxl_sdk.FastSyncRead`), and takes the status error byte's meaning from here.
+Protocol 1.0 is `drivers.dxl_protocol1`.
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ BROADCAST_ID = 0xFE
 INST_PING, INST_READ, INST_WRITE, INST_REBOOT = 0x01, 0x02, 0x03, 0x08
 INST_STATUS = 0x55
 INST_SYNC_READ, INST_SYNC_WRITE, INST_BULK_READ, INST_BULK_WRITE = 0x82, 0x83, 0x92, 0x93
+INST_FAST_SYNC_READ = 0x8A
 # The status error byte: an error number, and the Alert bit (a hardware error is present).
 ERR_RESULT_FAIL, ERR_INSTRUCTION, ERR_CRC, ERR_DATA_RANGE, ERR_DATA_LENGTH, ERR_DATA_LIMIT, ERR_ACCESS = range(1, 8)
 ERRBIT_ALERT = 0x80
@@ -76,6 +83,12 @@ def build_packet(servo_id: int, instruction: int, params: bytes = b"") -> bytes:
     head = HEADER + bytes([servo_id]) + struct.pack("<H", len(body) + 2)
     packet = head + body
     return packet + struct.pack("<H", crc16(packet))
+
+
+def fast_sync_read_length(n_servos: int, data_length: int) -> int:
+    """The length field of a Fast Sync Read's status packet: the instruction, then per
+    servo its error byte, id, data and CRC."""
+    return 1 + n_servos * (data_length + 4)
 
 
 def status_packet(servo_id: int, error: int, data: bytes = b"") -> bytes:

@@ -9,8 +9,12 @@ them.
   servos' Return Delay Time (the SDK assumes a 16 ms latency timer and reads in a busy
   loop), and drains late replies before a retry.
 * `SyncRead`: a `GroupSyncRead` that keeps every reply under its own id with its status
-  error byte and says per id what happened; `blame_sync_read` names the servo(s) to blame
-  for a sync read that failed every attempt.
+  error byte and says per id what happened (`ReplyCollector`); `blame_sync_read` names the
+  servo(s) to blame for a group read that failed every attempt.
+* What the SDK lacks or gets wrong, written on its `PortHandler` and packet handlers:
+  `FastSyncRead` (Protocol 2.0 Fast Sync Read, which 4.1.0 has no group class for) and
+  `BulkRead1` (Protocol 1.0 Bulk Read, which its `GroupBulkRead` fails at), both with the
+  same per-id results as `SyncRead`.
 * The port: `PORT_ERRORS` (what a vanished adapter raises out of the SDK),
   `port_access_hint` (what fixes a port that cannot be opened), `adapter_latency_timer_ms`
   (the USB adapter's latency timer).
@@ -23,12 +27,33 @@ import os
 import select
 import termios
 import time
-from collections.abc import Mapping
+import struct
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
-from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, GroupSyncRead, PortHandler
+from dynamixel_sdk import (
+    COMM_PORT_BUSY,
+    COMM_RX_CORRUPT,
+    COMM_RX_TIMEOUT,
+    COMM_SUCCESS,
+    COMM_TX_FAIL,
+    GroupSyncRead,
+    PortHandler,
+)
 
-from drivers.dxl_protocol import HEADER, PacketParser
+from drivers.dxl_protocol import (
+    BROADCAST_ID,
+    HEADER,
+    INST_FAST_SYNC_READ,
+    INST_STATUS,
+    PacketParser,
+    build_packet,
+    crc16,
+    fast_sync_read_length,
+)
+from drivers.dxl_protocol1 import INST_BULK_READ as INST_BULK_READ1
+from drivers.dxl_protocol1 import PacketParser1
 from drivers.servo_bus import TRACE
 
 log = logging.getLogger(__name__)
@@ -40,6 +65,8 @@ log = logging.getLogger(__name__)
 _PKT_ID = 4
 _PKT_ERROR = 8
 _STATUS_OVERHEAD = 11
+# A Protocol 1.0 status packet: FF FF, id, length, error, data..., checksum.
+_P1_STATUS_OVERHEAD = 6
 # What a vanished adapter raises out of the SDK: pyserial's SerialException is an OSError,
 # but tcflush() on a dead tty raises termios.error, which is not.
 PORT_ERRORS = (OSError, termios.error)
@@ -138,34 +165,52 @@ class BlockingPortHandler(PortHandler):
         return bytes(discarded)
 
 
-class SyncRead(GroupSyncRead):
-    """`GroupSyncRead` that takes the replies in the order they come, each under its own id,
-    and keeps each servo's status error byte.
+class GroupRead(Protocol):
+    """What a group read gives after `txRxPacket()` (see `ReplyCollector`)."""
+
+    answered: set[int]
+    failures: dict[int, int]
+    strays: list[int]
+    errors: dict[int, int]
+    data_dict: dict[int, Any]
+
+    def txRxPacket(self) -> int: ...
+
+
+class ReplyCollector:
+    """Takes the replies to a group read in the order they come, each under its own id,
+    with its status error byte.
 
     After `txRxPacket()`: `answered` holds the ids that replied, `failures` maps each id
     that did not to COMM_RX_TIMEOUT (no reply in time) or COMM_RX_CORRUPT (a reply with a
-    bad CRC, or cut short), and `strays` lists the ids of replies nobody was waiting for
-    (late replies to an earlier request); `errors` maps id -> status error byte.
+    bad CRC or checksum, or cut short), and `strays` lists the ids of replies nobody was
+    waiting for (late replies to an earlier request); `errors` maps id -> status error
+    byte and `data_dict` id -> data.
     """
 
-    def txRxPacket(self) -> int:
+    port: PortHandler
+    data_dict: dict[int, Any]
+
+    def _reset_replies(self) -> None:
         self.last_result = False
         self.errors: dict[int, int] = {}
         self.answered: set[int] = set()
         self.failures: dict[int, int] = {}
         self.strays: list[int] = []
-        result: int = super().txRxPacket()
-        return result
 
-    def rxPacket(self) -> int:
-        reply_length = _STATUS_OVERHEAD + self.data_length
-        order = list(self.data_dict)
+    def _collect(self, receive: Callable[[], tuple[list[int], int]], lengths: Mapping[int, int], *,
+                 header: bytes, id_at: int, error_at: int, overhead: int) -> int:
+        """Receive replies until every id in `lengths` (id -> data length, in the order the
+        servos answer) answered or failed; `receive` is the SDK's rxPacket for one packet,
+        whose id, error byte and length besides the data (`overhead`) are where the
+        protocol has them."""
+        order = list(lengths)
         awaited = set(order)
         accepted: list[int] = []  # in the order they came
         while awaited - set(self.failures):
-            packet, result = self.ph.rxPacket(self.port, False)
+            packet, result = receive()
             if result == COMM_SUCCESS:
-                servo_id = packet[_PKT_ID]
+                servo_id = packet[id_at]
                 if servo_id in order and accepted and order.index(servo_id) < order.index(accepted[-1]):
                     # Servos answer in turn: a reply of an earlier servo after a later one's
                     # means those taken so far were late replies to an earlier request.
@@ -173,9 +218,10 @@ class SyncRead(GroupSyncRead):
                     awaited |= set(accepted)
                     self.answered -= set(accepted)
                     accepted.clear()
-                if servo_id in awaited and len(packet) == reply_length:
-                    self.data_dict[servo_id] = packet[_PKT_ERROR + 1: _PKT_ERROR + 1 + self.data_length]
-                    self.errors[servo_id] = packet[_PKT_ERROR]
+                length = lengths.get(servo_id, -1)
+                if servo_id in awaited and len(packet) == overhead + length:
+                    self.data_dict[servo_id] = packet[error_at + 1: error_at + 1 + length]
+                    self.errors[servo_id] = packet[error_at]
                     self.failures.pop(servo_id, None)
                     self.answered.add(servo_id)
                     awaited.discard(servo_id)
@@ -185,12 +231,137 @@ class SyncRead(GroupSyncRead):
                 continue
             if result != COMM_RX_CORRUPT:
                 break  # nothing more came before the timeout
-            if len(packet) > _PKT_ID and bytes(packet[:3]) == HEADER[:3] and packet[_PKT_ID] in awaited:
-                self.failures[packet[_PKT_ID]] = COMM_RX_CORRUPT
+            if len(packet) > id_at and bytes(packet[:len(header)]) == header and packet[id_at] in awaited:
+                self.failures[packet[id_at]] = COMM_RX_CORRUPT
             if self.port.isPacketTimeout():
                 break  # a reply cut short by the deadline: nothing after it came in time
         for servo_id in awaited:
             self.failures.setdefault(servo_id, COMM_RX_TIMEOUT)
+        if self.failures:
+            return int(COMM_RX_CORRUPT if COMM_RX_CORRUPT in self.failures.values() else COMM_RX_TIMEOUT)
+        self.last_result = True
+        return int(COMM_SUCCESS)
+
+
+class SyncRead(ReplyCollector, GroupSyncRead):
+    """`GroupSyncRead` that takes the replies in the order they come, each under its own id,
+    and keeps each servo's status error byte (`ReplyCollector`)."""
+
+    def txRxPacket(self) -> int:
+        self._reset_replies()
+        result: int = super().txRxPacket()
+        return result
+
+    def rxPacket(self) -> int:
+        lengths: dict[int, int] = {servo_id: self.data_length for servo_id in self.data_dict}
+        return self._collect(lambda: self.ph.rxPacket(self.port, False), lengths,
+                             header=HEADER[:3], id_at=_PKT_ID, error_at=_PKT_ERROR, overhead=_STATUS_OVERHEAD)
+
+
+class BulkRead1(ReplyCollector):
+    """Protocol 1.0 Bulk Read (MX servos): one instruction names (id, address, length) per
+    servo, and each answers in turn with its own status packet.
+
+    dynamixel-sdk 4.1.0's `GroupBulkRead` cannot do this: it calls the Protocol 1.0 packet
+    handler's `bulkReadTx` with an argument that method does not take. Here the packet goes
+    out through the handler's `txPacket` (framing, checksum) and the replies come in
+    through its `rxPacket`, taken as `ReplyCollector` says.
+    """
+
+    def __init__(self, port: PortHandler, ph: Any, entries: Sequence[tuple[int, int, int]]) -> None:
+        self.port, self.ph = port, ph
+        self.entries = [(int(i), int(a), int(n)) for i, a, n in entries]  # (id, address, length)
+        self.data_dict = {servo_id: [] for servo_id, _a, _n in self.entries}
+        self._reset_replies()
+
+    def txRxPacket(self) -> int:
+        self._reset_replies()
+        params = [0x00] + [v for servo_id, addr, length in self.entries for v in (length, servo_id, addr)]
+        # FF FF, broadcast id, length (instruction + parameters + checksum), Bulk Read, parameters, checksum.
+        txpacket = [0xFF, 0xFF, BROADCAST_ID, len(params) + 2, INST_BULK_READ1] + params + [0]
+        result: int = self.ph.txPacket(self.port, txpacket)
+        if result != COMM_SUCCESS:
+            return result
+        self.port.setPacketTimeout(sum(length + _P1_STATUS_OVERHEAD for _i, _a, length in self.entries))
+        return self._collect(lambda: self.ph.rxPacket(self.port), {i: n for i, _a, n in self.entries},
+                             header=b"\xff\xff", id_at=2, error_at=4, overhead=_P1_STATUS_OVERHEAD)
+
+
+class FastSyncRead(ReplyCollector):
+    """Protocol 2.0 Fast Sync Read (0x8A), written on the SDK's `PortHandler`: one request,
+    and one status packet in which each servo's block (error, id, data, running CRC)
+    follows the one before (`drivers.dxl_protocol`). Saves a packet header and a bus
+    turnaround per servo against Sync Read.
+
+    Every block is checked on its own (its id, and the CRC of the packet up to it), so a
+    packet cut short or damaged still gives the blocks before the damage; what is missing
+    or damaged is a failure of that servo, as in `ReplyCollector`.
+    """
+
+    def __init__(self, port: PortHandler, start_address: int, data_length: int, ids: Sequence[int]) -> None:
+        self.port = port
+        self.start_address, self.data_length = start_address, data_length
+        self.ids = list(ids)
+        self.data_dict = {servo_id: b"" for servo_id in self.ids}
+        self._reset_replies()
+
+    @property
+    def reply_size(self) -> int:
+        return 7 + fast_sync_read_length(len(self.ids), self.data_length)
+
+    def txRxPacket(self) -> int:
+        self._reset_replies()
+        port = self.port
+        if port.is_using:
+            return int(COMM_PORT_BUSY)
+        port.is_using = True
+        try:
+            port.clearPort()
+            request = build_packet(BROADCAST_ID, INST_FAST_SYNC_READ,
+                                   struct.pack("<HH", self.start_address, self.data_length) + bytes(self.ids))
+            if port.writePort(request) != len(request):
+                return int(COMM_TX_FAIL)
+            port.setPacketTimeout(self.reply_size)
+            received = self._receive()
+        finally:
+            port.is_using = False
+        return self._take(received)
+
+    def _receive(self) -> bytes:
+        """Bytes until the whole reply is in or the deadline passes; what came before the
+        reply's header (late replies to an earlier request) goes to `strays`."""
+        start_marker = HEADER + bytes([BROADCAST_ID])
+        raw = bytearray()
+        while True:
+            start = raw.find(start_marker)
+            wanted = self.reply_size - (len(raw) - start if start >= 0 else 0)
+            if start >= 0 and wanted <= 0:
+                break
+            raw += self.port.readPort(max(wanted, 1))
+            if self.port.isPacketTimeout():
+                break
+        start = raw.find(start_marker)
+        if start != 0:
+            self.strays += list(status_ids(bytes(raw if start < 0 else raw[:start])))
+        return bytes(raw[start:]) if start >= 0 else b""
+
+    def _take(self, packet: bytes) -> int:
+        n = self.data_length
+        if len(packet) >= 8 and (packet[7] != INST_STATUS or
+                                 struct.unpack_from("<H", packet, 5)[0] != fast_sync_read_length(len(self.ids), n)):
+            packet = b"\x00"  # not the reply asked for: every servo failed
+        offset = 8
+        for servo_id in self.ids:
+            end = offset + n + 4
+            if len(packet) < end:
+                self.failures[servo_id] = COMM_RX_CORRUPT if len(packet) > offset else COMM_RX_TIMEOUT
+            elif packet[offset + 1] != servo_id or crc16(packet[:end - 2]) != struct.unpack_from("<H", packet, end - 2)[0]:
+                self.failures[servo_id] = COMM_RX_CORRUPT
+            else:
+                self.errors[servo_id] = packet[offset]
+                self.data_dict[servo_id] = packet[offset + 2: offset + 2 + n]
+                self.answered.add(servo_id)
+            offset = end
         if self.failures:
             return int(COMM_RX_CORRUPT if COMM_RX_CORRUPT in self.failures.values() else COMM_RX_TIMEOUT)
         self.last_result = True
@@ -233,6 +404,7 @@ def blame_sync_read(attempts: list[SyncReadAttempt]) -> dict[int, int]:
     return dict(sorted(result.items()))
 
 
-def status_ids(data: bytes) -> tuple[int, ...]:
+def status_ids(data: bytes, protocol: float = 2.0) -> tuple[int, ...]:
     """The ids of the status packets in a stretch of bytes read off the line."""
-    return tuple(packet.servo_id for packet in PacketParser().feed(data) if packet.crc_ok)
+    parser = PacketParser1() if protocol == 1.0 else PacketParser()
+    return tuple(packet.servo_id for packet in parser.feed(data) if packet.crc_ok)

@@ -42,6 +42,7 @@ _EEPROM_DEFAULTS: dict[int, tuple[int, int]] = {
     XAddr.TEMPERATURE_LIMIT: (1, 80),
     XAddr.MAX_VOLTAGE_LIMIT: (2, 160),
     XAddr.MIN_VOLTAGE_LIMIT: (2, 95),
+    XAddr.PWM_LIMIT: (2, 885),
     XAddr.VELOCITY_LIMIT: (4, 200),
     XAddr.MAX_POSITION_LIMIT: (4, TICKS_PER_TURN - 1),
     XAddr.MIN_POSITION_LIMIT: (4, 0),
@@ -51,14 +52,15 @@ _RAM_DEFAULTS: dict[int, tuple[int, int]] = {
     XAddr.STATUS_RETURN_LEVEL: (1, 2),
     XAddr.PRESENT_INPUT_VOLTAGE: (2, 120),
     XAddr.PRESENT_TEMPERATURE: (1, 35),
+    XAddr.GOAL_PWM: (2, 885),
 } | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: (2, XAddr.INDIRECT_DATA_1 + i) for i in range(XAddr.INDIRECT_COUNT)}
 # Writable items: address -> size. Everything else is read-only (Access Error).
 _WRITABLE: dict[int, int] = {
     XAddr.ID: 1, XAddr.BAUD_RATE: 1, XAddr.RETURN_DELAY_TIME: 1, XAddr.DRIVE_MODE: 1, XAddr.OPERATING_MODE: 1,
     12: 1, 13: 1, 20: 4, XAddr.MOVING_THRESHOLD: 4, XAddr.TEMPERATURE_LIMIT: 1, XAddr.MAX_VOLTAGE_LIMIT: 2,
-    XAddr.MIN_VOLTAGE_LIMIT: 2, 36: 2, 38: 2, XAddr.VELOCITY_LIMIT: 4, XAddr.MAX_POSITION_LIMIT: 4,
+    XAddr.MIN_VOLTAGE_LIMIT: 2, XAddr.PWM_LIMIT: 2, 38: 2, XAddr.VELOCITY_LIMIT: 4, XAddr.MAX_POSITION_LIMIT: 4,
     XAddr.MIN_POSITION_LIMIT: 4, XAddr.SHUTDOWN: 1, XAddr.TORQUE_ENABLE: 1, XAddr.LED: 1,
-    XAddr.STATUS_RETURN_LEVEL: 1, XAddr.BUS_WATCHDOG: 1, XAddr.GOAL_VELOCITY: 4,
+    XAddr.STATUS_RETURN_LEVEL: 1, XAddr.BUS_WATCHDOG: 1, XAddr.GOAL_PWM: 2, XAddr.GOAL_VELOCITY: 4,
     XAddr.PROFILE_ACCELERATION: 4, XAddr.PROFILE_VELOCITY: 4, XAddr.GOAL_POSITION: 4,
 } | {XAddr.INDIRECT_ADDRESS_1 + 2 * i: 2 for i in range(XAddr.INDIRECT_COUNT)} | {
     XAddr.INDIRECT_DATA_1 + i: 1 for i in range(XAddr.INDIRECT_COUNT)}
@@ -102,6 +104,14 @@ class EmulatedServo:
 
     def _set(self, addr: int, size: int, value: int) -> None:
         self.table[addr: addr + size] = int(value).to_bytes(size, "little", signed=value < 0)
+
+    @property
+    def firmware(self) -> int:
+        return self.table[XAddr.FIRMWARE_VERSION]
+
+    @property
+    def hardware_error_bits(self) -> int:
+        return self.table[XAddr.HARDWARE_ERROR_STATUS]
 
     @property
     def torque_on(self) -> bool:

@@ -1,7 +1,10 @@
 """The Dynamixel backend: Protocol 2.0 X-series servos through dynamixel-sdk 4.1.0.
 
-This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` and `scan()`,
-which finds servos on a port. The control table it drives by is `drivers.dxl_control_table`,
+This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` and `scan()`.
+A `protocol: 1.0` config gets its subclass `drivers.dxl_bus1.Protocol1Bus`, which shares
+the port, retried transactions, blamed group reads and model checks defined here. A cycle
+reads every servo in one Fast Sync Read where all have it (firmware >= 45, confirmed by one
+such read once configured), else one Sync Read, which also retries a failed Fast Sync Read. The control table it drives by is `drivers.dxl_control_table`,
 which the emulator's servos (`drivers.dxl_servo`) serve too; the SDK's classes it talks
 through, with their pitfalls fixed, are in `drivers.dxl_sdk`.
 
@@ -55,6 +58,7 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.dxl_control_table import (
     DPS2_PER_ACCELERATION_UNIT,
     DPS_PER_VELOCITY_UNIT,
+    FAST_SYNC_READ_MIN_FIRMWARE,
     KNOWN_MODEL_NAMES,
     MS_PER_WATCHDOG_UNIT,
     OPERATING_MODE_POSITION,
@@ -69,10 +73,13 @@ from drivers.dxl_control_table import (
     deg_to_ticks,
     ticks_to_deg,
 )
+from drivers.dxl_control_table1 import P1_MODELS
 from drivers.dxl_protocol import ERRBIT_ALERT
 from drivers.dxl_sdk import (
     PORT_ERRORS,
     BlockingPortHandler,
+    FastSyncRead,
+    GroupRead,
     SyncRead,
     SyncReadAttempt,
     adapter_latency_timer_ms,
@@ -100,34 +107,68 @@ _COMM_TIMEOUT_RESULTS = {COMM_RX_TIMEOUT}
 
 # --- the backend -----------------------------------------------------------------------
 class DynamixelBus(ServoBus):
-    """Four Protocol 2.0 X-series servos on one port; see the module docstring."""
+    """Four Protocol 2.0 X-series servos on one port; see the module docstring.
+
+    Constructed with a `protocol: 1.0` config it is a `drivers.dxl_bus1.Protocol1Bus`.
+    `fast_sync_read=False` keeps to Sync Read even where the servos have Fast Sync Read
+    (for comparisons); `read_method` says which one the bus uses once open.
+    """
 
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog"})
     CONFIG_KEYS = frozenset({"baud", "protocol", "retries", "watchdog_ms", "return_delay_us", "latency_timer_ms",
                              "reboot_timeout_s"})
     JOINT_CONFIG_KEYS = frozenset({"model", "profile_velocity", "profile_acceleration"})
-    MODELS = frozenset(X_MODELS)
+    MODELS = frozenset(X_MODELS) | frozenset(P1_MODELS)
+    PROTOCOL = 2.0
+    FIRMWARE_ADDRESS = XAddr.FIRMWARE_VERSION
+    # Status error-byte bits that report a hardware error rather than a refused instruction.
+    STATUS_HARDWARE_BITS = ERRBIT_ALERT
 
     # Host scheduling margin added to every reply timeout: a Python thread on a busy
     # 2-core machine can be late by a couple of milliseconds.
     REPLY_SLACK_MS = 3.0
     REBOOT_POLL_S = 0.05
 
-    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
+    def __new__(cls, config: ServoBusConfig, **kwargs: Any) -> "DynamixelBus":
+        if cls is DynamixelBus and config.protocol == 1.0:
+            from drivers.dxl_bus1 import Protocol1Bus
+
+            bus: DynamixelBus = super().__new__(Protocol1Bus)
+            return bus
+        return super().__new__(cls)
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
+                 fast_sync_read: bool = True) -> None:
         super().__init__(config, clock=clock, name=name)
+        self.check_config(config)
+        self._ids = {joint: config.joints[joint].servo_id for joint in JOINTS}
+        self._joint_of = {servo_id: joint for joint, servo_id in self._ids.items()}
+        self._packet = PacketHandler(self.PROTOCOL)
+        self._port: BlockingPortHandler | None = None
+        self._sync_read: SyncRead | None = None
+        self._fast_read: FastSyncRead | None = None
+        self._fast_read_probed = False
+        self._sync_write: GroupSyncWrite | None = None
+        self._want_fast_read = fast_sync_read
+        self.read_method = "sync read"
+        self.firmware: dict[str, int] = {}
+
+    @classmethod
+    def check_config(cls, config: ServoBusConfig) -> None:
+        """Refuse what the servos of `config.protocol` cannot do: models of the other
+        protocol (Protocol 1.0 settings: `drivers.dxl_bus1.check_protocol1_config`)."""
+        if config.protocol == 1.0:
+            from drivers.dxl_bus1 import check_protocol1_config
+
+            check_protocol1_config(config)
+            return
         for joint, jc in config.joints.items():
             if jc.model not in X_MODELS:
                 raise ServoConfigError(
                     f"{config.joint_path(joint)}.model: got {jc.model!r}, expected one of "
-                    f"{', '.join(X_MODELS)} (Protocol 2.0 X-series)"
+                    f"{', '.join(sorted(X_MODELS))} (the models the 'dynamixel' backend drives) on Protocol 2.0; "
+                    "Protocol 1.0 models need protocol: 1.0"
                 )
-        self._ids = {joint: config.joints[joint].servo_id for joint in JOINTS}
-        self._joint_of = {servo_id: joint for joint, servo_id in self._ids.items()}
-        self._packet = PacketHandler(2.0)
-        self._port: BlockingPortHandler | None = None
-        self._sync_read: SyncRead | None = None
-        self._sync_write: GroupSyncWrite | None = None
-        self.firmware: dict[str, int] = {}
 
     # -- hooks ---------------------------------------------------------------------------
     def _connect(self) -> None:
@@ -149,14 +190,49 @@ class DynamixelBus(ServoBus):
             raise ServoConfigError(f"{self.config.key_path}.baud: dynamixel-sdk refused {self.config.baud} baud")
         for joint in JOINTS:
             self._check_model(joint)
+        self._setup_group_transactions(port)
+
+    def _setup_group_transactions(self, port: BlockingPortHandler) -> None:
+        """The per-cycle state read and goal write. Whether the read can be a Fast Sync
+        Read is found out once the servos are configured (their Return Delay Time is in the
+        reply timeout only then)."""
         self._sync_read = SyncRead(port, self._packet, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE)
         for servo_id in self._ids.values():
             self._sync_read.addParam(servo_id)
+        self._fast_read = None
+        self._fast_read_probed = False
+        self.read_method = "sync read"
         self._sync_write = GroupSyncWrite(port, self._packet, XAddr.GOAL_POSITION, 4)
+
+    def _probe_fast_sync_read(self) -> None:
+        """Fast Sync Read where every servo's firmware has it and one read of their ids
+        through it comes back right; else Sync Read."""
+        self._fast_read_probed = True
+        port = self._require(self._port)
+        ids = list(self._ids.values())
+        old = {j: fw for j, fw in self.firmware.items() if fw < FAST_SYNC_READ_MIN_FIRMWARE}
+        if self._want_fast_read and not old:
+            # The firmware says it has it; one read of the servos' ids confirms it.
+            probe = FastSyncRead(port, XAddr.ID, 1, ids)
+            try:
+                result = probe.txRxPacket()
+            except PORT_ERRORS as err:
+                raise BusDownError(f"{self.name}: port failed during the fast sync read probe: {err}") from err
+            if result == COMM_SUCCESS and all(probe.data_dict[i] == bytes([i]) for i in ids):
+                self._fast_read = FastSyncRead(port, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE, ids)
+                self.read_method = "fast sync read"
+            else:
+                self._drain()
+                log.warning("%s: the servos' firmware has Fast Sync Read but the probe failed (%s): using Sync "
+                            "Read", self.name, self._packet.getTxRxResult(result))
+        elif old:
+            log.info("%s: Sync Read (Fast Sync Read needs firmware >= %d: %s)", self.name, FAST_SYNC_READ_MIN_FIRMWARE,
+                     ", ".join(f"{self.describe(j)} has {fw}" for j, fw in old.items()))
+        log.debug("%s: reading state by %s", self.name, self.read_method)
 
     def _disconnect(self) -> None:
         port, self._port = self._port, None
-        self._sync_read = self._sync_write = None
+        self._sync_read = self._sync_write = self._fast_read = None
         if port is None or port.ser is None:
             return
         try:
@@ -167,6 +243,8 @@ class DynamixelBus(ServoBus):
     def _configure(self, joints: Iterable[str]) -> None:
         for joint in joints:
             self._configure_servo(joint)
+        if not self._fast_read_probed and self.PROTOCOL == 2.0:
+            self._probe_fast_sync_read()
 
     def _read_servos(self) -> dict[str, JointState]:
         states = self._sync_read_states()
@@ -189,6 +267,9 @@ class DynamixelBus(ServoBus):
         sync_write.clearParam()
         for joint, servo_deg in goals_deg.items():
             sync_write.addParam(self._ids[joint], list(struct.pack("<i", deg_to_ticks(servo_deg))))
+        self._send_sync_write(sync_write)
+
+    def _send_sync_write(self, sync_write: GroupSyncWrite) -> None:
         try:
             result = sync_write.txPacket()
         except PORT_ERRORS as err:
@@ -237,13 +318,17 @@ class DynamixelBus(ServoBus):
         servo_id = self._ids[joint]
         model_number, _error = self._transact(joint, "ping", lambda: self._packet.ping(self._port, servo_id))
         expected_name = self.config.joints[joint].model
-        if model_number != X_MODELS[expected_name]:
+        expected = self._model_number(expected_name)
+        if model_number != expected:
             found = KNOWN_MODEL_NAMES.get(model_number, "an unknown model")
             raise ServoModelError(
                 f"{self.describe(joint)}: found model number {model_number} ({found}), but "
-                f"{self.config.joint_path(joint)}.model is {expected_name} ({X_MODELS[expected_name]})"
+                f"{self.config.joint_path(joint)}.model is {expected_name} ({expected})"
             )
-        self.firmware[joint] = self._read(joint, XAddr.FIRMWARE_VERSION, 1)
+        self.firmware[joint] = self._read(joint, self.FIRMWARE_ADDRESS, 1)
+
+    def _model_number(self, name: str) -> int:
+        return X_MODELS[name]
 
     def _configure_servo(self, joint: str) -> None:
         """Apply the joint's settings, writing EEPROM only where it differs, torque kept."""
@@ -284,26 +369,32 @@ class DynamixelBus(ServoBus):
         self._write(joint, XAddr.PROFILE_VELOCITY, 4, round(jc.profile_velocity / DPS_PER_VELOCITY_UNIT))
 
     # -- transactions ----------------------------------------------------------------------
-    def _sync_read_states(self) -> dict[str, JointState | None]:
-        sync_read = self._require(self._sync_read)
+    def _group_read(self, first: GroupRead, then: GroupRead, what: str) -> GroupRead:
+        """One group read of every servo with bounded retries: `first` on the first attempt,
+        `then` on the retries. Returns the group whose attempt succeeded; raises naming the
+        servo(s) to blame when every attempt failed."""
         result = COMM_SUCCESS
         attempts: list[SyncReadAttempt] = []
         for attempt in range(self.config.retries + 1):
+            group = first if attempt == 0 else then
             try:
-                result = sync_read.txRxPacket()
+                result = group.txRxPacket()
             except PORT_ERRORS as err:
-                raise BusDownError(f"{self.name}: port failed during sync read: {err}") from err
+                raise BusDownError(f"{self.name}: port failed during {what}: {err}") from err
             if result == COMM_SUCCESS:
-                break
+                return group
             if result == COMM_PORT_BUSY:
-                raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure (sync read)")
-            late = tuple(sync_read.strays) + status_ids(self._drain())
-            attempts.append(SyncReadAttempt(frozenset(sync_read.answered), dict(sync_read.failures), late))
-            log.debug("%s: sync read attempt %d: %s; replies late from %s", self.name, attempt + 1,
-                      ", ".join(f"id {i}: {self._packet.getTxRxResult(r)}" for i, r in sync_read.failures.items())
+                raise BusDownError(f"{self.name}: the SDK port is stuck busy after a port failure ({what})")
+            late = tuple(group.strays) + status_ids(self._drain(), self.PROTOCOL)
+            attempts.append(SyncReadAttempt(frozenset(group.answered), dict(group.failures), late))
+            log.debug("%s: %s attempt %d: %s; replies late from %s", self.name, what, attempt + 1,
+                      ", ".join(f"id {i}: {self._packet.getTxRxResult(r)}" for i, r in group.failures.items())
                       or self._packet.getTxRxResult(result), list(late) or "none")
-        else:
-            self._raise_sync_read(attempts, result)
+        self._raise_sync_read(attempts, result, what)
+
+    def _sync_read_states(self) -> dict[str, JointState | None]:
+        plain = self._require(self._sync_read)
+        sync_read = self._group_read(self._fast_read or plain, plain, "sync read")
         states: dict[str, JointState | None] = {}
         watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
         for joint, servo_id in self._ids.items():
@@ -373,17 +464,17 @@ class DynamixelBus(ServoBus):
                           self._packet.getTxRxResult(result))
                 self._drain()
                 continue
-            if error & ~ERRBIT_ALERT:
-                refusal = self._packet.getRxPacketError(error & ~ERRBIT_ALERT)
+            if error & ~self.STATUS_HARDWARE_BITS:
+                refusal = self._packet.getRxPacketError(error & ~self.STATUS_HARDWARE_BITS)
                 raise ServoError(f"{self.describe(joint)}: {what} refused: {refusal}")
             return value, error
         self._raise_comm(joint, what, result)
 
-    def _raise_sync_read(self, attempts: list[SyncReadAttempt], result: int) -> NoReturn:
-        """Raise for a sync read that failed every attempt, naming the servo(s) to blame."""
+    def _raise_sync_read(self, attempts: list[SyncReadAttempt], result: int, read_name: str = "sync read") -> NoReturn:
+        """Raise for a group read that failed every attempt, naming the servo(s) to blame."""
         blamed = blame_sync_read(attempts) if attempts and attempts[-1].failures else {}
         if not blamed:  # the request itself failed to go out: the bus, not a servo
-            self._raise_comm(None, "sync read", result)
+            self._raise_comm(None, read_name, result)
         late = {servo_id for attempt in attempts for servo_id in attempt.late}
         order = list(self._ids.values())
         held: list[int] = []
@@ -403,7 +494,7 @@ class DynamixelBus(ServoBus):
                              f"held up behind it")
             return text + (f" ({'; '.join(notes)})" if notes else "")
 
-        failed = f"sync read failed after {self.config.retries + 1} attempt(s)"
+        failed = f"{read_name} failed after {self.config.retries + 1} attempt(s)"
         if len(blamed) == len(order) and not any(attempt.answered for attempt in attempts):
             # No servo ever answered, and none late: the first in turn, which the others
             # wait for, or a bus without power.

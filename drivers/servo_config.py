@@ -31,12 +31,8 @@ LIMIT_POLICIES: tuple[str, ...] = ("clamp", "refuse")
 SUPPORTED_BAUDS: tuple[int, ...] = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 
 
-# Why Protocol 2.0 only: 1.0 has no Sync Read, so the state of four servos cannot be read in
-# one transaction (AX-12A has no Bulk Read either).
-_PROTOCOL_1_REFUSED = (
-    "2.0: Protocol 1.0 (AX-12A, MX-28) is not supported because it cannot read all joints "
-    "in one transaction; MX-28 can be switched to Protocol 2.0 firmware with DYNAMIXEL Wizard"
-)
+# Dynamixel protocol versions: 2.0 (X-series), 1.0 (AX, RX, MX on Protocol 1.0 firmware).
+PROTOCOLS: tuple[float, ...] = (2.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -92,6 +88,53 @@ class JointConfig:
 
 
 @dataclass(frozen=True)
+class WiredServo:
+    """How one servo of the simulated head is really mounted (`servo_bus.wiring.<id>`): the
+    joint it turns (`none`: a servo on the bus that turns nothing the cameras see), and
+    `direction` and `zero_offset` as in `JointConfig`. The simulated world's truth, which
+    `headctl setup` has to find out from the bus and the cameras."""
+
+    joint: str = field(metadata=config_meta(choices=(*JOINTS, "none")))
+    direction: int = setting(1, choices=(1, -1))
+    zero_offset: float = setting(0.0, lo=-180.0, hi=180.0)
+
+    CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+    def joint_angle(self, servo_angle: float) -> float:
+        return self.direction * (servo_angle - self.zero_offset)
+
+    def servo_angle(self, joint_angle: float) -> float:
+        return self.zero_offset + self.direction * joint_angle
+
+
+def read_wiring(data: Any) -> dict[int, WiredServo]:
+    """`servo_bus.wiring` typed: servo id (0-252) -> `WiredServo`, each joint wired once.
+    Key paths in errors are relative to the section (`wiring.7.joint`)."""
+    if not isinstance(data, Mapping) or not data:
+        raise ServoConfigError(key_path="wiring", value=data,
+                               expected="a mapping of servo ids to {joint, direction, zero_offset}")
+    wiring: dict[int, WiredServo] = {}
+    wired: dict[str, int] = {}
+    for key, entry in data.items():
+        if isinstance(key, bool) or not isinstance(key, int) or not 0 <= key <= 252:
+            raise ServoConfigError(key_path=f"wiring.{key}", value=key, expected="a servo id, an integer in [0, 252]")
+        servo = entry if isinstance(entry, WiredServo) else read_config(WiredServo, entry, f"wiring.{key}")
+        if servo.joint in wired and servo.joint != "none":
+            raise ServoConfigError(key_path=f"wiring.{key}.joint", value=servo.joint,
+                                   expected=f"a joint not already wired to id {wired[servo.joint]}")
+        wired[servo.joint] = key
+        wiring[key] = servo
+    missing = [joint for joint in JOINTS if joint not in wired]
+    if missing:
+        raise ServoConfigError(key_path="wiring", value=sorted(wiring),
+                               expected=f"a servo for every joint ({', '.join(missing)} missing)")
+    return wiring
+
+
+@dataclass(frozen=True)
 class ServoBusConfig:
     """The servo bus: backend, port, wire settings, policies, and the four joints.
 
@@ -101,11 +144,12 @@ class ServoBusConfig:
     `key_path` is where the section was read (`servo_bus`), for messages.
     """
 
-    joints: Mapping[str, JointConfig] = field(metadata=config_meta(keys=JOINTS))
+    joints: Mapping[str, JointConfig] = field(metadata=config_meta(
+        keys=JOINTS, expected="the four joints' servos (headctl setup finds them: docs/setup.md)"))
     backend: str = "dynamixel"
     port: str = "/dev/head-servos"
     baud: int = setting(1_000_000, choices=SUPPORTED_BAUDS)
-    protocol: float = 2.0
+    protocol: float = setting(2.0, choices=PROTOCOLS)
     retries: int = setting(2, lo=0, hi=10)
     limit_policy: str = setting("clamp", choices=LIMIT_POLICIES)
     reboot_on_hardware_error: bool = True
@@ -115,6 +159,9 @@ class ServoBusConfig:
     return_delay_us: int = setting(0, lo=0, hi=508, check=lambda us: us % 2 == 0,
                                    expected="an even number in [0, 508] (the servo counts in 2 us steps)")
     latency_timer_ms: float = setting(1.0, lo=0.0, hi=255.0)
+    # The simulated head's true wiring (servo id -> WiredServo; read by `read_wiring`); None:
+    # each joint's servo wired as `joints` says. Only the `sim` backend uses it.
+    wiring: Any = None
     reboot_timeout_s: float = setting(2.0, lo=0.1, hi=60.0)
     key_path: str = setting("servo_bus", source="key_path")
     given_keys: frozenset[str] = setting(frozenset(), source="given_keys", init=False, compare=False, repr=False)
@@ -123,15 +170,18 @@ class ServoBusConfig:
 
     def __post_init__(self) -> None:
         check_settings(self)
-        if self.protocol != 2.0:
-            raise ServoConfigError(key_path="protocol", value=self.protocol,
-                                   expected=_PROTOCOL_1_REFUSED if self.protocol == 1.0 else "2.0")
         seen: dict[int, str] = {}
         for joint, jc in self.joints.items():
             if jc.servo_id in seen:
                 raise ServoConfigError(key_path=f"joints.{joint}.id", value=jc.servo_id,
                                        expected=f"an id not already used by joint {seen[jc.servo_id]}")
             seen[jc.servo_id] = joint
+        if self.wiring is not None:
+            object.__setattr__(self, "wiring", read_wiring(self.wiring))
+            for joint, jc in self.joints.items():
+                if jc.servo_id not in self.wiring:
+                    raise ServoConfigError(key_path=f"joints.{joint}.id", value=jc.servo_id,
+                                           expected=f"one of the ids wired ({', '.join(map(str, sorted(self.wiring)))})")
 
     @classmethod
     def from_mapping(cls, data: Any, key_path: str = "servo_bus") -> "ServoBusConfig":
@@ -175,6 +225,18 @@ class ServoBusConfig:
                 raise ServoConfigError(
                     key_path=f"{self.joint_path(joint)}.model", value=jc.model,
                     expected=f"one of {', '.join(sorted(models))} (the models the {self.backend!r} backend drives)")
+        # What only the backend can judge (models and settings of the protocol in use).
+        check_config = getattr(backend_class, "check_config", None)
+        if check_config is not None:
+            check_config(self)
+
+
+@dataclass(frozen=True)
+class PartialServoBusConfig(ServoBusConfig):
+    """The `servo_bus` section of a head not set up yet (`headctl setup --config`): `joints`
+    may be left out (all four or none), everything else as in `ServoBusConfig`."""
+
+    joints: Mapping[str, JointConfig] = setting(default_factory=dict, keys=JOINTS)
 
 
 # The keys every backend uses: the base class (`drivers.servo_bus.ServoBus`) implements what they say.

@@ -7,6 +7,11 @@ backend built on it. The simulated head and the daemon use it; its fault-injecti
 (`inject_bus_down`, `restore_bus`, `inject_hardware_error`) let their tests exercise the
 recovery paths of `drivers.servo_bus` without hardware.
 
+Which servo turns which joint, which way and from where (`servo_bus.wiring`, else as
+`joints` says) belongs to the simulated world: the bus drives each joint's servo by the id
+its config gives, and `SimulatedServoProbe` offers the same servos by id to `headctl setup`,
+which has to find the wiring out from the cameras.
+
 Time comes from an injectable clock, so tests run faster than real time with a
 `drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
 across `open()`/`close()` like real servos do.
@@ -19,9 +24,10 @@ import threading
 from collections.abc import Iterable, Mapping
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import BusDownError, ServoHardwareError
+from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
 from drivers.servo_bus import JOINTS, JointState, ServoBus, decode_hardware_error
-from drivers.servo_config import ServoBusConfig
+from drivers.servo_config import ServoBusConfig, WiredServo
+from drivers.servo_probe import FoundServo, MotionSafety, ServoStatus
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +112,23 @@ class _SimServo:
         self.input_voltage_v = 12.0
 
 
+def wiring_of(config: ServoBusConfig) -> dict[int, WiredServo]:
+    """The simulated head's true wiring: `servo_bus.wiring`, else each joint's servo
+    mounted as `joints` says."""
+    if config.wiring is not None:
+        return dict(config.wiring)
+    return {jc.servo_id: WiredServo(joint, jc.direction, jc.zero_offset) for joint, jc in config.joints.items()}
+
+
+def physical_servos(wiring: Mapping[int, WiredServo], initial_positions: Mapping[str, float] | None,
+                    now: float) -> dict[int, _SimServo]:
+    """The servos by id, each where its joint's `initial_positions` (joint frame) puts it;
+    without one a servo rests at its centre, like a fresh servo (and the emulator) does."""
+    initial = dict(initial_positions or {})
+    return {servo_id: _SimServo(wired.servo_angle(initial[wired.joint]) if wired.joint in initial else 0.0, now)
+            for servo_id, wired in wiring.items()}
+
+
 class SimulatedServoBus(ServoBus):
     """A `ServoBus` over simulated servos; see the module docstring.
 
@@ -117,7 +140,7 @@ class SimulatedServoBus(ServoBus):
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
                               "fault_injection"})
     # No wire and no servo models: the simulation has no use for baud, retries, latency or model.
-    CONFIG_KEYS = frozenset({"watchdog_ms"})
+    CONFIG_KEYS = frozenset({"watchdog_ms", "wiring"})
     JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
@@ -125,13 +148,16 @@ class SimulatedServoBus(ServoBus):
         super().__init__(config, clock=clock, name=name or f"sim-servo-bus({config.port})")
         self.max_velocity_dps = max_velocity_dps
         now = clock.monotonic()
-        initial = dict(initial_positions or {})
-        # Without a given position a joint rests at its servo's centre, like a fresh servo
-        # (and the emulator) does.
-        self._servos = {
-            joint: _SimServo(config.joints[joint].servo_angle(initial[joint]) if joint in initial else 0.0, now)
-            for joint in JOINTS
-        }
+        self._wiring = wiring_of(config)
+        by_id = physical_servos(self._wiring, initial_positions, now)
+        for joint in JOINTS:
+            if config.joints[joint].servo_id not in by_id:
+                raise ServoConfigError(key_path=f"{config.joint_path(joint)}.id", value=config.joints[joint].servo_id,
+                                       expected=f"an id on the simulated bus ({', '.join(map(str, sorted(by_id)))})")
+        # Each configured joint drives the servo of its id, whichever joint that servo turns.
+        self._servos = {joint: by_id[config.joints[joint].servo_id] for joint in JOINTS}
+        self._wired = {wired.joint: by_id[servo_id] for servo_id, wired in self._wiring.items()}
+        self._wired_as = {wired.joint: wired for wired in self._wiring.values()}
         # Guards the simulated hardware: fault hooks are called from test or daemon threads.
         self._sim_lock = threading.Lock()
         self._linked = False
@@ -165,11 +191,12 @@ class SimulatedServoBus(ServoBus):
                  "; ".join(decode_hardware_error(bits)))
 
     def true_position(self, joint: str) -> float:
-        """Where the simulated joint really is now (joint frame, degrees), bus or no bus."""
+        """Where the simulated joint really is now (joint frame, degrees), bus or no bus: as
+        the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes."""
         with self._sim_lock:
-            servo = self._servos[joint]
+            servo = self._wired[joint]
             servo.axis.advance_to(self.clock.monotonic())
-            return self.config.joints[joint].joint_angle(servo.axis.position)
+            return self._wired_as[joint].joint_angle(servo.axis.position)
 
     # -- ServoBus hooks ------------------------------------------------------------------
     def _connect(self) -> None:
@@ -268,3 +295,135 @@ class SimulatedServoBus(ServoBus):
                                 self.name, joint, now - self._last_contact_s)
         self._last_contact_s = now
         return now
+
+
+class SimulatedServoProbe:
+    """The simulated head's servos by id (`drivers.servo_probe.ServoProbe`), for `headctl
+    setup`: the ids of `servo_bus.wiring` (else of `joints`), each answering a scan as an
+    XM430-W350 at the config's baud rate. Which joint a servo turns is the simulated
+    world's: `true_position(joint)` is for the simulated cameras, never for the assistant.
+
+    Velocity and acceleration limits shape the motion as on the bus; the torque limit is
+    recorded (the simulation has no load to limit); the watchdog stops a servo whose host
+    fell silent, as the bus's does.
+    """
+
+    MODEL_NUMBER = 1020  # XM430-W350
+    FIRMWARE = 48
+    LIMITS_DEG = (-180.0, 180.0 - 360.0 / 4096)  # one turn around the centre, tick 0 to 4095
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, ids: Iterable[int] | None = None,
+                 initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
+        self.config = config
+        self.clock = clock
+        self.name = f"sim-servo-probe({config.port})"
+        self.max_velocity_dps = max_velocity_dps
+        self._wiring = wiring_of(config)
+        now = clock.monotonic()
+        self._servos = physical_servos(self._wiring, initial_positions, now)
+        self._wanted = set(ids) if ids is not None else None
+        self._lock = threading.Lock()
+        self._saved: dict[int, tuple[float, float, float]] = {}  # id -> velocity, acceleration, watchdog
+        self._watchdog_s: dict[int, float] = {}
+        self._torque_limit: dict[int, float] = {}
+        self._last_contact_s = {servo_id: now for servo_id in self._servos}
+        for servo in self._servos.values():
+            servo.axis.max_velocity = max_velocity_dps
+
+    # -- the simulated world's side ------------------------------------------------------
+    def true_position(self, joint: str) -> float:
+        """Where the joint really is (joint frame, degrees): for the simulated cameras."""
+        with self._lock:
+            for servo_id, wired in self._wiring.items():
+                if wired.joint == joint:
+                    servo = self._servos[servo_id]
+                    servo.axis.advance_to(self.clock.monotonic())
+                    return wired.joint_angle(servo.axis.position)
+        raise KeyError(joint)
+
+    def torque_limit(self, servo_id: int) -> float | None:
+        """The torque fraction `limit_motion` set on a servo, if any (tests look)."""
+        return self._torque_limit.get(servo_id)
+
+    # -- ServoProbe ----------------------------------------------------------------------
+    def scan(self) -> list[FoundServo]:
+        ids = sorted(i for i in self._servos if self._wanted is None or i in self._wanted)
+        return [FoundServo(i, self.MODEL_NUMBER, "XM430-W350", self.FIRMWARE, 2.0, self.config.baud) for i in ids]
+
+    def status(self, servo_id: int) -> ServoStatus:
+        with self._lock:
+            servo = self._contact(servo_id)
+            return ServoStatus(position_deg=servo.axis.position, goal_deg=servo.goal_deg, moving=servo.axis.moving,
+                               torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
+                               temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
+                               min_deg=self.LIMITS_DEG[0], max_deg=self.LIMITS_DEG[1])
+
+    def limit_motion(self, servo_id: int, safety: MotionSafety) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            if servo_id not in self._saved:
+                self._saved[servo_id] = (servo.axis.max_velocity, servo.axis.max_acceleration,
+                                         self._watchdog_s.get(servo_id, 0.0))
+            servo.axis.max_velocity = safety.velocity_dps
+            servo.axis.max_acceleration = safety.acceleration_dps2
+            self._watchdog_s[servo_id] = safety.watchdog_s
+            self._torque_limit[servo_id] = safety.torque_fraction
+
+    def restore_motion(self, servo_id: int) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            saved = self._saved.pop(servo_id, None)
+            if saved is not None:
+                servo.axis.max_velocity, servo.axis.max_acceleration, self._watchdog_s[servo_id] = saved
+            self._torque_limit.pop(servo_id, None)
+
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            servo.torque_on = on
+            if on:
+                servo.axis.set_goal(servo.goal_deg)
+            else:
+                servo.axis.hold()
+
+    def write_goal(self, servo_id: int, servo_deg: float) -> None:
+        lo, hi = self.LIMITS_DEG
+        if not (math.isfinite(servo_deg) and lo <= servo_deg <= hi):
+            raise JointLimitError(f"id {servo_id} on {self.name}: goal {servo_deg:g} deg outside the servo's own "
+                                  f"limits [{lo:g}, {hi:g}]; nothing sent")
+        with self._lock:
+            servo = self._contact(servo_id)
+            servo.goal_deg = servo_deg
+            if servo.torque_on:
+                servo.axis.set_goal(servo_deg)
+
+    def keep_alive(self, servo_id: int) -> None:
+        with self._lock:
+            self._contact(servo_id)
+            self._watchdog_s[servo_id] = 0.0
+
+    def close(self) -> None:
+        """Nothing to release: the simulated servos stay as they are, like real ones."""
+
+    def __enter__(self) -> "SimulatedServoProbe":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _contact(self, servo_id: int) -> _SimServo:
+        """One packet to `servo_id`: the watchdog applied, the motion brought to now."""
+        servo = self._servos.get(servo_id)
+        if servo is None or (self._wanted is not None and servo_id not in self._wanted):
+            raise ServoTimeoutError(f"id {servo_id} on {self.name}: no answer (no such servo)")
+        now = self.clock.monotonic()
+        watchdog_s = self._watchdog_s.get(servo_id, 0.0)
+        if watchdog_s and servo.torque_on and now - self._last_contact_s[servo_id] > watchdog_s:
+            servo.axis.advance_to(self._last_contact_s[servo_id] + watchdog_s)
+            servo.axis.hold()
+            servo.goal_deg = servo.axis.position
+            log.warning("%s: watchdog expired on id %d after %.3f s of silence: servo stopped", self.name, servo_id,
+                        now - self._last_contact_s[servo_id])
+        servo.axis.advance_to(now)
+        self._last_contact_s[servo_id] = now
+        return servo

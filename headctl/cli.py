@@ -15,6 +15,7 @@ from headctl import __version__
 COMMAND_MODULES = (
     "headctl.cmd_experiment",  # experiment: the paper's experiments on the simulated head
     "headctl.cmd_servos",      # emulate-servos, scan
+    "headctl.cmd_setup",       # setup: a new head's joints from the images
     "headctl.cmd_cameras",     # cameras, snapshot
     "headctl.cmd_service",     # run, check, status: the daemon
 )

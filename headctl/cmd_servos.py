@@ -1,7 +1,7 @@
 """Subcommands of `headctl` for the servos: `emulate-servos` and `scan`.
 
-`emulate-servos` serves virtual Protocol 2.0 servos on a pseudo-terminal (see
-`drivers.dxl_emulator`) so anyone can develop without a head, and with `--control` takes
+`emulate-servos` serves virtual servos, Protocol 2.0 X-series or Protocol 1.0 AX, RX and
+MX, on a pseudo-terminal (see `drivers.dxl_emulator`) so anyone can develop without a head, and with `--control` takes
 injected faults from outside (`drivers.dxl_emulator_control`); `scan` finds the servos on a
 port, which is what people do first with a new head.
 """
@@ -29,17 +29,24 @@ def _int_list(text: str) -> list[int]:
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this module's subcommands to `sub`."""
     from drivers.dxl_control_table import X_BAUD_CODES, X_MODELS
+    from drivers.dxl_control_table1 import P1_MODELS
 
     emulate = sub.add_parser(
         "emulate-servos",
-        help="serve virtual Dynamixel X-series servos (Protocol 2.0) on a pseudo-terminal",
-        description="Serve virtual Dynamixel X-series servos on a pseudo-terminal and print its path; "
+        help="serve virtual Dynamixel servos (Protocol 2.0 X-series, or 1.0 AX/RX/MX) on a pseudo-terminal",
+        description="Serve virtual Dynamixel servos on a pseudo-terminal and print its path; "
                     "runs until interrupted (Ctrl-C or SIGTERM).",
     )
     emulate.add_argument("--ids", type=_int_list, default=[1, 2, 3, 4], help="servo ids (default 1,2,3,4)")
-    emulate.add_argument("--model", choices=sorted(X_MODELS), default="XM430-W350", help="servo model")
+    emulate.add_argument("--protocol", choices=["1.0", "2.0"], default="2.0",
+                         help="protocol the servos speak (default 2.0)")
+    emulate.add_argument("--model", choices=sorted(X_MODELS) + sorted(P1_MODELS),
+                         help="servo model (default XM430-W350 on Protocol 2.0, AX-12A on 1.0)")
+    emulate.add_argument("--firmware", type=int, metavar="N",
+                         help="the servos' firmware version (default 48 on 2.0, which has Fast Sync Read "
+                              "from 45; 24 on 1.0)")
     emulate.add_argument("--baud", type=int, choices=sorted(X_BAUD_CODES), default=1_000_000,
-                         help="the servos' baud rate (default 1000000)")
+                         help="the servos' baud rate (default 1000000; on 1.0: 9600, 57600, 115200 or 1000000)")
     emulate.add_argument("--link", metavar="PATH",
                          help="also keep a symlink PATH pointing at the pty (a stable name, like a udev rule's)")
     emulate.add_argument("--control", metavar="PATH", action="append", default=[],
@@ -72,7 +79,13 @@ def _emulate(args: argparse.Namespace) -> int:
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         with contextlib.ExitStack() as stack:
-            emulator = stack.enter_context(DxlEmulator(args.ids, model=args.model, baud=args.baud, link=args.link))
+            try:
+                emulator = DxlEmulator(args.ids, protocol=float(args.protocol), model=args.model,
+                                       firmware=args.firmware, baud=args.baud, link=args.link)
+            except ValueError as err:
+                print(f"headctl emulate-servos: {err}", file=sys.stderr)
+                return 2
+            stack.enter_context(emulator)
             control = EmulatorControl(emulator)
             for path in sockets:
                 try:
@@ -90,8 +103,9 @@ def _emulate(args: argparse.Namespace) -> int:
                 threading.Thread(target=serve_stream, args=(control, sys.stdin, sys.stdout),
                                  name="dxl-emulator-control(stdin)", daemon=True).start()
                 print("fault control on stdin (`help` lists the commands)", file=sys.stderr, flush=True)
-            print(f"serving {len(args.ids)} {args.model} servo(s), ids {','.join(map(str, args.ids))}, "
-                  f"{args.baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
+            models = sorted({servo.model for servo in emulator.servos.values()})
+            print(f"serving {len(args.ids)} {', '.join(models)} servo(s), ids {','.join(map(str, args.ids))}, "
+                  f"Protocol {args.protocol}, {args.baud} baud; Ctrl-C to stop", file=sys.stderr, flush=True)
             try:
                 while not stop.wait(1.0):
                     pass

@@ -35,14 +35,13 @@ def test_defaults_fill_what_is_not_given():
                         r"reboot_timeout_s\); 'speed' is an unknown key")),
         ({"baud": 4_500_000}, r"servo_bus\.baud: got 4500000, expected one of 9600, .*4000000"),
         ({"limit_policy": "wrap"}, r"servo_bus\.limit_policy: got 'wrap', expected one of clamp, refuse"),
-        ({"protocol": 1.0}, r"servo_bus\.protocol: got 1\.0, expected 2\.0: Protocol 1\.0 .*not supported"),
         ({"watchdog_ms": 30}, r"servo_bus\.watchdog_ms: got 30, expected a multiple of 20"),
         ({"retries": True}, r"servo_bus\.retries: got True, expected an integer"),
         ({"torque_on_close": "yes"}, r"servo_bus\.torque_on_close: got 'yes', expected true or false"),
         ({"joints": {"pan": {"id": 1}}}, (r"servo_bus\.joints\.tilt: missing, expected every one of pan, tilt, "
                                           r"left_eye, right_eye under servo_bus\.joints \(missing: tilt, left_eye, "
                                           r"right_eye\)")),
-        ({"protocol": 3.0}, r"servo_bus\.protocol: got 3\.0, expected 2\.0$"),
+        ({"protocol": 3.0}, r"servo_bus\.protocol: got 3\.0, expected one of 2\.0, 1\.0$"),
         ({"return_delay_us": 3}, r"servo_bus\.return_delay_us: got 3, expected an even number"),
     ],
 )

@@ -1,9 +1,12 @@
 """The servo-bus contract, run against every backend.
 
 `rig` is parametrised over the simulated bus and the Dynamixel backend driving the
-emulator through the real dynamixel-sdk; `-m hardware` with HEADCTL_HW_CONFIG runs the
-basic contract on a real head. The fault contract needs fault injection, so it runs on
-the sim and the emulator only.
+emulator through the real dynamixel-sdk, in Protocol 2.0 (X-series, Fast Sync Read) and
+in Protocol 1.0 (MX-28: Bulk Read; AX-12A: per-servo reads); `-m hardware` with
+HEADCTL_HW_CONFIG runs the basic contract on a real head. The fault contract needs fault
+injection, so it runs on the sim and the emulator only. Positions are compared to within
+the rig's servo resolution (`rig.tick_deg`); what some servos lack (acceleration control on
+AX, a bus watchdog on Protocol 1.0) is tested only on the rigs that have it.
 """
 from __future__ import annotations
 
@@ -21,9 +24,13 @@ from drivers.errors import (
 )
 from drivers.servo_bus import JOINTS, REOPEN_BACKOFF_MAX_S, BusState
 
-BACKENDS = ["sim", "dynamixel-emulator", pytest.param("hardware", marks=pytest.mark.hardware)]
-FAULT_BACKENDS = ["sim", "dynamixel-emulator"]
-TICK_DEG = 360.0 / 4096
+EMULATED = ["dynamixel-emulator", "dynamixel-1.0-mx28-emulator", "dynamixel-1.0-ax12a-emulator"]
+BACKENDS = ["sim", *EMULATED, pytest.param("hardware", marks=pytest.mark.hardware)]
+FAULT_BACKENDS = ["sim", *EMULATED]
+# What some servos lack is not tested on their rigs: AX servos have no acceleration control,
+# Protocol 1.0 servos no bus watchdog.
+ACCELERATION_BACKENDS = ["sim", "dynamixel-emulator", "dynamixel-1.0-mx28-emulator"]
+WATCHDOG_BACKENDS = ["sim", "dynamixel-emulator"]
 
 
 def _settle(rig, bus, timeout_s: float = 10.0) -> BusState:
@@ -65,7 +72,7 @@ class TestContract:
             after = bus.read_state()
             for joint in JOINTS:
                 assert after[joint].torque_on
-                assert after[joint].position == pytest.approx(before[joint], abs=2 * TICK_DEG)
+                assert after[joint].position == pytest.approx(before[joint], abs=2 * rig.tick_deg)
 
     def test_goal_round_trip_in_degrees(self, make):
         rig = make()
@@ -78,8 +85,8 @@ class TestContract:
             assert bus.read_state().moving
             state = _settle(rig, bus)
             for joint, goal in goals.items():
-                assert state[joint].position == pytest.approx(goal, abs=1.5 * TICK_DEG)
-            assert state["left_eye"].position == pytest.approx(start["left_eye"], abs=2 * TICK_DEG)
+                assert state[joint].position == pytest.approx(goal, abs=1.5 * rig.tick_deg)
+            assert state["left_eye"].position == pytest.approx(start["left_eye"], abs=2 * rig.tick_deg)
 
     def test_disable_turns_torque_off_and_refuses_goals(self, make):
         rig = make()
@@ -120,30 +127,14 @@ class TestFaultContract:
         rig = make(joints={"tilt": {"direction": -1, "zero_offset": 10.0}})
         with rig.bus as bus:
             # The servo rests at its centre: joint = -1 * (0 - 10) = 10.
-            assert bus.read_state()["tilt"].position == pytest.approx(10.0, abs=TICK_DEG)
+            assert bus.read_state()["tilt"].position == pytest.approx(10.0, abs=rig.tick_deg)
             bus.enable()
             bus.write_goals({"tilt": 30.0})
             rig.advance(0.05)
             assert bus.read_state()["tilt"].velocity > 0  # joint frame: toward +30
             state = _settle(rig, bus)
-            assert state["tilt"].position == pytest.approx(30.0, abs=TICK_DEG)
-            assert rig.servo_angle("tilt") == pytest.approx(10.0 - 30.0, abs=TICK_DEG)
-
-    def test_profile_velocity_and_acceleration_shape_the_move(self, make):
-        rig = make(joints={"pan": {"profile_velocity": 50.0, "profile_acceleration": 500.0}})
-        with rig.bus as bus:
-            bus.enable()
-            bus.write_goals({"pan": 60.0})
-            # 0.1 s to reach 50 deg/s (2.5 deg), 1.1 s cruising, 0.1 s braking: 1.3 s.
-            rig.advance(0.6)
-            mid = bus.read_state()["pan"]
-            assert mid.moving
-            assert mid.velocity == pytest.approx(50.0, rel=0.05)
-            assert mid.position == pytest.approx(2.5 + 50.0 * 0.5, abs=1.0)
-            rig.advance(0.8)
-            end = bus.read_state()["pan"]
-            assert not end.moving
-            assert end.position == pytest.approx(60.0, abs=TICK_DEG)
+            assert state["tilt"].position == pytest.approx(30.0, abs=rig.tick_deg)
+            assert rig.servo_angle("tilt") == pytest.approx(10.0 - 30.0, abs=rig.tick_deg)
 
     def test_stale_goal_does_not_jump_at_enable(self, make):
         rig = make()
@@ -151,7 +142,7 @@ class TestFaultContract:
             rig.set_stale_goal("pan", 45.0)
             bus.enable()
             rig.advance(1.0)
-            assert bus.read_state()["pan"].position == pytest.approx(0.0, abs=TICK_DEG)
+            assert bus.read_state()["pan"].position == pytest.approx(0.0, abs=rig.tick_deg)
 
     def test_clamp_policy_clamps_and_logs(self, make, caplog):
         rig = make(limit_policy="clamp")
@@ -162,8 +153,8 @@ class TestFaultContract:
             assert sent == {"pan": 90.0, "tilt": -10.0}
             assert "outside limits" in caplog.text and "pan" in caplog.text
             state = _settle(rig, bus)
-            assert state["pan"].position == pytest.approx(90.0, abs=TICK_DEG)
-            assert state["tilt"].position == pytest.approx(-10.0, abs=TICK_DEG)
+            assert state["pan"].position == pytest.approx(90.0, abs=rig.tick_deg)
+            assert state["tilt"].position == pytest.approx(-10.0, abs=rig.tick_deg)
 
     def test_refuse_policy_sends_nothing(self, make):
         rig = make(limit_policy="refuse")
@@ -174,7 +165,7 @@ class TestFaultContract:
             rig.advance(1.0)
             state = bus.read_state()
             # The whole command was refused: not even the valid tilt goal went out.
-            assert state["tilt"].position == pytest.approx(0.0, abs=TICK_DEG)
+            assert state["tilt"].position == pytest.approx(0.0, abs=rig.tick_deg)
             assert not state.moving
 
     def test_torque_on_close_leaves_torque_on(self, make):
@@ -203,9 +194,9 @@ class TestFaultContract:
             assert state["left_eye"].hardware_error_bits == 0
             assert state["left_eye"].torque_on
             # Torque came back where the eye was: no jump.
-            assert state["left_eye"].position == pytest.approx(20.0, abs=TICK_DEG)
+            assert state["left_eye"].position == pytest.approx(20.0, abs=rig.tick_deg)
             bus.write_goals({"left_eye": 0.0})
-            assert _settle(rig, bus)["left_eye"].position == pytest.approx(0.0, abs=TICK_DEG)
+            assert _settle(rig, bus)["left_eye"].position == pytest.approx(0.0, abs=rig.tick_deg)
 
     def test_a_servo_in_shutdown_refuses_enable_for_the_whole_bus(self, make):
         rig = make(reboot_on_hardware_error=False)
@@ -231,7 +222,7 @@ class TestFaultContract:
             assert "overheating" in caplog.text and "rebooting" in caplog.text
             assert state["tilt"].hardware_error_bits == 0
             assert state["tilt"].torque_on
-            assert state["tilt"].position == pytest.approx(-15.0, abs=TICK_DEG)
+            assert state["tilt"].position == pytest.approx(-15.0, abs=rig.tick_deg)
             # Rebooted inside the read, so the state reads clear; the fault log saw it all.
             [episode] = bus.fault_log.episodes().values()
             assert (episode.joint, episode.servo_id, episode.bits, episode.meanings) == ("tilt", 2, 0x04,
@@ -247,14 +238,14 @@ class TestFaultContract:
             state = bus.read_state()["tilt"]
             assert state.torque_on and state.hardware_errors == ("input voltage out of range",)
             bus.write_goals({"tilt": 5.0})  # the servo still works: goals go through
-            assert _settle(rig, bus)["tilt"].position == pytest.approx(5.0, abs=TICK_DEG)
+            assert _settle(rig, bus)["tilt"].position == pytest.approx(5.0, abs=rig.tick_deg)
             rig.advance(0.5)
             assert bus.read_state()["tilt"].hardware_error_bits == 0x01  # not yet: it may pass
             rig.advance(bus.recovery.limits.persist_s)
             state = bus.read_state()["tilt"]
             # Lasting: rebooted (the error is latched until then), torque back where it was.
             assert state.hardware_error_bits == (0 if auto_reboot else 0x01)
-            assert state.torque_on and state.position == pytest.approx(5.0, abs=TICK_DEG)
+            assert state.torque_on and state.position == pytest.approx(5.0, abs=rig.tick_deg)
             assert bus.recovery.reboots == ({("tilt", "input voltage out of range"): 1} if auto_reboot else {})
 
     def test_a_repeating_hardware_error_is_not_rebooted_in_a_loop(self, make):
@@ -298,9 +289,9 @@ class TestFaultContract:
             assert "back up" in caplog.text
             assert not bus.is_down
             assert state["pan"].torque_on
-            assert state["pan"].position == pytest.approx(12.0, abs=TICK_DEG)
+            assert state["pan"].position == pytest.approx(12.0, abs=rig.tick_deg)
             bus.write_goals({"pan": 0.0})
-            assert _settle(rig, bus)["pan"].position == pytest.approx(0.0, abs=TICK_DEG)
+            assert _settle(rig, bus)["pan"].position == pytest.approx(0.0, abs=rig.tick_deg)
 
     def test_disable_while_the_bus_is_down_takes_effect_when_it_is_back(self, make):
         rig = make()
@@ -316,21 +307,42 @@ class TestFaultContract:
             rig.advance(REOPEN_BACKOFF_MAX_S)
             assert not any(s.torque_on for s in bus.read_state().joints.values())
 
-    def test_bus_watchdog_stops_the_head_when_the_host_falls_silent(self, make):
-        rig = make(watchdog_ms=100, joints={"pan": {"profile_velocity": 50.0, "profile_acceleration": 0}})
-        with rig.bus as bus:
-            bus.enable()
-            bus.write_goals({"pan": 80.0})  # 1.6 s at 50 deg/s
-            rig.advance(0.05)
-            bus.read_state()
-            rig.advance(1.0)  # the host is silent for 1 s
-            state = bus.read_state()
-            # Stopped 0.1 s after the last packet: about 0.15 s * 50 deg/s.
-            assert state["pan"].position == pytest.approx(7.5, abs=1.0)
-            assert not state["pan"].moving
-            # The host speaks again: the watchdog is re-armed and goals work.
-            bus.write_goals({"pan": 10.0})
-            rig.advance(0.05)
-            bus.read_state()
-            rig.advance(0.05)
-            assert bus.read_state()["pan"].position == pytest.approx(10.0, abs=TICK_DEG)
+
+# --- what only some servos have ------------------------------------------------------
+@pytest.mark.parametrize("make", ACCELERATION_BACKENDS, indirect=True)
+def test_profile_velocity_and_acceleration_shape_the_move(make):
+    rig = make(joints={"pan": {"profile_velocity": 50.0, "profile_acceleration": 500.0}})
+    with rig.bus as bus:
+        bus.enable()
+        bus.write_goals({"pan": 60.0})
+        # 0.1 s to reach 50 deg/s (2.5 deg), 1.1 s cruising, 0.1 s braking: 1.3 s.
+        rig.advance(0.6)
+        mid = bus.read_state()["pan"]
+        assert mid.moving
+        assert mid.velocity == pytest.approx(50.0, rel=0.05)
+        assert mid.position == pytest.approx(2.5 + 50.0 * 0.5, abs=1.0)
+        rig.advance(0.8)
+        end = bus.read_state()["pan"]
+        assert not end.moving
+        assert end.position == pytest.approx(60.0, abs=rig.tick_deg)
+
+
+@pytest.mark.parametrize("make", WATCHDOG_BACKENDS, indirect=True)
+def test_bus_watchdog_stops_the_head_when_the_host_falls_silent(make):
+    rig = make(watchdog_ms=100, joints={"pan": {"profile_velocity": 50.0, "profile_acceleration": 0}})
+    with rig.bus as bus:
+        bus.enable()
+        bus.write_goals({"pan": 80.0})  # 1.6 s at 50 deg/s
+        rig.advance(0.05)
+        bus.read_state()
+        rig.advance(1.0)  # the host is silent for 1 s
+        state = bus.read_state()
+        # Stopped 0.1 s after the last packet: about 0.15 s * 50 deg/s.
+        assert state["pan"].position == pytest.approx(7.5, abs=1.0)
+        assert not state["pan"].moving
+        # The host speaks again: the watchdog is re-armed and goals work.
+        bus.write_goals({"pan": 10.0})
+        rig.advance(0.05)
+        bus.read_state()
+        rig.advance(0.05)
+        assert bus.read_state()["pan"].position == pytest.approx(10.0, abs=rig.tick_deg)

@@ -101,3 +101,68 @@ def test_bus_down_hook_fails_open_until_restored():
     bus.restore_bus()
     with bus:
         assert not bus.is_down
+
+
+# --- wiring: the simulated head's truth, and its servos by id ---------------------------
+WIRING = {1: {"joint": "tilt", "direction": -1, "zero_offset": 10.0}, 2: {"joint": "pan"},
+          3: {"joint": "left_eye"}, 4: {"joint": "right_eye", "direction": -1}}
+
+
+def test_a_bus_drives_servos_by_id_and_the_wiring_decides_which_joint_moves():
+    from drivers.servo_config import ServoBusConfig
+
+    clock = ManualClock()
+    config = ServoBusConfig.from_mapping(config_mapping(wiring=WIRING))  # joints believe pan is id 1
+    bus = SimulatedServoBus(config, clock=clock, initial_positions={"pan": 0, "tilt": 0, "left_eye": 0,
+                                                                    "right_eye": 0})
+    with bus:
+        assert bus.true_position("tilt") == pytest.approx(0.0)  # servo 1 starts at its wired zero, 10 deg
+        bus.enable()
+        bus.write_goals({"pan": 15.0})  # servo 1: 15 deg from its centre
+        clock.advance(2.0)
+        assert bus.true_position("tilt") == pytest.approx(-5.0)  # -1 * (15 - 10)
+        assert bus.true_position("pan") == pytest.approx(0.0)
+
+
+def test_wiring_is_checked_and_only_the_simulated_bus_takes_it():
+    from drivers.dynamixel import DynamixelBus
+    from drivers.errors import ServoConfigError
+    from drivers.servo_config import PartialServoBusConfig, ServoBusConfig
+
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.wiring\.3\.joint: got 'pan', expected a joint not "
+                                               r"already wired to id 2"):
+        PartialServoBusConfig.from_mapping({"backend": "sim", "wiring": {**WIRING, 3: {"joint": "pan"}}})
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.wiring: .*right_eye missing"):
+        PartialServoBusConfig.from_mapping({"backend": "sim", "wiring": {k: WIRING[k] for k in (1, 2, 3)}})
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.wiring\.x: .*a servo id"):
+        PartialServoBusConfig.from_mapping({"backend": "sim", "wiring": {"x": {"joint": "pan"}}})
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.joints: missing"):
+        ServoBusConfig.from_mapping({"backend": "sim", "wiring": WIRING})  # a head to run needs its joints
+    config = ServoBusConfig.from_mapping(config_mapping(backend="dynamixel", wiring=WIRING))
+    with pytest.raises(ServoConfigError, match=r"servo_bus\.wiring: .*not used by the 'dynamixel' backend"):
+        config.check_applies_to(DynamixelBus)
+
+
+def test_the_probe_moves_servos_by_id_safely():
+    from drivers.errors import JointLimitError
+    from drivers.servo_config import PartialServoBusConfig
+    from drivers.servo_probe import MotionSafety, create_servo_probe
+
+    clock = ManualClock()
+    probe = create_servo_probe(PartialServoBusConfig.from_mapping({"backend": "sim", "wiring": WIRING}), clock=clock)
+    with probe:
+        assert [s.servo_id for s in probe.scan()] == [1, 2, 3, 4]
+        probe.limit_motion(2, MotionSafety(velocity_dps=10.0, acceleration_dps2=1e6, watchdog_s=0.5))
+        probe.set_torque(2, True)
+        probe.write_goal(2, 20.0)
+        for _ in range(10):  # the host reads it every 0.1 s: the watchdog stays quiet
+            clock.advance(0.1)
+            probe.status(2)
+        assert probe.status(2).position_deg == pytest.approx(10.0, abs=0.1)  # 10 deg/s
+        clock.advance(0.6)  # the host falls silent longer than the watchdog: it stops there
+        assert probe.status(2).position_deg == pytest.approx(15.0, abs=0.1)
+        assert not probe.status(2).moving
+        with pytest.raises(JointLimitError, match="id 2 .*outside the servo's own limits"):
+            probe.write_goal(2, 200.0)
+        probe.restore_motion(2)
+        assert probe.torque_limit(2) is None

@@ -1,6 +1,9 @@
 """Test rigs for the servo-bus contract suite: one servo bus plus the means to drive time
 and inject faults, for each backend (simulated, Dynamixel through the real SDK against the
-emulator, and a real bus for `-m hardware`).
+emulator in Protocol 2.0 and in Protocol 1.0 with MX-28s (Bulk Read) or AX-12As (per-servo
+reads), and a real bus for `-m hardware`).
+
+A rig says its servos' resolution (`tick_deg`), so that one contract holds for all of them.
 
 Time: the sim and emulator rigs run on a ManualClock. A sync write has no reply, so the
 emulator may not have handled it yet when a call returns: `advance()` first waits until
@@ -21,7 +24,8 @@ except ImportError as err:  # no silent skips: name the install step
 
 from drivers.clock import ManualClock, MonotonicClock
 from drivers.dxl_control_table import DEG_PER_TICK, XAddr, ticks_to_deg
-from drivers.dxl_emulator import DxlEmulator
+from drivers.dxl_control_table1 import P1_MODELS, P1Addr
+from drivers.dxl_emulator import DEFAULT_MODELS, DxlEmulator
 from drivers.dynamixel import DynamixelBus
 from drivers.servo_bus import JOINTS
 from drivers.servo_config import ServoBusConfig
@@ -31,7 +35,7 @@ IDS = {"pan": 1, "tilt": 2, "left_eye": 3, "right_eye": 4}
 
 
 def config_mapping(port: str = "/dev/null", backend: str = "sim", joints: dict[str, dict] | None = None,
-                   **bus: Any) -> dict:
+                   joint_defaults: dict[str, Any] | None = None, **bus: Any) -> dict:
     """A plain servo_bus mapping, as YAML would give it, with per-joint overrides."""
     data: dict[str, Any] = {
         "backend": backend,
@@ -47,6 +51,8 @@ def config_mapping(port: str = "/dev/null", backend: str = "sim", joints: dict[s
         },
     }
     data.update(bus)
+    for joint_data in data["joints"].values():
+        joint_data.update(joint_defaults or {})
     for joint, overrides in (joints or {}).items():
         data["joints"][joint].update(overrides)
     return data
@@ -55,6 +61,7 @@ def config_mapping(port: str = "/dev/null", backend: str = "sim", joints: dict[s
 class SimRig:
     kind = "sim"
     injects_faults = True
+    tick_deg = DEG_PER_TICK
 
     def __init__(self, **config: Any) -> None:
         self.clock = ManualClock(100.0)
@@ -87,15 +94,32 @@ class SimRig:
 
 
 class EmulatorRig:
-    kind = "dynamixel-emulator"
+    """The Dynamixel backend through the real SDK against the emulator: Protocol 2.0
+    X-series servos (`model` the emulated one; the config says XM430-W350), or with
+    `protocol=1.0` servos of `model` (AX-12A by default; the config names it too)."""
+
     injects_faults = True
 
-    def __init__(self, tmp_path, *, model: str = "XM430-W350", **config: Any) -> None:
+    def __init__(self, tmp_path, *, model: str | None = None, protocol: float = 2.0,
+                 firmware: int | dict[int, int] | None = None, fast_sync_read: bool = True, **config: Any) -> None:
+        self.protocol = protocol
         self.clock = ManualClock(100.0)
         self.link = str(tmp_path / "head-servos")
-        self.emulator = DxlEmulator(IDS.values(), model=model, clock=self.clock, link=self.link).start()
-        self.config = ServoBusConfig.from_mapping(config_mapping(port=self.link, backend="dynamixel", **config))
-        self.bus = DynamixelBus(self.config, clock=self.clock)
+        model = model or DEFAULT_MODELS[protocol]
+        self.kind = "dynamixel-emulator" if protocol == 2.0 else f"dynamixel-1.0-emulator ({model})"
+        self.p1_model = P1_MODELS.get(model) if protocol == 1.0 else None
+        self.emulator = DxlEmulator(IDS.values(), protocol=protocol, model=model, firmware=firmware,
+                                    clock=self.clock, link=self.link).start()
+        defaults: dict[str, Any] = {}
+        if self.p1_model is not None:
+            config["protocol"] = 1.0
+            defaults["model"] = model
+            if not self.p1_model.goal_acceleration:
+                defaults["profile_acceleration"] = 0
+        self.tick_deg = self.p1_model.deg_per_tick if self.p1_model else DEG_PER_TICK
+        self.config = ServoBusConfig.from_mapping(config_mapping(port=self.link, backend="dynamixel",
+                                                                 joint_defaults=defaults, **config))
+        self.bus = DynamixelBus(self.config, clock=self.clock, fast_sync_read=fast_sync_read)
 
     def advance(self, seconds: float) -> None:
         self.emulator.wait_idle()
@@ -103,14 +127,21 @@ class EmulatorRig:
 
     def servo_angle(self, joint: str) -> float:
         self.emulator.wait_idle()
-        return ticks_to_deg(self.emulator.servo(IDS[joint]).get(XAddr.PRESENT_POSITION, 4, signed=True))
+        servo = self.emulator.servo(IDS[joint])
+        if self.p1_model is not None:
+            return self.p1_model.ticks_to_deg(servo.get(P1Addr.PRESENT_POSITION, 2))
+        return ticks_to_deg(servo.get(XAddr.PRESENT_POSITION, 4, signed=True))
 
     def torque_on(self, joint: str) -> bool:
         self.emulator.wait_idle()
-        return self.emulator.servo(IDS[joint]).torque_on
+        return bool(self.emulator.servo(IDS[joint]).torque_on)
 
     def set_stale_goal(self, joint: str, servo_deg: float) -> None:
         servo = self.emulator.servo(IDS[joint])
+        if self.p1_model is not None:
+            servo.table[P1Addr.GOAL_POSITION:P1Addr.GOAL_POSITION + 2] = \
+                self.p1_model.deg_to_ticks(servo_deg).to_bytes(2, "little")
+            return
         servo.table[XAddr.GOAL_POSITION:XAddr.GOAL_POSITION + 4] = (2048 + round(servo_deg / DEG_PER_TICK)).to_bytes(4, "little")
 
     def hardware_error(self, joint: str, bits: int) -> None:
@@ -149,6 +180,8 @@ class HardwareRig:
         self.clock = MonotonicClock()
         self.config = ServoBusConfig.from_mapping(section)
         self.bus = DynamixelBus(self.config, clock=self.clock)
+        model = P1_MODELS.get(self.config.joints["pan"].model)
+        self.tick_deg = model.deg_per_tick if model else DEG_PER_TICK
 
     def advance(self, seconds: float) -> None:
         time.sleep(seconds)
@@ -168,6 +201,10 @@ def make_rig(kind: str, tmp_path, **config: Any):
         return SimRig(**config)
     if kind == "dynamixel-emulator":
         return EmulatorRig(tmp_path, **config)
+    if kind == "dynamixel-1.0-mx28-emulator":
+        return EmulatorRig(tmp_path, protocol=1.0, model="MX-28", **config)
+    if kind == "dynamixel-1.0-ax12a-emulator":
+        return EmulatorRig(tmp_path, protocol=1.0, model="AX-12A", **config)
     if kind == "hardware":
         return HardwareRig(**config)
     raise ValueError(kind)
