@@ -103,8 +103,16 @@ class Packet:
     crc_ok: bool
 
 
-class PacketParser:
-    """Splits a byte stream into packets, resynchronising on the header after garbage."""
+class StreamParser:
+    """Splits a byte stream into packets, resynchronising on the header after garbage.
+
+    What differs between the protocols is a packet's frame: `_frame(buf)` looks at a buffer
+    that starts with the header and says how long the packet there is (0: more bytes are
+    needed; None: not a packet, skip a byte), and `_packet(raw)` decodes a complete one.
+    """
+
+    header: bytes = HEADER
+    keep: int = len(HEADER) - 1  # bytes kept when no header is found: a header may be arriving
 
     def __init__(self) -> None:
         self._buffer = bytearray()
@@ -112,26 +120,42 @@ class PacketParser:
     def reset(self) -> None:
         self._buffer.clear()
 
+    def _frame(self, buf: bytearray) -> int | None:
+        raise NotImplementedError
+
+    def _packet(self, raw: bytes) -> Packet:
+        raise NotImplementedError
+
     def feed(self, data: bytes) -> Iterator[Packet]:
         self._buffer += data
         buf = self._buffer
         while True:
-            start = buf.find(HEADER)
+            start = buf.find(self.header)
             if start < 0:
-                del buf[: max(0, len(buf) - 3)]  # keep a possible partial header
+                del buf[: max(0, len(buf) - self.keep)]
                 return
             del buf[:start]
-            if len(buf) < 7:
-                return
-            length = struct.unpack_from("<H", buf, 5)[0]
-            if not 3 <= length <= MAX_PACKET_LENGTH:
+            end = self._frame(buf)
+            if end is None:
                 del buf[:1]
                 continue
-            end = 7 + length
-            if len(buf) < end:
+            if end == 0 or len(buf) < end:
                 return
             raw = bytes(buf[:end])
             del buf[:end]
-            crc_ok = crc16(raw[:-2]) == struct.unpack_from("<H", raw, end - 2)[0]
-            body = unstuff(raw[7:-2])
-            yield Packet(raw[4], body[0], body[1:], crc_ok)
+            yield self._packet(raw)
+
+
+class PacketParser(StreamParser):
+    """Protocol 2.0 packets: FF FF FD 00, id, a two-byte length, the stuffed body, CRC-16."""
+
+    def _frame(self, buf: bytearray) -> int | None:
+        if len(buf) < 7:
+            return 0
+        length: int = struct.unpack_from("<H", buf, 5)[0]
+        return 7 + length if 3 <= length <= MAX_PACKET_LENGTH else None
+
+    def _packet(self, raw: bytes) -> Packet:
+        crc_ok = crc16(raw[:-2]) == struct.unpack_from("<H", raw, len(raw) - 2)[0]
+        body = unstuff(raw[7:-2])
+        return Packet(raw[4], body[0], body[1:], crc_ok)

@@ -12,9 +12,7 @@ framing to dynamixel-sdk except for Bulk Read (`drivers.dxl_sdk.BulkRead1`).
 """
 from __future__ import annotations
 
-from collections.abc import Iterator
-
-from drivers.dxl_protocol import Packet
+from drivers.dxl_protocol import Packet, StreamParser
 
 HEADER = b"\xff\xff"
 BROADCAST_ID = 0xFE
@@ -38,41 +36,21 @@ def status_packet(servo_id: int, error: int, data: bytes = b"") -> bytes:
     return build_packet(servo_id, error, data)
 
 
-class PacketParser1:
-    """Splits a byte stream into packets, resynchronising on FF FF after garbage.
+class PacketParser1(StreamParser):
+    """Protocol 1.0 packets: FF FF, id, a one-byte length, instruction (or a status packet's
+    error byte), parameters, checksum. `crc_ok` says whether the checksum matched."""
 
-    The `instruction` of a parsed packet is its instruction byte (or a status packet's
-    error byte); `crc_ok` says whether the checksum matched.
-    """
+    header = HEADER
+    keep = 1  # a possible first FF
 
-    def __init__(self) -> None:
-        self._buffer = bytearray()
+    def _frame(self, buf: bytearray) -> int | None:
+        # FF FF FF ...: the id cannot be FF, so the header starts one byte later.
+        if len(buf) >= 3 and buf[2] == 0xFF:
+            return None
+        if len(buf) < 4:
+            return 0
+        length = buf[3]
+        return 4 + length if 2 <= length <= MAX_LENGTH - 4 else None
 
-    def reset(self) -> None:
-        self._buffer.clear()
-
-    def feed(self, data: bytes) -> Iterator[Packet]:
-        self._buffer += data
-        buf = self._buffer
-        while True:
-            start = buf.find(HEADER)
-            if start < 0:
-                del buf[: max(0, len(buf) - 1)]  # keep a possible first FF
-                return
-            del buf[:start]
-            # FF FF FF ...: the id cannot be FF, so the header starts one byte later.
-            if len(buf) >= 3 and buf[2] == 0xFF:
-                del buf[:1]
-                continue
-            if len(buf) < 4:
-                return
-            length = buf[3]
-            if not 2 <= length <= MAX_LENGTH - 4:
-                del buf[:1]
-                continue
-            end = 4 + length
-            if len(buf) < end:
-                return
-            raw = bytes(buf[:end])
-            del buf[:end]
-            yield Packet(raw[2], raw[4], raw[5:-1], checksum(raw[2:-1]) == raw[-1])
+    def _packet(self, raw: bytes) -> Packet:
+        return Packet(raw[2], raw[4], raw[5:-1], checksum(raw[2:-1]) == raw[-1])

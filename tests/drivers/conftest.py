@@ -6,7 +6,7 @@ from typing import Any
 
 import pytest
 
-from tests.support.servo_rigs import make_rig
+from tests.support.servo_rigs import EmulatorRig, make_rig
 
 
 @pytest.fixture
@@ -23,3 +23,19 @@ def make(request: pytest.FixtureRequest, tmp_path: Any) -> Iterator[Callable[...
     yield factory
     for rig in rigs:
         rig.close()
+
+
+@pytest.fixture
+def rig(tmp_path: Any) -> Iterator[Callable[..., EmulatorRig]]:
+    """rig(**config) -> an unopened Dynamixel rig on the emulator (Protocol 2.0 unless the
+    config says otherwise), closed afterwards."""
+    made: list[EmulatorRig] = []
+
+    def factory(**config: Any) -> EmulatorRig:
+        r = EmulatorRig(tmp_path, **config)
+        made.append(r)
+        return r
+
+    yield factory
+    for r in made:
+        r.close()

@@ -13,23 +13,9 @@ import drivers.dxl_emulator as dxl_emulator
 from drivers.dxl_control_table import XAddr
 from drivers.dxl_emulator import DxlEmulator
 from drivers.dxl_sdk import BlockingPortHandler, FastSyncRead
-from tests.support.servo_rigs import IDS, EmulatorRig
+from tests.support.servo_rigs import IDS
 
 IDS_IN_TURN = list(IDS.values())
-
-
-@pytest.fixture
-def rig(tmp_path):
-    made = []
-
-    def factory(**config):
-        r = EmulatorRig(tmp_path, **config)
-        made.append(r)
-        return r
-
-    yield factory
-    for r in made:
-        r.close()
 
 
 def _sdk_crc(data: bytes) -> int:

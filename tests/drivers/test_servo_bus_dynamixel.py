@@ -21,20 +21,6 @@ from headctl import cmd_servos
 from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping
 
 
-@pytest.fixture
-def rig(tmp_path):
-    made = []
-
-    def factory(**config):
-        r = EmulatorRig(tmp_path, **config)
-        made.append(r)
-        return r
-
-    yield factory
-    for r in made:
-        r.close()
-
-
 def _servo(r, joint):
     return r.emulator.servo(IDS[joint])
 
