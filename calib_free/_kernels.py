@@ -168,3 +168,50 @@ def best_coarse_nodes(coarse: np.ndarray, command: np.ndarray, motor_scale: np.n
                     keep[slot, 1] = y
                     keep[slot, 2] = d
     return keep
+
+
+@njit(cache=True, nogil=True)
+def rls_step(coef: np.ndarray, covariance: np.ndarray, phi: np.ndarray, command: np.ndarray, confidence: float,
+             forget: float) -> tuple[float, np.ndarray, float, bool]:
+    """One weighted, forgetting recursive-least-squares step, in place on `coef` (n, 3) and the
+    symmetric `covariance` (n, n), kept exactly symmetric.
+
+    Returns the features' leverage phi' P phi and the a-priori residual (3,) (both before the
+    step), the new covariance's trace, and whether it stayed positive on its diagonal and finite.
+    """
+    n = phi.shape[0]
+    p_phi = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += covariance[i, j] * phi[j]
+        p_phi[i] = acc
+    leverage = 0.0
+    for i in range(n):
+        leverage += phi[i] * p_phi[i]
+    residual = np.empty(3)
+    for a in range(3):
+        acc = command[a]
+        for i in range(n):
+            acc -= phi[i] * coef[i, a]
+        residual[a] = acc
+    scale = confidence / (forget + confidence * leverage)
+    gain = p_phi * scale
+    for i in range(n):
+        for a in range(3):
+            coef[i, a] += gain[i] * residual[a]
+    trace = 0.0
+    healthy = True
+    for i in range(n):
+        for j in range(i, n):
+            upper = (covariance[i, j] - gain[i] * p_phi[j]) / forget
+            lower = (covariance[j, i] - gain[j] * p_phi[i]) / forget
+            value = 0.5 * (upper + lower)
+            if not np.isfinite(value):
+                healthy = False
+            covariance[i, j] = value
+            covariance[j, i] = value
+        if covariance[i, i] <= 0.0:
+            healthy = False
+        trace += covariance[i, i]
+    return leverage, residual, trace, healthy

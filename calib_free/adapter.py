@@ -43,6 +43,7 @@ class Sample:
     command: np.ndarray  # the executed relative command
     confidence: float
     tag: int = -1  # the caller's id for it (a fixation index)
+    pose: np.ndarray | None = None  # (pan, tilt, vergence), deg, when the pre-fixation pair was taken
 
 
 class MapAdapter:
@@ -105,12 +106,18 @@ class MapAdapter:
         with self._queue.all_tasks_done:
             return self._queue.all_tasks_done.wait_for(lambda: self._queue.unfinished_tasks == 0, timeout_s)
 
-    def command(self, position: Vector) -> np.ndarray:
+    def command(self, position: Vector, pose: Vector | None = None) -> np.ndarray:
         with self._lock:
-            return self.map.command(position)
+            return self.map.command(position, pose=pose)
 
     def check_position(self, position: Vector) -> str:
         return self.map.check_position(position)  # the map's range never changes: no lock
+
+    def uncertainty(self, position: Vector, pose: Vector | None = None) -> float:
+        """The map's predictive variance at `position` (`GazeMap.uncertainty`), under the lock:
+        what the teaching exploration prefers."""
+        with self._lock:
+            return self.map.uncertainty(position, pose=pose)
 
     def with_map(self, fn: Callable[[GazeMap], T]) -> T:
         """Run `fn(map)` under the lock (saving, evaluating) without racing the adapter."""
@@ -141,7 +148,11 @@ class MapAdapter:
                 continue
             try:
                 with self._lock:
-                    result = self.map.adapt(sample.position, sample.command, confidence=sample.confidence)
+                    if sample.pose is None:  # as before poses existed (a map class may not take one)
+                        result = self.map.adapt(sample.position, sample.command, confidence=sample.confidence)
+                    else:
+                        result = self.map.adapt(sample.position, sample.command, confidence=sample.confidence,
+                                                pose=sample.pose)
                     self.progress = Progress.of(self.map)
                 if self.on_adapted is not None:
                     self.on_adapted(sample, result)

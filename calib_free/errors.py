@@ -12,3 +12,7 @@ class OutOfRangeError(CalibFreeError, ValueError):
 
 class MapFileError(CalibFreeError, ValueError):
     """A saved map that cannot be read: missing, corrupt, or made for another grid."""
+
+
+class CorrespondenceError(CalibFreeError, ValueError):
+    """Images that cannot be matched: wrong shapes, a patch larger than the image."""

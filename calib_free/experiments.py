@@ -5,7 +5,9 @@ Each experiment feeds random fixations (r, m) from `calib_free.sim.FixationSampl
 paper's figures -- retinal error (eq. 8) and per-axis output error |dW(r*)| -- averaged over
 the last 10 (section III), plus, every `landing_every` fixations, the single-saccade landing
 error in pixels (docs/architecture.md): the median distance from the left fovea at which a visible
-target lands after one command W(x, y, d).
+target lands after one command W(x, y, d). With `use_pose` (the default) each sample and each
+landing command carries the head's pose when the target was seen (`GazeMap`'s `pose=`);
+without it the map learns and answers from (x, y, d) alone, as the paper's does.
 
 `representation_floor` measures what the (x, y, d) representation allows on the same model:
 a k-nearest-neighbour regressor on many samples, scored the same way.
@@ -20,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from calib_free.gaze_map import GazeMap
-from calib_free.sim import FixationSample, FixationSampler, HeadModel, with_perturbation
+from calib_free.sim import FixationSample, FixationSampler, HeadModel, Surroundings, with_perturbation
 
 log = logging.getLogger(__name__)
 
@@ -122,17 +124,24 @@ def running_mean(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def landing_targets(head: HeadModel, count: int, disparity_range: tuple[float, float],
-                    seed: int) -> list[FixationSample]:
-    """`count` random visible targets, each with the pose the head is in when it is seen."""
-    sampler = FixationSampler(head, disparity_range, seed=seed)
+                    seed: int, surroundings: Surroundings | None = None) -> list[FixationSample]:
+    """`count` random visible targets, each with the pose the head is in when it is seen.
+
+    Without `surroundings` the poses, the targets' and the ones they are seen from, are uniform
+    over the joint limits, vergence included (targets anywhere from 17 cm to infinity);
+    with them every pose fixates the first surface straight ahead (`FixationSampler`), so the
+    targets are points of the surroundings seen from poses a head looking at them is in."""
+    sampler = FixationSampler(head, disparity_range, seed=seed, surroundings=surroundings)
     return [sampler.draw() for _ in range(count)]
 
 
-def landing_errors_px(head: HeadModel, targets: list[FixationSample],
-                      predict: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+Predictor = Callable[[np.ndarray, np.ndarray], np.ndarray]  # (positions (n, 3), poses (n, 3)) -> commands (n, 3)
+
+
+def landing_errors_px(head: HeadModel, targets: list[FixationSample], predict: Predictor) -> np.ndarray:
     """Where each target lands (px from the left fovea) after one predicted command."""
     positions = np.array([t.position for t in targets])
-    commands = predict(positions)
+    commands = predict(positions, np.array([t.pose_before for t in targets]))
     errors = np.empty(len(targets))
     for n, (t, m) in enumerate(zip(targets, commands)):
         after = head.limits.clamp(t.pose_before + head.perturbation.executed(m))
@@ -140,8 +149,11 @@ def landing_errors_px(head: HeadModel, targets: list[FixationSample],
     return errors
 
 
-def map_predictor(gm: GazeMap) -> Callable[[np.ndarray], np.ndarray]:
-    return lambda positions: np.array([gm.command(r) for r in positions])
+def map_predictor(gm: GazeMap, use_pose: bool = True) -> Predictor:
+    """The map's commands for targets, given the pose each was seen at (`use_pose`) or not."""
+    if use_pose:
+        return lambda positions, poses: np.array([gm.command(r, pose=q) for r, q in zip(positions, poses)])
+    return lambda positions, poses: np.array([gm.command(r) for r in positions])
 
 
 def representation_floor(head: HeadModel, disparity_range: tuple[float, float], samples: int = 50_000,
@@ -162,7 +174,7 @@ def representation_floor(head: HeadModel, disparity_range: tuple[float, float], 
         targets = landing_targets(head, 500, disparity_range, seed=seed + 1000)
     best = (np.inf, 0)
     for k in ks:
-        def predict(query: np.ndarray, k: int = k) -> np.ndarray:
+        def predict(query: np.ndarray, poses: np.ndarray, k: int = k) -> np.ndarray:
             dist, idx = tree.query(np.atleast_2d(query) * scale, k=k)
             if k == 1:
                 nearest: np.ndarray = commands[idx]
@@ -177,8 +189,10 @@ def representation_floor(head: HeadModel, disparity_range: tuple[float, float], 
 
 def run_experiment(spec: ExperimentSpec, gaze_map: GazeMap, head: HeadModel | None = None, seed: int = 0,
                    landing_every: int = 250, landing_count: int = 500,
-                   progress: Callable[[int], None] | None = None) -> ExperimentResult:
-    """Run `spec` on `gaze_map` (adapted in place) and the head model; returns the curves."""
+                   progress: Callable[[int], None] | None = None, use_pose: bool = True) -> ExperimentResult:
+    """Run `spec` on `gaze_map` (adapted in place) and the head model; returns the curves.
+
+    `use_pose`: samples and landing commands carry the pose each target was seen at."""
     head = head or HeadModel.default(*gaze_map.params.image_size)
     drange = gaze_map.params.disparity_range
     sampler = FixationSampler(head, drange, seed=seed)
@@ -194,13 +208,14 @@ def run_experiment(spec: ExperimentSpec, gaze_map: GazeMap, head: HeadModel | No
             targets = landing_targets(head, landing_count, drange, seed=seed + 7919 + n)
             log.info("fixation %d: %s", n, spec.description)
         sample = sampler.draw()
-        st = gaze_map.adapt(sample.position, sample.command, confidence=1.0)
+        st = gaze_map.adapt(sample.position, sample.command, confidence=1.0,
+                            pose=sample.pose_before if use_pose else None)
         if not st.accepted:  # the sampler keeps r inside the map; count it anyway
             result.refused += 1
         retinal[n] = st.retinal_error
         output[n] = st.output_error
         if landing_every and ((n + 1) % landing_every == 0 or n + 1 == spec.fixations):
-            errors = landing_errors_px(head, targets, map_predictor(gaze_map))
+            errors = landing_errors_px(head, targets, map_predictor(gaze_map, use_pose))
             result.landing.append((n + 1, float(np.median(errors))))
         if progress is not None:
             progress(1)
@@ -215,4 +230,4 @@ def final_head(spec: ExperimentSpec, head: HeadModel) -> HeadModel:
 
 
 __all__ = ["Change", "EXPERIMENTS", "ExperimentResult", "ExperimentSpec", "final_head", "landing_errors_px",
-           "landing_targets", "map_predictor", "representation_floor", "run_experiment", "running_mean"]
+           "landing_targets", "map_predictor", "Predictor", "representation_floor", "run_experiment", "running_mean"]

@@ -25,10 +25,12 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from calib_free.correspondence import (CorrespondenceParams, FixationMatch, as_grey_float, foveal_disparity,
-                                       match_fixation, stereo_inconsistency)
+from calib_free.correspondence import CorrespondenceParams, FixationMatch, match_fixation, stereo_inconsistency
+from calib_free.disparity import as_grey_float, foveal_disparity
 from calib_free.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
+from calib_free.exploration import (EXPLORATION_KINDS, ExplorationPolicy, ExplorationView, UncertainMap,
+                                    make_exploration, random_motor_command)
 from calib_free.gaze_map import Vector
 
 log = logging.getLogger(__name__)
@@ -65,10 +67,44 @@ class GazeHead(Protocol):
 
 
 class MapReader(Protocol):
-    def command(self, position: Vector) -> np.ndarray: ...
+    def command(self, position: Vector, pose: Vector | None = None) -> np.ndarray:
+        """The relative command for `position` seen at `pose` (pan, tilt, vergence)."""
 
     def check_position(self, position: Vector) -> str:
         """'' if the map covers `position`, else why not."""
+
+
+@dataclass(frozen=True)
+class LookParams:
+    """How a closed-loop look (`calib_free.closed_loop`) finds its target again and corrects."""
+
+    tolerance_px: float = 1.0  # the target this near the left fovea: the look is on target
+    max_corrective_steps: int = 3  # corrective fixations after the first before giving up
+    target_patch_size: tuple[int, int] = (21, 21)  # (w, h) of the target's patch, px
+    min_target_ncc: float = 0.7  # the target's patch matched less well than this: not found
+    ambiguity_ncc_margin: float = 0.1  # a second place matching within this of the best: ambiguous
+    search_radius_px: int | None = None  # how far from the fovea to search the target (None: width/3)
+    max_target_scale: float = 4.0  # the most the view may magnify the target's patch between views
+    # converged this far (deg) from the vergence the map gives the target's d: another depth, not the target
+    max_vergence_mismatch_deg: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.tolerance_px <= 0:
+            raise ValueError(f"tolerance_px must be positive, got {self.tolerance_px}")
+        if self.max_corrective_steps < 0:
+            raise ValueError(f"max_corrective_steps must be >= 0, got {self.max_corrective_steps}")
+        if min(self.target_patch_size) < 5:
+            raise ValueError(f"target_patch_size must be at least 5 x 5 pixels, got {self.target_patch_size}")
+        if not -1.0 < self.min_target_ncc < 1.0:
+            raise ValueError(f"min_target_ncc must be in (-1, 1), got {self.min_target_ncc}")
+        if not 0.0 <= self.ambiguity_ncc_margin < 1.0:
+            raise ValueError(f"ambiguity_ncc_margin must be in [0, 1), got {self.ambiguity_ncc_margin}")
+        if self.search_radius_px is not None and self.search_radius_px < 1:
+            raise ValueError(f"search_radius_px must be at least 1 px, got {self.search_radius_px}")
+        if not 1.0 <= self.max_target_scale <= 16.0:
+            raise ValueError(f"max_target_scale must be in [1, 16], got {self.max_target_scale}")
+        if self.max_vergence_mismatch_deg <= 0:
+            raise ValueError(f"max_vergence_mismatch_deg must be positive, got {self.max_vergence_mismatch_deg}")
 
 
 @dataclass(frozen=True)
@@ -92,7 +128,11 @@ class FixationParams:
     # (pan, tilt, vergence) from the current one: farther, what it fixates was rarely in
     # view before it, and such a fixation cannot teach.
     exploration_step_deg: tuple[float, float, float] = (35.0, 25.0, 20.0)
+    # Where exploratory fixations go (`calib_free.exploration`): "random", the paper's random
+    # commands in motor space, or "teaching", image targets chosen so that the fixation teaches.
+    exploration: str = "teaching"
     correspondence: CorrespondenceParams = field(default_factory=CorrespondenceParams)
+    look: LookParams = field(default_factory=LookParams)  # closed-loop looks (`calib_free.closed_loop`)
 
     def __post_init__(self) -> None:
         if self.vergence_tolerance_px <= 0:
@@ -103,6 +143,8 @@ class FixationParams:
             raise ValueError(f"confidence_floor must be in [0, 1], got {self.confidence_floor}")
         if self.executed_command not in ("encoders", "commanded"):
             raise ValueError(f"executed_command must be 'encoders' or 'commanded', got {self.executed_command!r}")
+        if self.exploration not in EXPLORATION_KINDS:
+            raise ValueError(f"exploration must be one of {', '.join(EXPLORATION_KINDS)}, got {self.exploration!r}")
 
 
 class FixationOutcome(enum.StrEnum):
@@ -154,6 +196,7 @@ class FixationRecord:
     index: int
     kind: FixationKind
     target: np.ndarray | None = None  # the client's (x, y, d)
+    explore_target: np.ndarray | None = None  # the image target an exploratory saccade was planned for
     planned: np.ndarray | None = None  # the saccade's relative command
     pose_before: np.ndarray | None = None
     pose_after: np.ndarray | None = None
@@ -165,6 +208,11 @@ class FixationRecord:
     outcome: FixationOutcome | None = None  # None while the fixation runs
     detail: str = ""
     duration_s: float = 0.0
+    # A target fixation's left image before the saccade and its pair at the end (at rest, after
+    # fine vergence), grey: what a closed-loop look finds its target in. Not in `as_dict()`.
+    pre_left_image: np.ndarray | None = field(default=None, repr=False)
+    final_left_image: np.ndarray | None = field(default=None, repr=False)
+    final_right_image: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def taught(self) -> bool:
@@ -178,11 +226,13 @@ class FixationRecord:
     def confidence(self) -> float:
         return float("nan") if self.match is None else self.match.confidence
 
+    _NOT_IN_DICT = frozenset({"match", "pre_left_image", "final_left_image", "final_right_image"})
+
     def as_dict(self) -> dict[str, Any]:
         def plain(v: Any) -> Any:
             return v.tolist() if isinstance(v, np.ndarray) else v
 
-        out = {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name != "match"}
+        out = {f.name: plain(getattr(self, f.name)) for f in dataclasses.fields(self) if f.name not in self._NOT_IN_DICT}
         out["position"] = plain(self.position)
         out["confidence"] = None if self.match is None else self.confidence
         out["factors"] = None if self.match is None else self.match.factors()
@@ -197,7 +247,8 @@ class FixationController:
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
-                 clock: Callable[[], float] = time.monotonic, learner: SampleSink | None = None) -> None:
+                 clock: Callable[[], float] = time.monotonic, learner: SampleSink | None = None,
+                 exploration: ExplorationPolicy | None = None) -> None:
         self.head = head
         self.map = gaze_map
         self.learner = learner  # taught fixations are submitted here
@@ -206,6 +257,10 @@ class FixationController:
         self.rng = np.random.default_rng(seed)
         self.clock = clock
         self.count = 0
+        p = self.params
+        # Where exploratory fixations go: `params.exploration`'s policy, drawing from `rng`.
+        self.exploration: ExplorationPolicy = exploration if exploration is not None else make_exploration(
+            p.exploration, self.rng, p.exploration_step_deg, p.correspondence, p.vergence_search_px)
 
     # -- the map's view of vergence ----------------------------------------------------------
     def vergence_gain(self, width: int, height: int) -> float:
@@ -230,11 +285,8 @@ class FixationController:
     def random_command(self, pose: np.ndarray) -> np.ndarray:
         """An exploratory command: to a uniformly random pose within the joint limits and
         `exploration_step_deg` of the current pose."""
-        step = np.asarray(self.params.exploration_step_deg, dtype=float)
-        low = np.maximum(self.head.pose_low, pose - step)
-        high = np.minimum(self.head.pose_high, pose + step)
-        command: np.ndarray = self.rng.uniform(low, np.maximum(low, high)) - pose
-        return command
+        return random_motor_command(self.rng, pose, self.head.pose_low, self.head.pose_high,
+                                    self.params.exploration_step_deg)
 
     def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None) -> FixationRecord:
         """One fixation: to a client's image target (x, y, d), or exploratory when None.
@@ -259,7 +311,9 @@ class FixationController:
         log.debug("fixation %d (%s): %s %s", record.index, record.kind, record.outcome, record.detail)
         if record.taught and self.learner is not None:
             assert record.position is not None and record.executed is not None
-            self.learner.submit(Sample(record.position, record.executed, record.confidence, tag=record.index))
+            self.learner.submit(Sample(record.position, record.executed, record.confidence, tag=record.index,
+                                       pose=record.pose_before))
+        self.exploration.observe(record)
         return record
 
     def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None) -> None:
@@ -268,14 +322,22 @@ class FixationController:
         # The pre-fixation pair, at rest.
         rest_s = head.wait_settled(p.settle_timeout_s)
         pre_left, pre_right = (as_grey_float(im) for im in head.wait_pair(rest_s, p.frame_timeout_s))
+        if target is not None:
+            record.pre_left_image = pre_left
         pose_before = head.read_pose()
         record.pose_before = pose_before
         height, width = pre_left.shape
         if target is None:
-            planned = self.random_command(pose_before)
+            gaze_map = self.map
+            choice = self.exploration.choose(ExplorationView(
+                pose_before, head.pose_low, head.pose_high, pre_left, pre_right,
+                lambda r: gaze_map.command(r, pose=pose_before), gaze_map.check_position,
+                (lambda r: gaze_map.uncertainty(r, pose=pose_before)) if isinstance(gaze_map, UncertainMap) else None))
+            planned, record.explore_target = choice.command, choice.target
         else:
             try:
-                planned = np.asarray(self.map.command(target), dtype=float)
+                seen_at = pose_before if reference_pose is None else np.asarray(reference_pose, dtype=float)
+                planned = np.asarray(self.map.command(target, pose=seen_at), dtype=float)
                 if reference_pose is not None:
                     planned = np.asarray(reference_pose, dtype=float) + planned - pose_before
             except OutOfRangeError as err:
@@ -315,6 +377,8 @@ class FixationController:
             rest_s = head.wait_settled(p.settle_timeout_s)
             left, right = head.wait_pair(rest_s, p.frame_timeout_s)
             last_step = (float(head.read_pose()[2] - before), disparity)
+        if target is not None:
+            record.final_left_image, record.final_right_image = as_grey_float(left), as_grey_float(right)
         pose_after = head.read_pose()
         record.pose_after = pose_after
         if p.executed_command == "encoders":
@@ -334,12 +398,15 @@ class FixationController:
         if problem:
             record.outcome, record.detail = FixationOutcome.POSITION_OUTSIDE, problem
             return
-        problem = stereo_inconsistency(record.match, pre_left, pre_right, p.correspondence)
+        # The stereo consistency check goes beyond eqs. 1-7: not in the paper's profile.
+        problem = "" if p.correspondence.paper else stereo_inconsistency(record.match, pre_left, pre_right,
+                                                                          p.correspondence)
         if problem:
             record.outcome, record.detail = FixationOutcome.INCONSISTENT, problem
             return
         if record.confidence < p.confidence_floor:
             record.outcome = FixationOutcome.LOW_CONFIDENCE
-            record.detail = f"c = {record.confidence:.2f} < {p.confidence_floor}"
+            record.detail = (f"c = {record.confidence:.2f} < {p.confidence_floor} (left {match.left.confidence:.2f}, "
+                             f"right {match.right.confidence:.2f})")
             return
         record.outcome = FixationOutcome.TAUGHT

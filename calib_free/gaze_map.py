@@ -15,7 +15,9 @@ Two profiles:
     confidence-weighted recursive least squares, R the grid learning P's residual by eqs.
     10-11; a memory that shrinks when the error jumps (the head changed) and regrows; a
     Cauchy weight against confident false correspondences; trilinear readout and a sub-node
-    inverse lookup.
+    inverse lookup; and, beyond the paper, a second fit of P that also takes the head's tilt
+    and vergence when the pre-fixation images were taken (`pose=` of `command` and `adapt`;
+    `calib_free.gaze_polynomial`). Without a pose the map answers from its pose-free P.
 
 Indices: grid coordinates are continuous node indices (i, j, k) along (x, y, d); pixel and
 disparity positions map onto them linearly, node 0 at the range's start and the last node
@@ -38,6 +40,7 @@ import numpy as np
 
 from calib_free import _kernels
 from calib_free.errors import OutOfRangeError
+from calib_free.gaze_polynomial import PolynomialPart, PosePolynomialPart
 
 log = logging.getLogger(__name__)
 
@@ -72,14 +75,19 @@ class GazeMapParams:
     global_memory_min: float = 30.0  # ... and right after it changed (the error jumped)
     surprise_threshold: float = 3.0  # median E of the window over its long-run level, lasting: the head changed
     robust_scale: float = 3.0  # > 0: samples this many median residuals off weigh half (Cauchy)
+    # Pose inputs (beyond the paper; need global_degree > 0): P also fitted on (x, y, d, tilt,
+    # vergence), used when a command or sample comes with the head's pose.
+    pose_degree: int = 2  # > 0: terms in (tilt, vergence) up to this degree; 0: no pose inputs
+    pose_position_degree: int = 5  # degree in (x, y, d) of the pose-aware P (at least global_degree)
+    pose_cross_degree: int = 2  # degree in (x, y, d) of the terms that multiply tilt and vergence
 
     @classmethod
     def profile_values(cls, profile: str, **overrides: Any) -> "GazeMapParams":
         base: dict[str, Any]
         if profile == "paper":
-            base = dict(profile="paper", interpolate=False, global_degree=0, robust_scale=0.0)
+            base = dict(profile="paper", interpolate=False, global_degree=0, robust_scale=0.0, pose_degree=0)
         elif profile == "default":
-            base = dict(profile="default", interpolate=True, global_degree=3)
+            base = dict(profile="default", interpolate=True, global_degree=3, pose_degree=2)
         else:
             raise ValueError(f"unknown gaze map profile {profile!r}: expected one of {', '.join(PROFILES)}")
         base.update(overrides)
@@ -118,12 +126,24 @@ class GazeMapParams:
                 raise ValueError(f"{name} must be above 0, got {getattr(self, name)}")
         if self.robust_scale < 0:
             raise ValueError(f"robust_scale must be >= 0, got {self.robust_scale}")
+        # Bounded so that the pose-aware fit stays small (at most 776 terms, a 4.8 MB covariance).
+        for name, top in (("pose_degree", 4), ("pose_position_degree", 10), ("pose_cross_degree", 4)):
+            value = getattr(self, name)
+            if not 0 <= value <= top:
+                raise ValueError(f"{name} must be an integer in [0, {top}], got {value!r}")
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
+    @property
+    def uses_pose(self) -> bool:
+        """Whether the map fits P on the head's pose too (pose_degree and global_degree > 0)."""
+        return self.pose_degree > 0 and self.global_degree > 0
+
     @classmethod
     def from_json(cls, text: str) -> "GazeMapParams":
+        """Parameters saved by `to_json`; a field missing (saved before it existed) takes its
+        profile's value."""
         data = json.loads(text)
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
@@ -132,7 +152,7 @@ class GazeMapParams:
         for key in ("image_size", "disparity_range", "grid_shape", "output_resolution"):
             data[key] = tuple(data[key])
         data["command_range"] = tuple(tuple(r) for r in data["command_range"])
-        return cls(**data)
+        return cls.profile_values(data.pop("profile"), **data)
 
 
 @dataclass
@@ -146,93 +166,6 @@ class AdaptResult:
     mean_retinal_error: float = float("nan")  # E-bar of eq. 9
     sigma_cells: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))  # eq. 9 widths, grid cells
     nodes_updated: int = 0
-
-
-class _PolynomialPart:
-    """The smooth global part of W in the default profile: a polynomial in (x, y, d).
-
-    Fitted by exponentially weighted recursive least squares, each sample weighted by its
-    confidence; the forgetting factor follows eq. 9's sigmoid of the mean retinal error, so
-    the fit remembers `memory` fixations while the map is right and only `memory_min` right
-    after the head has changed. Coordinates are grid indices scaled to [-1, 1] per axis.
-    """
-
-    def __init__(self, degree: int, shape: np.ndarray, command_range: np.ndarray, rng: np.random.Generator):
-        self.degree = degree
-        self.terms = np.array([(i, j, k) for i in range(degree + 1) for j in range(degree + 1 - i)
-                               for k in range(degree + 1 - i - j)], dtype=int)
-        self.half_span = (shape - 1) / 2.0
-        self._power_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
-        n = len(self.terms)
-        # Random initialisation like the paper's: a random smooth map, not a learned one.
-        centre = command_range.mean(axis=1)
-        span = command_range[:, 1] - command_range[:, 0]
-        self.coef = rng.normal(0.0, 0.1, size=(n, 3)) * span
-        self.coef[0] = centre + rng.uniform(-0.25, 0.25, size=3) * span
-        self.prior = 100.0  # P0 = 100 I: a weak prior, the first samples dominate at once
-        self.covariance = np.eye(n) * self.prior
-        self.coefficients_changed()
-
-    def coefficients_changed(self) -> None:
-        """Rebuild the dense (i, j, k, axis) coefficient tensor `block` contracts with."""
-        n = self.degree + 1
-        self.tensor = np.zeros((n, n, n, 3))
-        self.tensor[tuple(self.terms.T)] = self.coef
-
-    def _unit(self, g: np.ndarray) -> np.ndarray:
-        unit: np.ndarray = np.asarray(g, dtype=float) / self.half_span - 1.0
-        return unit
-
-    def features(self, g: np.ndarray) -> np.ndarray:
-        u = self._unit(g)
-        phi: np.ndarray = np.prod(u[None, :] ** self.terms, axis=1)
-        return phi
-
-    def at(self, g: np.ndarray) -> np.ndarray:
-        value: np.ndarray = self.features(g) @ self.coef
-        return value
-
-    def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1)) -> np.ndarray:
-        """Values at the nodes lo..hi (exclusive) with `stride`: (3, a, b, c)."""
-        px, py, pd = (self._powers(a, int(lo[a]), int(hi[a]), int(stride[a])) for a in range(3))
-        n = self.degree + 1
-        tensor = self.tensor
-        # Contract one axis at a time with plain matmuls (einsum's path search costs more here).
-        t = (px @ tensor.reshape(n, -1)).reshape(len(px), n, n * 3)  # (a, j, k*m)
-        t = np.matmul(py, t).reshape(len(px), len(py), n, 3)  # (a, b, k, m)
-        values: np.ndarray = np.matmul(pd, t).transpose(3, 0, 1, 2)  # (m, a, b, c)
-        return values
-
-    def _powers(self, axis: int, lo: int, hi: int, stride: int) -> np.ndarray:
-        key = (axis, lo, hi, stride)
-        powers = self._power_cache.get(key)
-        if powers is None:
-            unit = np.arange(lo, hi, stride, dtype=float) / self.half_span[axis] - 1.0
-            powers = unit[:, None] ** np.arange(self.degree + 1)[None, :]
-            if len(self._power_cache) < 4096:
-                self._power_cache[key] = powers
-        return powers
-
-    def learn(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float) -> None:
-        """One weighted RLS step on features `phi` (of the sample's position) and its command."""
-        forget = 1.0 - 1.0 / max(memory, 1.0)
-        p_phi = self.covariance @ phi
-        gain = p_phi * confidence / (forget + confidence * (phi @ p_phi))
-        self.coef += np.outer(gain, command - phi @ self.coef)
-        self.coefficients_changed()
-        covariance = (self.covariance - np.outer(gain, p_phi)) / forget
-        # Round-off makes P drift from symmetric and, thousands of samples on, indefinite,
-        # and then the fit diverges: keep it symmetric, and start it afresh if it broke.
-        covariance = 0.5 * (covariance + covariance.T)
-        if np.min(np.diag(covariance)) <= 0.0 or not np.all(np.isfinite(covariance)):
-            log.warning("gaze map: the least-squares covariance lost positive definiteness; reset")
-            covariance = np.eye(len(phi)) * self.prior
-        # Forgetting inflates P along directions no sample excites: keep it bounded.
-        limit = self.prior * len(phi)
-        trace = np.trace(covariance)
-        if trace > limit:
-            covariance *= limit / trace
-        self.covariance = covariance
 
 
 class GazeMap:
@@ -252,8 +185,10 @@ class GazeMap:
         shape = tuple(params.grid_shape)
         rng = np.random.default_rng(seed)
         command_range = np.array(params.command_range, dtype=float)
-        self.polynomial = (_PolynomialPart(params.global_degree, np.array(shape), command_range, rng)
+        self.polynomial = (PolynomialPart(params.global_degree, np.array(shape), command_range, rng)
                            if params.global_degree > 0 else None)
+        self.pose_polynomial: PosePolynomialPart | None = None
+        self.derive_pose_polynomial()
         if grid is None:
             if self.polynomial is None:
                 # "In all experiments the mapping has been initialized randomly" (III).
@@ -276,6 +211,10 @@ class GazeMap:
         self.surprised = 0.0  # surprise summed over the consecutive surprising windows
         self.residual_scale = 1.0  # running median of |m - W(r*)|, output cells (robust weighting)
         self.adaptations = 0
+        # Running mean square of |m - W(r*)| (output cells) of the map read without and with
+        # the pose, over the samples that carry one: a pose is used while it predicts better.
+        # Infinite until the first sample with a pose: a pose-aware fit that never learned.
+        self.fit_errors = np.array([0.0, np.inf])
         self._setup_geometry()
 
     def _setup_geometry(self) -> None:
@@ -295,6 +234,17 @@ class GazeMap:
         self._motor_scale = np.array(p.output_resolution) / (cmd[:, 1] - cmd[:, 0])
         self._half_span = (self._shape - 1) / 2.0
         self._coarse_stride = (4, 4, 2)
+
+    def derive_pose_polynomial(self) -> None:
+        """(Re)build the pose-aware P from the pose-free one, as it is now: what a new map, or
+        one that learned without poses (an older file), starts its pose-aware fit from."""
+        p = self.params
+        if self.polynomial is None or not p.uses_pose:
+            self.pose_polynomial = None
+            return
+        half_span = [(high - low) / 2.0 for low, high in p.command_range[1:]]  # tilt, vergence
+        self.pose_polynomial = PosePolynomialPart(self.polynomial, p.pose_position_degree, p.pose_cross_degree,
+                                                  p.pose_degree, half_span)
 
     @classmethod
     def for_image(cls, width: int, height: int, disparity_range: Sequence[float] = (-60.0, 60.0),
@@ -329,16 +279,55 @@ class GazeMap:
         position: np.ndarray = np.asarray(grid, dtype=float) / self._cells_per_unit + self._low
         return position
 
+    @staticmethod
+    def check_pose(pose: Vector | None) -> str:
+        """'' if `pose` is None or a pose (pan, tilt, vergence) the map can take, else what is wrong."""
+        q = np.zeros(3) if pose is None else np.asarray(pose, dtype=float)
+        if q.shape != (3,) or not np.all(np.isfinite(q)) or np.any(np.abs(q) > 360.0):
+            return f"pose must be 3 finite angles (pan, tilt, vergence) within +-360 deg, got {pose!r}"
+        return ""
+
+    @property
+    def pose_trusted(self) -> bool:
+        """Whether the pose-aware fit answers lookups with a pose: while it has predicted the
+        recent samples at least as well as the pose-free one. Right after the head changed the
+        pose-free fit (a sixth of the terms) re-learns faster and answers until the other has
+        caught up."""
+        return self.pose_polynomial is not None and bool(self.fit_errors[1] <= self.fit_errors[0])  # inf: never
+
+    def _pose_for_lookup(self, pose: Vector | None) -> np.ndarray | None:
+        """The pose as an array if one is given and the pose-aware fit answers, else None."""
+        return None if pose is None or not self.pose_trusted else np.asarray(pose, dtype=float)
+
     # -- readout -----------------------------------------------------------------------
-    def command(self, position: Vector) -> np.ndarray:
+    def command(self, position: Vector, pose: Vector | None = None) -> np.ndarray:
         """The relative command (dpan, dtilt, dverg) in degrees that fixates `position`.
 
-        Raises OutOfRangeError for a position outside the image or the disparity range.
+        `pose`: the head's (pan, tilt, vergence) in degrees when the image the position was
+        taken from was exposed. With it a map whose parameters use poses answers from its
+        pose-aware fit; without it (or on a map that does not use poses) from its pose-free one.
+        Raises OutOfRangeError for a position outside the image or the disparity range, or a
+        pose that is not 3 finite angles.
         """
-        problem = self.check_position(position)
+        problem = self.check_position(position) or self.check_pose(pose)
         if problem:
             raise OutOfRangeError(problem)
-        return self._value_at(self.to_grid(position))
+        return self._value_at(self.to_grid(position), self._pose_for_lookup(pose))
+
+    def uncertainty(self, position: Vector, pose: Vector | None = None) -> float:
+        """How uncertain the map is at `position` (and `pose`, as in `command`): the predictive
+        variance of P's command there, deg^2 summed over the motor axes (the least-squares
+        covariance along the position's features times the fit's running estimate of its
+        samples' noise, 1 deg^2 an axis before any sample): large where few samples came within
+        the memory. Without P (`paper` profile) 1.0 everywhere. Raises as `command` does."""
+        problem = self.check_position(position) or self.check_pose(pose)
+        if problem:
+            raise OutOfRangeError(problem)
+        g, q = self.to_grid(position), self._pose_for_lookup(pose)
+        if self.pose_polynomial is not None and q is not None:
+            return float(np.sum(self.pose_polynomial.predictive_variance(self.pose_polynomial.features(g, q))))
+        return float(np.sum(self.polynomial.predictive_variance(self.polynomial.features(g)))) \
+            if self.polynomial is not None else 1.0
 
     def _grid_at(self, g: np.ndarray) -> np.ndarray:
         if not self.params.interpolate:
@@ -356,49 +345,62 @@ class GazeMap:
         value: np.ndarray = cube @ weights
         return value
 
-    def _value_at(self, g: np.ndarray) -> np.ndarray:
+    def _value_at(self, g: np.ndarray, pose: np.ndarray | None = None) -> np.ndarray:
         value = self._grid_at(g)
-        if self.polynomial is not None:
+        if pose is not None and self.pose_polynomial is not None:
+            value += self.pose_polynomial.at(g, pose)
+        elif self.polynomial is not None:
             value += self.polynomial.at(g)
         return value
 
-    def _block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1)) -> np.ndarray:
+    def _block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1),
+               pose: np.ndarray | None = None) -> np.ndarray:
         """W at the nodes lo..hi (exclusive) with `stride`, planar: (3, a, b, c)."""
         values = self.grid[:, lo[0]:hi[0]:stride[0], lo[1]:hi[1]:stride[1], lo[2]:hi[2]:stride[2]]
-        if self.polynomial is not None:
+        if pose is not None and self.pose_polynomial is not None:
+            values = values + self.pose_polynomial.block(lo, hi, stride, pose)
+        elif self.polynomial is not None:
             values = values + self.polynomial.block(lo, hi, stride)
         return values
 
-    def node_values(self) -> np.ndarray:
-        """W at every node, (nx, ny, nd, 3) degrees."""
-        return np.array(self._block(np.zeros(3, int), self._shape).transpose(1, 2, 3, 0))
+    def node_values(self, pose: Vector | None = None) -> np.ndarray:
+        """W at every node, (nx, ny, nd, 3) degrees (at `pose`, as in `command`)."""
+        problem = self.check_pose(pose)
+        if problem:
+            raise OutOfRangeError(problem)
+        values = self._block(np.zeros(3, int), self._shape, pose=self._pose_for_lookup(pose))
+        return np.array(values.transpose(1, 2, 3, 0))
 
     # -- inverse lookup (eq. 8) ----------------------------------------------------------
-    def inverse(self, command: Vector) -> np.ndarray:
-        """The image position (x, y, d) the map associates with `command` (eq. 8's x_d, y_d, d_d).
+    def inverse(self, command: Vector, pose: Vector | None = None) -> np.ndarray:
+        """The image position (x, y, d) the map associates with `command` (eq. 8's x_d, y_d, d_d),
+        at `pose` as in `command`.
 
         Nearest node in motor space, the metric scaled by Table I's output resolution; found
         coarse-to-fine (a strided subgrid, then full resolution around the best few coarse
-        nodes). The coarse subgrid is a table of W refreshed every `COARSE_REFRESH` adaptations:
-        it only nominates candidates, which are then compared on the current map. With
-        `interpolate`, one Gauss-Newton step refines the result between nodes.
+        nodes). The coarse subgrid is a table of W refreshed every `COARSE_REFRESH` adaptations,
+        read without a pose (at a pose, W moves by a few nodes at most, within the boxes
+        searched around each candidate): it only nominates candidates, which are then compared
+        on the current map at the pose. With `interpolate`, one Gauss-Newton step refines the
+        result between nodes.
         """
         m = np.asarray(command, dtype=float)
         stride = np.array(self._coarse_stride)
+        q = self._pose_for_lookup(pose)
         if self._coarse is None or self._coarse_age >= self.COARSE_REFRESH:
             self._coarse = np.array(self._block(np.zeros(3, int), self._shape, stride))
             self._coarse_age = 0
-        n_best = min(self.COARSE_CANDIDATES, self._coarse[0].size)
-        centres = _kernels.best_coarse_nodes(self._coarse, m, self._motor_scale, n_best)
+        coarse = self._coarse
+        tensor = self._poly_tensor() if q is None or self.pose_polynomial is None else self.pose_polynomial.tensor_at(q)
+        n_best = min(self.COARSE_CANDIDATES, coarse[0].size)
+        centres = _kernels.best_coarse_nodes(coarse, m, self._motor_scale, n_best)
         starts = np.maximum(centres * stride - stride, 0)
         stops = np.minimum(centres * stride + stride + 1, self._shape)
-        node, _ = _kernels.nearest_node(self.grid, self._poly_tensor(), self._half_span, m, self._motor_scale,
-                                        starts, stops)
+        node, _ = _kernels.nearest_node(self.grid, tensor, self._half_span, m, self._motor_scale, starts, stops)
         if not self.params.interpolate:
             return self.to_position(node)
         # One Gauss-Newton step between nodes, the slopes from the neighbouring nodes.
-        value, slopes = _kernels.value_and_slopes(self.grid, self._poly_tensor(), self._half_span, node,
-                                                  self._shape)
+        value, slopes = _kernels.value_and_slopes(self.grid, tensor, self._half_span, node, self._shape)
         scaled = slopes * self._motor_scale[:, None]
         residual = (m - value) * self._motor_scale
         # Normal equations with a small ridge: stable where the map is flat along an axis.
@@ -422,6 +424,7 @@ class GazeMap:
         w, h = self.params.image_size
         centre = (w / 2.0, h / 2.0, sum(self.params.disparity_range) / 2.0)
         scratch.adapt(centre, scratch.command(centre), confidence=1.0)
+        scratch.adapt(centre, scratch.command(centre), confidence=1.0, pose=(0.0, 0.0, 10.0))  # and with a pose
         return time.perf_counter() - start_s
 
     # -- learning ----------------------------------------------------------------------
@@ -439,13 +442,17 @@ class GazeMap:
         """Eq. 9: the neighbourhood widths (grid cells) for a windowed mean retinal error."""
         return self._sigma_max_cells * self._sigmoid(mean_error)
 
-    def adapt(self, position: Vector, command: Vector, confidence: float = 1.0) -> AdaptResult:
+    def adapt(self, position: Vector, command: Vector, confidence: float = 1.0,
+              pose: Vector | None = None) -> AdaptResult:
         """Learn that `command` fixated what was at `position` (x*, y*, d*), with a confidence.
 
-        A position outside the map, a non-finite command or a confidence outside (0, 1] is
-        refused (nothing learned) and the result says why.
+        `pose`: the head's (pan, tilt, vergence) in degrees when the pre-fixation images were
+        taken. With it, a map that uses poses fits its pose-aware P too, and measures the
+        sample against it (retinal error, residual); the pose-free P learns from every sample.
+        A position outside the map, a non-finite command, a confidence outside (0, 1] or a
+        pose that is not 3 finite angles is refused (nothing learned) and the result says why.
         """
-        problem = self.check_position(position)
+        problem = self.check_position(position) or self.check_pose(pose)
         m = np.asarray(command, dtype=float)
         if not problem and (m.shape != (3,) or not np.all(np.isfinite(m))):
             problem = f"command must be 3 finite numbers (dpan, dtilt, dverg), got {command!r}"
@@ -457,14 +464,35 @@ class GazeMap:
         c = float(confidence)
         g = self.to_grid(position)
         polynomial = self.polynomial
+        pose_polynomial = self.pose_polynomial
+        q = self._pose_for_lookup(pose)  # the pose, if the map reads it for this sample
         value = self._grid_at(g)
+        phi_pose: np.ndarray | None = None
         if polynomial is not None:
             phi = polynomial.features(g)
-            value = value + phi @ polynomial.coef
+            if pose_polynomial is not None and pose is not None:
+                if not np.isfinite(self.fit_errors[1]):
+                    # The first sample with a pose: the pose-aware fit starts from what the
+                    # pose-free one has learned so far (from samples without poses).
+                    self.derive_pose_polynomial()
+                    pose_polynomial = self.pose_polynomial
+                    assert pose_polynomial is not None
+                phi_pose = pose_polynomial.features(g, np.asarray(pose, dtype=float))
+                free = value + phi @ polynomial.coef
+                aware = value + phi_pose @ pose_polynomial.coef
+                value = aware if q is not None else free
+                squares = np.array([np.sum(((m - v) * self._motor_scale) ** 2) for v in (free, aware)])
+                if np.isfinite(self.fit_errors[1]):
+                    self.fit_errors += (squares - self.fit_errors) / min(self.adaptations + 1,
+                                                                         2 * self.params.error_window)
+                else:
+                    self.fit_errors = squares
+            else:
+                value = value + phi @ polynomial.coef
         # Output error: |dW(x*, y*, d*)| of eq. 11 at the peak of the neighbourhood (G = 1).
         output_error = np.abs(c * (value - m))
         # Eq. 8: where the map, before this adaptation, would have put the target of m.
-        error = self.retinal_error(position, self.inverse(m))
+        error = self.retinal_error(position, self.inverse(m, q))
         self.recent_errors.append(error)
         mean_error = float(np.mean(self.recent_errors))
         # For telling a changed head from a false correspondence: the median of the window
@@ -495,10 +523,17 @@ class GazeMap:
             # 3x over the long-run level counts 1: 10 in a row; a prism's 10-15x counts 3-5).
             # The false alarms measured summed to 4.3 at most. While the memory regrows after a
             # change, the head is still being re-learned: one surprising window renews it.
+            surprised_before = self.surprised
             if surprise > p.surprise_threshold:
                 self.surprised += surprise / p.surprise_threshold
             else:
                 self.surprised = 0.0
+            if pose_polynomial is not None and self.surprised >= p.error_window > surprised_before:
+                # The head changed: the pose-aware fit starts over from what it holds, its
+                # covariance back to the prior (with five times the terms of the pose-free one
+                # it would otherwise take many memories to unlearn the old head); the pose-free
+                # fit answers until it has caught up (`pose_trusted`).
+                pose_polynomial.restart()
             recovering = self.memory < p.global_memory
             if self.surprised >= p.error_window or (recovering and self.surprised > 0.0):
                 self.memory = p.global_memory_min
@@ -512,13 +547,18 @@ class GazeMap:
                 # than news: Cauchy weight. The usual distance is tracked as a running median.
                 c *= 1.0 / (1.0 + (residual / (p.robust_scale * self.residual_scale)) ** 2)
                 self.residual_scale *= np.exp(0.05 if residual > self.residual_scale else -0.05)
-            polynomial.learn(phi, m, c, memory)
+            polynomial.learn(phi, m, c, memory, self.adaptations)
+            if pose_polynomial is not None and phi_pose is not None:
+                pose_polynomial.learn(phi_pose, m, c, memory, self.adaptations)
             # The residual grid forgets at the same pace: residuals learned against an old
             # polynomial must not outlive it. Applied in batches (one pass over the grid).
             self._pending_decay *= 1.0 - 1.0 / memory
             if self._pending_decay < 0.95:
                 self.settle()
-            target = m - phi @ polynomial.coef  # the grid learns the residual
+            # The grid learns the residual (of the fit this sample was read from).
+            target = m - phi @ polynomial.coef
+            if pose_polynomial is not None and phi_pose is not None and q is not None:
+                target = m - phi_pose @ pose_polynomial.coef
         touched = self._update(g, target, c, sigma)
         self.adaptations += 1
         return AdaptResult(accepted=True, retinal_error=error, output_error=output_error,

@@ -3,8 +3,12 @@
 A map file is a numpy .npz archive (a zip of .npy arrays), read without pickles: `format`
 (the file format's name and version), `params` (`GazeMapParams` as JSON), `grid`, the learning
 state (`recent_errors`, `adaptations`, `long_run_error`, `memory`, `residual_scale`,
-`surprised`) and, for a map with a polynomial part, `polynomial_coef` and
-`polynomial_covariance`. A map and its reloaded copy continue learning identically.
+`surprised`), for a map with a polynomial part `polynomial_coef`, `polynomial_covariance` and
+`polynomial_noise`, and for one that also fits it on the head's pose `pose_coef`,
+`pose_covariance`, `pose_noise` and `fit_errors`. A map and its reloaded copy continue learning identically.
+A file written before an entry existed still loads: its parameters take their profile's
+values, the noise estimates their prior, and a pose-aware part absent from it starts from
+the pose-free one (`GazeMap.derive_pose_polynomial`).
 
 Writing is atomic (temp file, fsync, rename), so a crash leaves the old file or the new one,
 never half of one; a crash can leave the temp file itself behind (`temporary_files` finds
@@ -53,9 +57,14 @@ FILE_FORMAT = "calib_free.GazeMap/1"
 REQUIRED_ENTRIES = frozenset({"params", "grid", "recent_errors", "adaptations", "long_run_error", "memory",
                               "residual_scale"})
 OPTIONAL_ENTRIES = frozenset({"surprised"})
-# ... and those a map with a polynomial part (global_degree > 0) adds.
+# ... those a map with a polynomial part (global_degree > 0) adds,
 POLYNOMIAL_ENTRIES = frozenset({"polynomial_coef", "polynomial_covariance"})
-ALL_ENTRIES = frozenset({"format"}) | REQUIRED_ENTRIES | OPTIONAL_ENTRIES | POLYNOMIAL_ENTRIES
+POLYNOMIAL_OPTIONAL_ENTRIES = frozenset({"polynomial_noise"})  # absent: the prior noise
+# ... and those of its pose-aware part (GazeMapParams.uses_pose): all, or none when it never
+# learned (a sample with a pose derives it from the pose-free part).
+POSE_ENTRIES = frozenset({"pose_coef", "pose_covariance", "pose_noise", "fit_errors"})
+ALL_ENTRIES = (frozenset({"format"}) | REQUIRED_ENTRIES | OPTIONAL_ENTRIES | POLYNOMIAL_ENTRIES
+               | POLYNOMIAL_OPTIONAL_ENTRIES | POSE_ENTRIES)
 
 # What a map file may hold at most: far above any map a head uses (the default grid is
 # 157,500 nodes, 3.8 MB), far below what would exhaust a machine's memory.
@@ -64,6 +73,7 @@ MAX_IMAGE_SIDE = 1 << 16  # pixels
 MAX_OUTPUT_RESOLUTION = 1 << 16  # cells per motor axis
 MAX_ERROR_WINDOW = 10_000  # recent_errors' length at most
 MAX_GLOBAL_DEGREE = 10  # 286 polynomial terms
+MAX_POSE_TERMS = 286 + 14 * 35  # GazeMapParams' bounds: position degree 10, pose degree 4, cross degree 4
 MAX_MAGNITUDE = 1e9  # no value a map holds comes near it; products of such values stay finite
 MAX_ADAPTATIONS = 1 << 62
 # residual_scale tracks the size of the map's residuals (output cells): never this small, and
@@ -71,7 +81,7 @@ MAX_ADAPTATIONS = 1 << 62
 MIN_RESIDUAL_SCALE = 1e-100
 MAX_FORMAT_CHARS = 64
 MAX_PARAMS_CHARS = 8192
-MAX_MEMBERS = 16  # a map file has at most 11
+MAX_MEMBERS = 16  # a map file has at most 16
 MAX_DIRECTORY_BYTES = 64 * 1024  # the zip's central directory (about 1 kB for a map file)
 MAX_HEADER_BYTES = 1024  # an .npy header (128 bytes for each entry numpy writes)
 _NPY_PREFIX_BYTES = 6 + 2 + 4  # magic string, version, header length (4 bytes in version 2.0)
@@ -84,7 +94,8 @@ def _max_terms(degree: int) -> int:
 
 # The largest file those limits allow: the arrays, the texts (4 bytes a character), each
 # member's headers, the directory.
-MAX_FILE_BYTES = (8 * (3 * MAX_GRID_NODES + MAX_ERROR_WINDOW + 2 * _max_terms(MAX_GLOBAL_DEGREE) ** 2 + 8)
+MAX_FILE_BYTES = (8 * (3 * MAX_GRID_NODES + MAX_ERROR_WINDOW + 2 * _max_terms(MAX_GLOBAL_DEGREE) ** 2
+                       + MAX_POSE_TERMS ** 2 + 3 * MAX_POSE_TERMS + 16)
                   + 4 * (MAX_FORMAT_CHARS + MAX_PARAMS_CHARS) + MAX_MEMBERS * (_MEMBER_OVERHEAD + 512)
                   + MAX_DIRECTORY_BYTES)
 
@@ -114,6 +125,12 @@ def map_entries(gaze_map: GazeMap) -> dict[str, np.ndarray]:
     if gaze_map.polynomial is not None:
         arrays["polynomial_coef"] = gaze_map.polynomial.coef
         arrays["polynomial_covariance"] = gaze_map.polynomial.covariance
+        arrays["polynomial_noise"] = gaze_map.polynomial.noise_variance
+    if gaze_map.pose_polynomial is not None and np.isfinite(gaze_map.fit_errors).all():  # else never learned
+        arrays["pose_coef"] = gaze_map.pose_polynomial.coef
+        arrays["pose_covariance"] = gaze_map.pose_polynomial.covariance
+        arrays["pose_noise"] = gaze_map.pose_polynomial.noise_variance
+        arrays["fit_errors"] = gaze_map.fit_errors
     return arrays
 
 
@@ -206,7 +223,21 @@ def _specs(params: GazeMapParams) -> dict[str, _Spec]:
         terms = _max_terms(params.global_degree)
         specs["polynomial_coef"] = _Spec("f", (terms, 3))
         specs["polynomial_covariance"] = _Spec("f", (terms, terms))
+        specs["polynomial_noise"] = _Spec("f", (3,))
+    if params.uses_pose:
+        terms = pose_terms(params)
+        specs["pose_coef"] = _Spec("f", (terms, 3))
+        specs["pose_covariance"] = _Spec("f", (terms, terms))
+        specs["pose_noise"] = _Spec("f", (3,))
+        specs["fit_errors"] = _Spec("f", (2,))
     return specs
+
+
+def pose_terms(params: GazeMapParams) -> int:
+    """The number of terms of the pose-aware polynomial part of a map with `params`."""
+    pose_monomials = (params.pose_degree + 1) * (params.pose_degree + 2) // 2 - 1  # of (tilt, vergence)
+    return (_max_terms(max(params.pose_position_degree, params.global_degree))
+            + pose_monomials * _max_terms(params.pose_cross_degree))
 
 
 def read_map(path: str | os.PathLike[str], map_class: type[_Map]) -> _Map:
@@ -261,7 +292,11 @@ def _read(path: Path, map_class: type[_Map]) -> _Map:
             unexpected = sorted(members.keys() - specs.keys())
             if unexpected:
                 raise MapFileError(f"{path}: entries {unexpected} do not belong in a map file with "
-                                   f"global_degree {params.global_degree}")
+                                   f"global_degree {params.global_degree} and pose_degree {params.pose_degree}")
+            pose_found = sorted(POSE_ENTRIES & members.keys())
+            if pose_found and len(pose_found) != len(POSE_ENTRIES):
+                raise MapFileError(f"{path}: entries {pose_found} without {sorted(POSE_ENTRIES - members.keys())}; "
+                                   f"a map file holds all of {sorted(POSE_ENTRIES)} or none")
             arrays = {name: _read_array(archive, members[name], specs[name], name, path)
                       for name in members if name not in _TEXT_SPECS}
     return _build(path, map_class, params, arrays)
@@ -499,13 +534,25 @@ def _build(path: Path, map_class: type[_Map], params: GazeMapParams, arrays: dic
         problems.append(f"residual_scale is {residual_scale:g}, expected at least {MIN_RESIDUAL_SCALE:g}")
     if surprised < 0:
         problems.append(f"surprised is {surprised:g}, expected at least 0")
+    for name in ("polynomial_noise", "pose_noise", "fit_errors"):
+        if name in arrays and (arrays[name] < 0).any():
+            problems.append(f"{name} is {arrays[name].tolist()}, expected variances (at least 0)")
     if problems:
         raise MapFileError(f"{path}: {'; '.join(problems)}")
     gm = map_class(params, grid=arrays["grid"])
     if gm.polynomial is not None:
         gm.polynomial.coef = arrays["polynomial_coef"]
         gm.polynomial.covariance = arrays["polynomial_covariance"]
+        if "polynomial_noise" in arrays:
+            gm.polynomial.noise_variance = arrays["polynomial_noise"]
         gm.polynomial.coefficients_changed()
+        gm.derive_pose_polynomial()  # a file without the pose-aware part: it starts from this one
+    if gm.pose_polynomial is not None and "pose_coef" in arrays:
+        gm.pose_polynomial.coef = arrays["pose_coef"]
+        gm.pose_polynomial.covariance = arrays["pose_covariance"]
+        gm.pose_polynomial.noise_variance = arrays["pose_noise"]
+        gm.fit_errors = arrays["fit_errors"]
+        gm.pose_polynomial.coefficients_changed()
     gm.recent_errors.extend(float(e) for e in recent_errors)
     gm.adaptations = adaptations
     gm.long_run_error = long_run_error

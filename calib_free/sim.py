@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -41,6 +41,13 @@ def _rot_z(angle_rad: float) -> np.ndarray:
 def _rot_y(angle_rad: float) -> np.ndarray:
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+class Surroundings(Protocol):
+    """What the head can fixate: the first surface a ray meets (world, metres)."""
+
+    def first_surface(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray | None:
+        """The first point along the ray from `origin` in the unit `direction`; None if none."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +165,18 @@ class HeadModel:
         point: np.ndarray = self.head_rotation(pose) @ np.array([forward + distance, 0.0, up])
         return point
 
+    def vergence_fixating(self, pan_tilt: np.ndarray, surroundings: Surroundings) -> float | None:
+        """The vergence whose fixation point at (pan, tilt) is the first surface straight ahead
+        (along the head's forward axis midway between the eyes); None if no surface is there."""
+        rotation = self.head_rotation(np.asarray(pan_tilt, dtype=float))
+        forward, up = self.eye_offset_m
+        origin = rotation @ np.array([forward, 0.0, up])
+        point = surroundings.first_surface(origin, rotation[:, 0])
+        if point is None:
+            return None
+        distance = float(np.linalg.norm(point - origin))
+        return float(np.degrees(2.0 * np.arctan2(self.effective_baseline_m / 2, distance)))
+
     # -- optics ------------------------------------------------------------------------
     def project(self, points: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Left pixels, right pixels (N, 2) and seen-by-both mask (N,) of world points (N, 3).
@@ -212,23 +231,46 @@ class FixationSampler:
     head by what the (perturbed) motors really do. A fixated point not seen by both eyes
     before the move, or whose disparity is outside `disparity_range`, gives no sample (the
     real system would find no correspondence), and the sampler draws again.
+
+    With `surroundings` the vergence is not drawn: each pose fixates the first surface straight
+    ahead (`HeadModel.vergence_fixating`), as a head looking at the things around it does; a
+    pose whose vergence for that surface is outside the limits is drawn again.
     """
 
     def __init__(self, head: HeadModel, disparity_range: tuple[float, float] = (-60.0, 60.0),
-                 seed: int | None = 0, start_pose: np.ndarray | None = None) -> None:
+                 seed: int | None = 0, start_pose: np.ndarray | None = None,
+                 surroundings: Surroundings | None = None) -> None:
         self.head = head
         self.disparity_range = disparity_range
         self.rng = np.random.default_rng(seed)
+        self.surroundings = surroundings
         mid = (head.limits.low + head.limits.high) / 2
         self.pose = np.array(start_pose if start_pose is not None else mid, dtype=float)
+        if start_pose is None and surroundings is not None:  # verged on what is straight ahead
+            vergence = head.vergence_fixating(self.pose[:2], surroundings)
+            if vergence is not None:
+                self.pose[2] = float(np.clip(vergence, *head.limits.vergence))
+
+    def _pose_to_reach(self) -> np.ndarray | None:
+        """A uniformly random pose within the limits; with `surroundings`, its vergence the one
+        fixating them (None if that is outside the limits or nothing is there)."""
+        limits = self.head.limits
+        reached: np.ndarray = self.rng.uniform(limits.low, limits.high)
+        if self.surroundings is not None:
+            vergence = self.head.vergence_fixating(reached[:2], self.surroundings)
+            if vergence is None or not limits.vergence[0] <= vergence <= limits.vergence[1]:
+                return None
+            reached[2] = vergence
+        return reached
 
     def draw(self, move: bool = True, max_tries: int = 10_000) -> FixationSample:
         """The next usable (r, m) pair; with move=False the head stays where it is (a probe)."""
-        limits = self.head.limits
         for _ in range(max_tries):
             # Draw where the head really goes, then the command that takes it there through
             # the (perturbed) motors: the pair stays exact even near the joint limits.
-            reached = self.rng.uniform(limits.low, limits.high)
+            reached = self._pose_to_reach()
+            if reached is None:
+                continue
             command = self.head.perturbation.command_for(reached - self.pose)
             target = self.head.fixation_point(reached)
             if target is None:

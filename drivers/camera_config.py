@@ -8,7 +8,9 @@ use is refused rather than ignored. Sizes are bounded before anything is allocat
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 from drivers import backends
@@ -127,21 +129,71 @@ class CameraConfig:
 
 
 _COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
+_PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")  # as drivers.sim_textures reads them
 
 
 @dataclass(frozen=True)
-class StereoCamerasConfig:
-    """The `cameras:` section of a head's config: a left and a right camera, and the pair's
-    timestamp tolerance (None: half a frame period of the slower camera)."""
+class SceneConfig:
+    """The simulated head's room (`cameras.scene`, simulated cameras only): the generated room
+    (noise, checkerboards, stripes) or the photo room, papered with scikit-image's
+    photographs or with those of the folder `textures` (`drivers.sim_textures`)."""
 
-    left: CameraConfig
-    right: CameraConfig
-    tolerance_s: float | None = setting(None, lo=0.0)  # at most 10 s, checked in __post_init__
+    room: Literal["generated", "photos"] | None = None  # None: photos when textures is given
+    textures: str | None = None  # a folder of .jpg/.png photographs (~ and $VARS expanded)
 
     CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
 
     def __post_init__(self) -> None:
         check_settings(self)
+        if self.textures is None:
+            return
+        if self.room == "generated":
+            raise CameraConfigError(key_path="room", value=self.room,
+                                    expected=f"photos (or no room): textures {self.textures!r} papers the photo room")
+        folder = self.folder
+        assert folder is not None
+        try:
+            found = folder.is_dir() and any(p.suffix.lower() in _PHOTO_SUFFIXES for p in folder.iterdir())
+        except OSError as err:
+            raise CameraConfigError(key_path="textures", value=self.textures,
+                                    expected=f"a readable folder of photographs ({err.strerror})") from err
+        if not found:
+            raise CameraConfigError(key_path="textures", value=self.textures,
+                                    expected=f"a folder holding .jpg, .jpeg or .png photographs ({folder}: "
+                                             f"{'none there' if folder.is_dir() else 'no such folder'})")
+
+    @property
+    def kind(self) -> str:
+        """The room: "generated" or "photos"."""
+        return self.room or ("photos" if self.textures is not None else "generated")
+
+    @property
+    def folder(self) -> Path | None:
+        """The folder of photographs, ~ and $VARS expanded (None: scikit-image's)."""
+        return None if self.textures is None else Path(os.path.expandvars(self.textures)).expanduser()
+
+
+@dataclass(frozen=True)
+class StereoCamerasConfig:
+    """The `cameras:` section of a head's config: a left and a right camera, and the pair's
+    timestamp tolerance (None: half a frame period of the slower camera) and, for simulated
+    cameras, the room they see (`scene`)."""
+
+    left: CameraConfig
+    right: CameraConfig
+    tolerance_s: float | None = setting(None, lo=0.0)  # at most 10 s, checked in __post_init__
+    scene: SceneConfig = setting(default_factory=SceneConfig)  # the simulated room
+
+    CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+        if self.scene != SceneConfig():
+            for side in ("left", "right"):
+                if getattr(self, side).backend != "sim":
+                    raise CameraConfigError(key_path="scene", value=dataclasses.asdict(self.scene),
+                                            expected=f"no scene: cameras.{side} is not simulated (backend: sim), "
+                                                     "and the scene is the simulated head's room")
         if self.tolerance_s is not None and self.tolerance_s > 10.0:
             raise CameraConfigError(key_path="tolerance_s", value=self.tolerance_s,
                                     expected="at most 10 s (a stereo pair is taken at one moment)")

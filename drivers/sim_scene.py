@@ -16,6 +16,7 @@ per frame, then one `cv2.remap` of a texture atlas. No Python loop over pixels.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 from collections.abc import Mapping, Sequence
@@ -26,10 +27,13 @@ from typing import Literal, Protocol
 import cv2
 import numpy as np
 
+from drivers.sim_textures import PhotoSet, photo_set, photo_texture
+
 log = logging.getLogger(__name__)
 
 JOINTS = ("pan", "tilt", "left_eye", "right_eye")
-TextureKind = Literal["rich", "checker", "stripes", "uniform"]
+TextureKind = Literal["rich", "checker", "stripes", "uniform", "photo"]
+ROOMS = ("generated", "photos")  # the rooms `shared_scene` builds: `default_boxes`, `photo_boxes`
 _BORDER_PX = 2  # replicated texels around each face so bilinear sampling never bleeds
 _ATLAS_WIDTH = 4096
 
@@ -40,6 +44,13 @@ class Lens(Protocol):
 
     def unproject(self, uv: np.ndarray) -> np.ndarray: ...
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class SceneMotion(Protocol):
+    """What moves in a scene (`drivers.sim_motion.SceneMotion`): each box's translation now."""
+
+    def box_offsets(self) -> np.ndarray | None:
+        """(boxes, 3) metres each box is moved from where the scene placed it; None: none moves."""
 
 
 class HeadGeometry(Protocol):
@@ -89,6 +100,13 @@ def default_boxes() -> list[Box]:
     ]
 
 
+def photo_boxes() -> list[Box]:
+    """The photo room: the default room's geometry (walls from 0.5 m to 3 m, objects between),
+    every surface papered with photographs (`drivers.sim_textures`)."""
+    return [dataclasses.replace(box, texture="photo", texels_per_m=max(300.0, box.texels_per_m))
+            for box in default_boxes()]
+
+
 # --- textures ----------------------------------------------------------------------------
 def _texture(kind: TextureKind, rng: np.random.Generator, height: int, width: int, texels_per_m: float) -> np.ndarray:
     """A float32 grey texture in 0..255: rich, periodic or nearly uniform."""
@@ -136,15 +154,23 @@ class _Face:
 
 
 class Scene:
-    """Boxes with textured faces packed into one atlas, deterministic for a seed."""
+    """Boxes with textured faces packed into one atlas, deterministic for a seed. `motion`, if
+    set, moves boxes (their texture with them) at each frame rendered.
+
+    Faces of texture "photo" are papered from `photos` (default: scikit-image's photographs,
+    `drivers.sim_textures.bundled_photos`)."""
 
     def __init__(self, boxes: Sequence[Box] | None = None, seed: int = 0, colour: bool = True,
-                 markers: Sequence[Marker] = ()) -> None:
+                 markers: Sequence[Marker] = (), photos: PhotoSet | None = None) -> None:
         self.boxes = list(boxes if boxes is not None else default_boxes())
         if not self.boxes or not self.boxes[0].inside or any(b.inside for b in self.boxes[1:]):
             raise ValueError("a scene needs exactly one room (inside=True), first in the list")
+        if photos is None and any(b.texture == "photo" for b in self.boxes):
+            photos = photo_set(None)
+        self.photos = photos
         self.seed = seed
         self.colour = colour
+        self.motion: SceneMotion | None = None  # what moves (drivers.sim_motion), if anything
         self.lo = np.array([b.lo for b in self.boxes], dtype=np.float32)
         self.hi = np.array([b.hi for b in self.boxes], dtype=np.float32)
         self.faces = self._layout()
@@ -191,10 +217,15 @@ class Scene:
         for face in self.faces:
             box = self.boxes[face.box]
             w, h = face.size_px
-            grey = _texture(box.texture, rng, h, w, box.texels_per_m) * shade[(face.axis, face.side)]
-            # A faint tint per box (saturation kept low: a pure red marker stays unique).
-            tint = 1.0 + rng.uniform(-0.08, 0.08, channels) if self.colour else np.ones(1)
-            rgb = np.clip(grey[:, :, None] * tint[None, None, :].astype(np.float32), 0, 255)
+            if box.texture == "photo":
+                assert self.photos is not None  # set in __init__ when a box is papered with photos
+                bgr = photo_texture(self.photos, rng, h, w, box.texels_per_m) * shade[(face.axis, face.side)]
+                rgb = bgr if self.colour else cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+            else:
+                grey = _texture(box.texture, rng, h, w, box.texels_per_m) * shade[(face.axis, face.side)]
+                # A faint tint per box (saturation kept low: a pure red marker stays unique).
+                tint = 1.0 + rng.uniform(-0.08, 0.08, channels) if self.colour else np.ones(1)
+                rgb = np.clip(grey[:, :, None] * tint[None, None, :].astype(np.float32), 0, 255)
             padded = cv2.copyMakeBorder(rgb, _BORDER_PX, _BORDER_PX, _BORDER_PX, _BORDER_PX, cv2.BORDER_REPLICATE)
             if padded.ndim == 2:
                 padded = padded[:, :, None]
@@ -304,13 +335,17 @@ class EyeRenderer:
                  for i in range(8) for j in range(8) if i < j and bin(i ^ j).count("1") == 1]
         return np.concatenate(edges)
 
-    def _footprints(self, rotation: np.ndarray, centre: np.ndarray) -> list[tuple[slice, slice] | None]:
+    def _footprints(self, rotation: np.ndarray, centre: np.ndarray,
+                    shift: np.ndarray | None = None) -> list[tuple[slice, slice] | None]:
         """For each box after the room: the image rows/columns it can cover, None if none
         (everything when a box comes near the camera or the lens's limit: no safe bound)."""
         n_boxes = len(self.scene.boxes) - 1
         if n_boxes == 0:
             return []
-        cam = (self._edge_points - centre) @ np.asarray(rotation, float).T
+        points = self._edge_points
+        if shift is not None:  # moving boxes: their edges where they are now
+            points = points + np.repeat(shift[1:], len(points) // n_boxes, axis=0)
+        cam = (points - centre) @ np.asarray(rotation, float).T
         uv = self.lens.project(cam)[0].reshape(n_boxes, -1, 2)
         cam = cam.reshape(n_boxes, -1, 3)
         unsure = ((cam[:, :, 2] < 0.05) | (np.hypot(cam[:, :, 0], cam[:, :, 1]) > 5.0 * cam[:, :, 2])).any(axis=1)
@@ -341,9 +376,11 @@ class EyeRenderer:
             np.minimum(best, t[2], out=best)
             # Face ids in uint8 throughout: byte-wide temporaries, and what cv2.LUT indexes with.
             face = np.where(nearer_z, _u8(d[2] > 0) + 4, np.where(nearer_y, _u8(d[1] > 0) + 2, _u8(d[0] > 0)))
-            for b, window in enumerate(self._footprints(rotation, centre), start=1):
+            # A box moved by s is met where the ray from o - s meets it unmoved.
+            shift = scene.motion.box_offsets() if scene.motion is not None else None
+            for b, window in enumerate(self._footprints(rotation, centre, shift), start=1):
                 if window is not None:
-                    self._hit_box(b, window, o, d, inv, best, face)
+                    self._hit_box(b, window, o if shift is None else o - shift[b], d, inv, best, face)
         # Atlas coordinates. A face's in-plane axes are (y, z), (x, z) or (x, y) by its normal, and
         # atlas x = su * (o_u + t d_u) + ou = (su t) d_u + (su o_u + ou): the per-face constant
         # folds the eye's position in, so per pixel it is one product and one LUT per map.
@@ -354,8 +391,11 @@ class EyeRenderer:
         faces = self._face_axes
         offset_x = np.zeros(256, np.float32)
         offset_y = np.zeros(256, np.float32)
-        offset_x[:len(faces)] = lut["su"][:len(faces)] * o[faces[:, 0]] + lut["ou"][:len(faces)]
-        offset_y[:len(faces)] = lut["sv"][:len(faces)] * o[faces[:, 1]] + lut["ov"][:len(faces)]
+        # Each face's eye position relative to its box (a moving box carries its texture).
+        origin = np.broadcast_to(o, (len(faces), 3)) if shift is None else o - np.repeat(shift, 6, axis=0)
+        rows = np.arange(len(faces))
+        offset_x[:len(faces)] = lut["su"][:len(faces)] * origin[rows, faces[:, 0]] + lut["ou"][:len(faces)]
+        offset_y[:len(faces)] = lut["sv"][:len(faces)] * origin[rows, faces[:, 1]] + lut["ov"][:len(faces)]
         best_d_u = best * d_u
         best_d_u *= cv2.LUT(face, lut["su"])
         map_x = best_d_u
@@ -449,15 +489,25 @@ class StereoRenderer:
         self.close()
 
 
-_SCENES: dict[tuple[int, bool], Scene] = {}
+_SCENES: dict[tuple[int, bool, str, str | None], Scene] = {}
 _SCENES_LOCK = threading.Lock()
 
 
-def shared_scene(seed: int, colour: bool) -> Scene:
-    """The default scene for a seed, built once per process: both eyes' cameras share it."""
+def shared_scene(seed: int, colour: bool, room: str = "generated", textures: str | None = None) -> Scene:
+    """A room for a seed, built once per process: both eyes' cameras share it.
+
+    `room`: "generated" (`default_boxes`) or "photos" (`photo_boxes`, papered with the
+    photographs of the folder `textures`, or scikit-image's when None)."""
+    if room not in ROOMS:
+        raise ValueError(f"room {room!r}: expected one of {', '.join(ROOMS)}")
+    if room == "generated" and textures is not None:
+        raise ValueError(f"textures {textures!r} need the photo room (room 'photos')")
     with _SCENES_LOCK:
-        key = (seed, colour)
+        key = (seed, colour, room, textures)
         if key not in _SCENES:
-            _SCENES[key] = Scene(seed=seed, colour=colour)
-            log.debug("built the default scene for seed %d (%s)", seed, "colour" if colour else "grey")
+            if room == "photos":
+                _SCENES[key] = Scene(photo_boxes(), seed=seed, colour=colour, photos=photo_set(textures))
+            else:
+                _SCENES[key] = Scene(seed=seed, colour=colour)
+            log.debug("built the %s room for seed %d (%s)", room, seed, "colour" if colour else "grey")
         return _SCENES[key]

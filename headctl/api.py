@@ -8,8 +8,12 @@ Routes (docs/api.md); JSON but for the streams and the frames, under /api/v1:
     POST /look/angles               {pan, tilt, vergence, relative?, wait_s?, replace?}
     GET  /looks/{id}?wait_s=S       a look's state (waits up to S s for it to finish)
     DELETE /looks/{id}              cancel a queued look
+    POST /track                     {x, y} or {target: "fovea"}: pursue the patch there until stopped
+    GET  /track                     the last track and the running one's figures
+    DELETE /track?wait_s=S          stop the track
     GET  /events                    Server-Sent Events: saccade_onset, saccade_done,
                                     fixation_converged, fixation_refused, look_started, look_done,
+                                    track_started, track_lost, track_stopped,
                                     fault, fault_cleared, exploration, torque, map
     POST /exploration, /torque      {enabled}
     POST /map/save, /map/load       {name?}; POST /map/reset {seed?}
@@ -85,7 +89,8 @@ class TargetLook(_Waitable):
     x: float = Field(description="column in the left image, px")
     y: float = Field(description="row in the left image, px")
     d: float | None = Field(None, description="disparity x_right - x_left, px; omitted: measured around "
-                                             "(x, y) in the latest stereo pair")
+                                             "(x, y) in the latest stereo pair, else 0 (the depth the eyes "
+                                             "fixate) when the look can find the target by its patch")
 
 
 class AnglesLook(_Waitable):
@@ -100,6 +105,20 @@ class AnglesLook(_Waitable):
         if missing and not self.relative:
             raise ValueError(f"{', '.join(missing)} missing: an absolute look needs pan, tilt and vergence "
                              "(or send relative: true, where a missing angle means 0)")
+        return self
+
+
+class TrackTarget(_Body):
+    x: float | None = Field(None, description="column in the left image, px (with y; omitted: target)")
+    y: float | None = Field(None, description="row in the left image, px")
+    target: Literal["fovea"] | None = Field(None, description='"fovea": what is on the left fovea now')
+
+    @model_validator(mode="after")
+    def _one_target(self) -> "TrackTarget":
+        if (self.x is None) != (self.y is None):
+            raise ValueError("send both x and y")
+        if (self.x is None) == (self.target is None):
+            raise ValueError('send x and y, or target: "fovea" (one of the two)')
         return self
 
 
@@ -136,7 +155,7 @@ ERROR_TEXT = {
     401: "no token, or a wrong one",
     404: "no such look or map file",
     408: f"the request did not all arrive within {REQUEST_TIMEOUT_S:g} s (the connection is closed)",
-    409: "not possible now (a map for another head, a look that has ended)",
+    409: "not possible now (a map for another head, a look that has ended, no track to stop)",
     413: f"a body over {MAX_BODY_BYTES // 1024} KiB (refused before it is read; the connection is closed)",
     422: "a field missing, mistyped or out of range; malformed JSON",
     429: "the look queue is full",
@@ -259,6 +278,13 @@ class EyeImages:
         cx, cy = int(round((width - 1) / 2)), int(round((height - 1) / 2))
         arm = max(6, width // 40)
         cv2.drawMarker(image, (cx, cy), (0, 255, 0), cv2.MARKER_CROSS, 2 * arm, 2)  # 2 px: survives JPEG
+        track = self.service.tracking_now()
+        if track is not None and track["position"] is not None:  # the tracked patch, magenta
+            x, y, d = track["position"]
+            half = track["patch_size_px"] / 2.0
+            x += d if side == "right" else 0.0
+            cv2.rectangle(image, (int(round(x - half)), int(round(y - half))),
+                          (int(round(x + half)), int(round(y + half))), (255, 0, 255), 2)
         last = self.service.last_fixation()
         if last is None or last.match is None:
             return
@@ -365,6 +391,21 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
                           wait_s: float = Query(0.0, ge=0.0, le=MAX_WAIT_S, allow_inf_nan=False)) -> Response:
         # A queued look ends at once; a running one stops at its next servo cycle or frame wait.
         return await answer_look(service.cancel_look(look_id), wait_s)
+
+    # -- tracks -----------------------------------------------------------------------
+    @app.post("/api/v1/track", dependencies=guarded, responses=answers(422, 429, accepted=True))
+    async def track(body: TrackTarget) -> Response:
+        job = await run_in_threadpool(service.track, body.x, body.y)
+        return await answer_look(job, 0.0)
+
+    @app.get("/api/v1/track", dependencies=guarded, responses=answers(404, ok="the last track, with its figures"))
+    def get_track() -> Response:
+        return _json(plain(service.get_track()))
+
+    @app.delete("/api/v1/track", dependencies=guarded,
+                responses=answers(409, 422, ok="the track, stopped", accepted=True))
+    async def stop_track(wait_s: float = Query(2.0, ge=0.0, le=MAX_WAIT_S, allow_inf_nan=False)) -> Response:
+        return await answer_look(service.stop_track(), wait_s)
 
     # -- switches and the map ---------------------------------------------------------
     @app.post("/api/v1/exploration", dependencies=guarded, responses=answers(422))

@@ -99,6 +99,18 @@ class ApiClient:
         """Cancel a queued look, or stop a running one (waiting up to `wait_s` for it to stop)."""
         return self.request("DELETE", f"/api/v1/looks/{look_id}?wait_s={wait_s}", wait_s=wait_s)
 
+    def track(self, x: float | None = None, y: float | None = None) -> dict[str, Any]:
+        """Pursue the patch at (x, y) of the left image (None: what is on the fovea) until stopped."""
+        body: dict[str, Any] = {"target": "fovea"} if x is None or y is None else {"x": x, "y": y}
+        return self.request("POST", "/api/v1/track", body)
+
+    def get_track(self) -> dict[str, Any]:
+        """The last track and, while it runs, its figures so far."""
+        return self.request("GET", "/api/v1/track")
+
+    def stop_track(self, wait_s: float = 2.0) -> dict[str, Any]:
+        return self.request("DELETE", f"/api/v1/track?wait_s={wait_s}", wait_s=wait_s)
+
     def set_exploration(self, enabled: bool) -> bool:
         return bool(self.request("POST", "/api/v1/exploration", {"enabled": enabled})["enabled"])
 

@@ -24,11 +24,14 @@ import numpy as np
 from tqdm import tqdm
 
 from calib_free import GazeMap
+from calib_free.exploration import EXPLORATION_KINDS
 from calib_free.experiments import (EXPERIMENTS, ExperimentResult, ExperimentSpec, final_head, landing_targets,
                                     representation_floor, run_experiment)
 from calib_free.gaze_map import PROFILES, GazeMapParams
 from calib_free.lens import LENS_KINDS
 from calib_free.sim import HeadModel
+from drivers.sim_scene import ROOMS as ROOM_KINDS
+from headctl import sweep
 from headctl.online import ONLINE_EXPERIMENTS, OnlineResult, OnlineSpec, run_online
 
 log = logging.getLogger(__name__)
@@ -37,6 +40,8 @@ log = logging.getLogger(__name__)
 # re-adaptation windows the issue sets (figs. 6, 8, 9).
 PAPER_LEARN = {"pan_deg": 1.3, "tilt_deg": 1.07, "vergence_deg": 0.5, "retinal_error": 0.0368}
 RECOVERY_GOAL = {"baseline": 500, "prism": 700, "pan-defect": 700, "swap": 700}
+# The options of one run a sweep passes on to all its runs (`--set` varies them).
+SWEEP_BASE_OPTIONS = ("fixations", "width", "height", "lens", "floor_samples", "landing_every", "exploration", "room")
 STEADY_OVER = 200  # fixations in the steadier "mean of the last 200" figure
 
 
@@ -44,8 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "experiment", help="run one of the paper's simulated experiments (learning curves, plot, summary)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("name", choices=sorted(EXPERIMENTS) + sorted(ONLINE_EXPERIMENTS),
-                   help="which experiment (online*: on rendered images through the fixation loop)")
+    p.add_argument("name", choices=sorted(EXPERIMENTS) + sorted(ONLINE_EXPERIMENTS) + ["pursuit", "sweep"],
+                   help="which experiment (online*: on rendered images through the fixation loop); "
+                        "sweep NAME: NAME over seeds, profiles and settings on Dask (headctl.sweep)")
     p.add_argument("--profile", choices=PROFILES, default="default",
                    help="gaze map profile: 'paper' (the rule as written) or 'default' (improved)")
     p.add_argument("--fixations", type=int, default=None, help="fixations to run (default: the experiment's)")
@@ -57,10 +63,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--floor-samples", type=int, default=50_000,
                    help="samples for the k-NN representation floor; 0 skips it (default 50000)")
     p.add_argument("--landing-every", type=int, default=100, help="fixations between landing-error checks")
+    p.add_argument("--pose", action=argparse.BooleanOptionalAction, default=True,
+                   help="samples and lookups carry the head's pose (default); --no-pose: (x, y, d) alone, "
+                        "as the paper")
+    p.add_argument("--exploration", choices=EXPLORATION_KINDS, default=None,
+                   help="online*: where exploratory fixations go: 'random' (the paper's) or 'teaching' "
+                        "(targets that teach); default: random with --profile paper, else teaching")
+    p.add_argument("--room", choices=ROOM_KINDS, default=None,
+                   help="online*: the room the simulated cameras see: 'generated' (default) or 'photos' "
+                        "(walls papered with photographs, docs/sim-rooms.md)")
+    sweep.add_arguments(p)
+    p.add_argument("--map", type=Path, default=None, metavar="FILE",
+                   help="pursuit: the gaze map to pursue with (default: one learned on the geometric head model)")
+    p.add_argument("--speeds", default=None, metavar="S,S,...",
+                   help="pursuit: target speeds, deg/s (default 5,10,20,30,40)")
+    p.add_argument("--latency-ms", type=float, default=40.0,
+                   help="pursuit: frame-to-command latency modelled on the manual clock (default 40, as measured "
+                        "on the real-time daemon)")
     p.set_defaults(func=run)
+    # What a sweep compares against to tell the options given from the defaults.
+    p.set_defaults(defaults={dest: p.get_default(dest) for dest in SWEEP_BASE_OPTIONS + ("out",)})
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.name == "pursuit":
+        return run_pursuit_command(args)
+    if args.name == "sweep":
+        # Every run of the sweep takes the experiment options given here; --set varies them.
+        base = [str(v) for dest in SWEEP_BASE_OPTIONS if getattr(args, dest, None) != args.defaults[dest]
+                for v in ("--" + dest.replace("_", "-"), getattr(args, dest))]
+        if not args.pose:
+            base.append("--no-pose")
+        if args.out == args.defaults["out"]:
+            args.out = args.out / f"sweep-{args.swept}"
+        return sweep.run(args, base)
+    if args.swept:
+        print(f"{args.swept!r}: a second experiment name is taken by sweep only", file=sys.stderr)
+        return 2
     online = args.name in ONLINE_EXPERIMENTS
     spec: ExperimentSpec = ONLINE_EXPERIMENTS[args.name] if online else EXPERIMENTS[args.name]
     if args.fixations is not None:
@@ -70,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         spec = dataclasses.replace(spec, fixations=args.fixations,
                                    changes=tuple(c for c in spec.changes if c.at < args.fixations))
     args.out.mkdir(parents=True, exist_ok=True)
-    stem = args.out / f"{spec.name}-{args.profile}"
+    stem = args.out / f"{spec.name}-{args.profile}{'' if args.pose else '-nopose'}"
     extra: dict[str, Any] = {}
     started = time.monotonic()
     with tqdm(total=spec.fixations, desc=f"{spec.name} ({args.profile})", unit="fix",
@@ -89,16 +128,22 @@ def run(args: argparse.Namespace) -> int:
 
             assert isinstance(spec, OnlineSpec)
             online_result = run_online(spec, args.profile, seed=args.seed, width=args.width, height=args.height,
-                                       landing_every=args.landing_every, progress=progress)
+                                       landing_every=args.landing_every, progress=progress,
+                                       exploration=args.exploration, room=args.room or "generated",
+                                       use_pose=args.pose)
             result = online_result.as_experiment_result()
             assert online_result.model is not None
             head = online_result.model
             extra = online_summary(online_result)
+            extra["online"]["room"] = args.room or "generated"
         else:
+            if args.exploration is not None or args.room is not None:
+                print("--exploration and --room apply to the online experiments only", file=sys.stderr)
+                return 2
             head = HeadModel.default(args.width, args.height, lens=args.lens)
             gm = GazeMap.for_image(args.width, args.height, seed=args.seed, profile=args.profile)
             result = run_experiment(spec, gm, head, seed=args.seed, landing_every=args.landing_every,
-                                    progress=lambda n: None if bar.update(n) else None)
+                                    progress=lambda n: None if bar.update(n) else None, use_pose=args.pose)
     learn_s = time.monotonic() - started
     drange = GazeMapParams().disparity_range  # both kinds of run use the default range
 
@@ -115,6 +160,7 @@ def run(args: argparse.Namespace) -> int:
                          title=f"{spec.name} ({args.profile} profile): {spec.description}", online=online)
     summary = summarise(result, floor_px, args.profile, learn_s)
     summary.update(extra)
+    summary["pose"] = args.pose
     stem.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
     print(format_summary(summary))
     print(f"wrote {stem}.csv, {stem}.png, {stem}.json")
@@ -125,6 +171,8 @@ def online_summary(result: OnlineResult) -> dict:
     records = result.records
     confidences = [r.confidence for r in records if r.taught]
     return {
+        # Beside the room's landing error: targets anywhere within the joint limits.
+        "landing_joint_range_px": result.landing_joint_range[-1][1] if result.landing_joint_range else None,
         "online": {
             "fixations": len(records),
             "taught": sum(r.taught for r in records),
@@ -133,6 +181,9 @@ def online_summary(result: OnlineResult) -> dict:
             "median_confidence_taught": float(np.median(confidences)) if confidences else None,
             "vergence": result.vergence_convergence(),
             "landing_at_fixations": result.landing_fixations,
+            "landing_start_px": result.landing_start_px,
+            "exploration": result.exploration,
+            "exploration_stats": result.exploration_stats,
         }
     }
 
@@ -215,6 +266,22 @@ def format_summary(s: dict) -> str:
                      f"({100 * v['converged_fraction']:.1f} %), median {v['median_steps']:.0f} steps; "
                      f"median confidence of taught fixations {o['median_confidence_taught']:.2f}")
     return "\n".join(lines)
+
+
+def run_pursuit_command(args: argparse.Namespace) -> int:
+    """`headctl experiment pursuit`: tracking error against target speed (headctl.pursuit_experiment)."""
+    from headctl.pursuit_experiment import SPEEDS_DEG_S, format_result, run_pursuit
+
+    try:
+        speeds = tuple(float(v) for v in args.speeds.split(",")) if args.speeds else SPEEDS_DEG_S
+    except ValueError:
+        print(f"--speeds {args.speeds!r}: expected numbers separated by commas (deg/s)", file=sys.stderr)
+        return 2
+    result = run_pursuit(args.out, speeds, latency_s=args.latency_ms / 1e3, map_path=args.map, seed=args.seed,
+                         profile=args.profile)
+    print(format_result(result))
+    print(f"wrote {args.out}/pursuit-{args.profile}.csv, .png, .json")
+    return 0
 
 
 __all__ = ["register", "run"]

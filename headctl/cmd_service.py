@@ -5,7 +5,7 @@
 config and connects to the servos and cameras it names, reporting each. Both prepare the
 config in one way (`_prepare`), so `check`, with or without `--no-connect`, refuses a config
 exactly where `run` would: exit 2 naming the file, the key path, the value and what was
-expected. `status` and `look` are clients of the running daemon's HTTP API
+expected. `status`, `look` and `track` are clients of the running daemon's HTTP API
 (`headctl.client`).
 """
 from __future__ import annotations
@@ -72,6 +72,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="cancel the looks still queued and stop the running one first")
     look.add_argument("--json", action="store_true", help="print the look as JSON")
     look.set_defaults(func=_look)
+
+    track = sub.add_parser(
+        "track", help="pursue the target at X Y (px in the left image, or 'fovea'); --stop, --status",
+        description="Start smooth pursuit on the running daemon: the patch at (x, y) of the left image (or what is "
+                    "on the fovea) is kept on both foveae as it moves, until stopped (--stop, Ctrl-C while "
+                    "--wait-ing), lost, or preempted by a look or another track. --status shows the last track.")
+    _client_args(track)
+    track.add_argument("target", nargs="*", metavar="X Y | fovea", help="x and y (px), or the word fovea")
+    track.add_argument("--stop", action="store_true", help="stop the track running")
+    track.add_argument("--status", action="store_true", help="show the last track and its figures")
+    track.add_argument("--wait", type=float, default=0.0, metavar="S",
+                       help="wait up to S seconds for the track to end (Ctrl-C stops it); 0: start it and return")
+    track.add_argument("--json", action="store_true", help="print the track as JSON")
+    track.set_defaults(func=_track)
 
 
 def _config_args(parser: argparse.ArgumentParser, state_dir: bool = True) -> None:
@@ -357,10 +371,76 @@ def _look(args: argparse.Namespace) -> int:
     return {"done": 0, "failed": 1, "cancelled": 1}.get(job["state"], 4)
 
 
+# --- track ---------------------------------------------------------------------------------------
+def _track(args: argparse.Namespace) -> int:
+    """0: started (or stopped, shown); 1: refused, lost or failed; 2: usage."""
+    from headctl.client import ApiError
+
+    fovea = args.target == ["fovea"]
+    if (args.stop or args.status) == bool(args.target) or not (fovea or len(args.target) in (0, 2)):
+        print("headctl track: give X Y, or fovea, or --stop, or --status", file=sys.stderr)
+        return 2
+    try:
+        x, y = (None, None) if fovea or not args.target else (float(args.target[0]), float(args.target[1]))
+    except ValueError:
+        print(f"headctl track: {' '.join(args.target)}: expected two numbers X Y (px), or fovea", file=sys.stderr)
+        return 2
+    client = _client(args, "track")
+    if client is None:
+        return 2
+    job: dict[str, Any] | None = None
+    try:
+        if args.stop:
+            job = client.stop_track()
+        elif args.status:
+            job = client.get_track()
+        else:
+            job = client.track(x, y)
+            deadline = time.monotonic() + args.wait
+            while args.wait > 0 and job["state"] in ("queued", "running") and time.monotonic() < deadline:
+                job = client.look(job["id"], wait_s=min(5.0, max(0.0, deadline - time.monotonic())))
+    except ApiError as err:
+        print(f"headctl track: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        if job is None:
+            return 130
+        try:
+            job = client.stop_track()
+        except ApiError as err:
+            print(f"headctl track: interrupted; track {job['id']} not stopped: {err}", file=sys.stderr)
+            return 130
+    print(json.dumps(job, indent=2) if args.json else format_track(job))
+    return 1 if job["state"] == "failed" else 0
+
+
+def format_track(job: dict[str, Any]) -> str:
+    request = job["request"]
+    line = f"track {job['id']} at x {request['x']:.1f}, y {request['y']:.1f}: {job['state']}"
+    if job["outcome"]:
+        line += f", {job['outcome']}"
+    if job["detail"]:
+        line += f" ({job['detail']})"
+    lines = [line]
+    stats = (job.get("result") or {}).get("stats")
+    if stats:
+        err, lat = stats["retinal_error_px"], stats["frame_to_command_ms"]
+        rms = "-" if err["rms"] is None else f"{err['rms']:.1f}"
+        p95 = "-" if err["p95"] is None else f"{err['p95']:.1f}"
+        p50 = "-" if lat["p50"] is None else f"{lat['p50']:.0f}"
+        lines.append(f"  {stats['found']} of {stats['frames'] + 1} pairs found; retinal error rms {rms} px, "
+                     f"p95 {p95} px; frame to command p50 {p50} ms")
+    if job["state"] in ("queued", "running"):
+        lines.append("  `headctl track --stop` stops it; `headctl track --status` shows it")
+    return "\n".join(lines)
+
+
 def format_look(job: dict[str, Any]) -> str:
     request, result = job["request"], job["result"]
     if request.get("d_measured"):
         d = f"{request['d']:.2f} px (measured, NCC {request['d_ncc']:.2f})"
+    elif request.get("d_reason"):
+        d = f"{request.get('d', 0):g} px (not measured: {request['d_reason']})"
     else:
         d = f"{request.get('d', 0):g} px"
     what = (f"target x {request['x']:g}, y {request['y']:g}, d {d}"
@@ -378,11 +458,15 @@ def format_look(job: dict[str, Any]) -> str:
     pose = result.get("pose_after")
     if pose is not None:
         lines.append(f"  pose now: pan {pose[0]:.2f}, tilt {pose[1]:.2f}, vergence {pose[2]:.2f} deg")
+    if result.get("final_error_px") is not None:
+        where = "on target" if result.get("on_target") else "not on target"
+        lines.append(f"  {where}: the target ended {result['final_error_px']:.2f} px from the left fovea "
+                     f"(tolerance {result['tolerance_px']:g} px) after {result['corrective_steps']} corrective "
+                     f"step(s); {result['vergence_steps']} vergence steps, {result['taught']} fixation(s) taught")
     if result.get("landing_error_px") is not None:
-        lines.append(f"  landed {result['landing_error_px']:.1f} px from the target; confidence "
-                     f"{result['confidence']:.2f}; {result['vergence_steps']} vergence steps")
-    elif result.get("head_moved_deg") is not None and result.get("confidence") is not None:
+        lines.append(f"  the first saccade landed {result['landing_error_px']:.1f} px from the target; confidence "
+                     f"{result['confidence']:.2f}")
+    if (result.get("head_moved_deg") or 0.0) > 0.25:
         lines.append(f"  the head had moved {result['head_moved_deg']:.1f} deg before the look ran (exploration, or a "
-                     f"look before it): aimed from the pose the target was seen in, landing not measurable; "
-                     f"confidence {result['confidence']:.2f}")
+                     f"look before it): it went back to the view the target was chosen in first")
     return "\n".join(lines)

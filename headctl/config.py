@@ -33,13 +33,16 @@ from pathlib import Path
 from typing import Any
 
 from calib_free.correspondence import CorrespondenceParams
+from calib_free.exploration import EXPLORATION_KINDS
 from calib_free.fixation import FixationParams
 from calib_free.gaze_map import PROFILES, GazeMapParams
 from drivers.camera_config import CameraConfig, MAX_IMAGE_SIDE, StereoCamerasConfig
 from drivers.config import check_settings, config_error_from, config_meta, declare_settings, read_config, setting
 from drivers.config_file import read_yaml_file
 from drivers.servo_config import ServoBusConfig
+from drivers.sim_motion import MovingObject
 from headctl.config_api import ApiConfig, beside, resolve_api, scrub, secrets_in
+from headctl.config_tracking import TrackingConfig
 from headctl.errors import ConfigError
 from headctl.head import vergence_limits
 
@@ -82,6 +85,9 @@ declare_settings(
     global_degree=config_meta(lo=0, hi=8),
     global_memory=config_meta(lo=1.0, hi=1e6),
     global_memory_min=config_meta(lo=1.0, hi=1e6),
+    pose_degree=config_meta(lo=0, hi=4),
+    pose_position_degree=config_meta(lo=0, hi=10),
+    pose_cross_degree=config_meta(lo=0, hi=4),
     surprise_threshold=config_meta(above=0.0, hi=1000.0),
     robust_scale=config_meta(lo=0.0, hi=1000.0),
 )
@@ -99,6 +105,7 @@ declare_settings(
     frame_timeout_s=config_meta(above=0.0, hi=60.0, expected="a positive time, at most 60 s"),
     exploration_step_deg=config_meta(check=lambda steps: all(0.0 < v <= 360.0 for v in steps),
                                      expected="[pan, tilt, vergence], each in (0, 360] deg"),
+    exploration=config_meta(choices=EXPLORATION_KINDS, expected=" or ".join(EXPLORATION_KINDS)),
 )
 declare_settings(
     CorrespondenceParams,
@@ -204,6 +211,8 @@ class HeadConfig:
     state_dir: Path = Path("~/.local/state/headctl")
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     api: ApiConfig = field(default_factory=ApiConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    sim_objects: tuple[MovingObject, ...] = ()  # moving objects in the simulated room
 
     @property
     def image_size(self) -> tuple[int, int]:
@@ -258,7 +267,8 @@ def parse_config(data: Any, path: Path) -> HeadConfig:
     the eye joints and the image (`check_fixation`), the map's parameters, and the files the
     api section names."""
     try:
-        config = read_config(HeadConfig, data, file=path)
+        config = read_config(HeadConfig, _textures_beside(data, path), file=path)
+        config = _correspondence_of_the_profile(config, data)
         backends = resolve_backends(config)
         check_cameras(config.cameras, config.servo_bus)
         check_backends(config, backends)
@@ -275,6 +285,37 @@ def parse_config(data: Any, path: Path) -> HeadConfig:
             err.file = path
         scrub(err, secrets_in(data))
         raise
+
+
+def _textures_beside(data: Any, path: Path) -> Any:
+    """The raw config with a relative `cameras.scene.textures` made relative to the config
+    file's directory, as every path a config names is."""
+    cameras = data.get("cameras") if isinstance(data, dict) else None
+    scene = cameras.get("scene") if isinstance(cameras, dict) else None
+    textures = scene.get("textures") if isinstance(scene, dict) else None
+    if not isinstance(cameras, dict) or not isinstance(scene, dict) or not isinstance(textures, str):
+        return data
+    resolved = str(beside(path, textures, "cameras.scene.textures"))
+    return {**data, "cameras": {**cameras, "scene": {**scene, "textures": resolved}}}
+
+
+def _correspondence_of_the_profile(config: HeadConfig, data: Any) -> HeadConfig:
+    """The correspondence and the exploration follow `gaze_map.profile` (the `paper` profile:
+    eqs. 1-7 and random exploration in motor space) unless `fixation.correspondence.profile`
+    or `fixation.exploration` says otherwise."""
+    fixation = data.get("fixation") if isinstance(data, dict) else None
+    fixation = fixation if isinstance(fixation, dict) else {}
+    given = fixation.get("correspondence")
+    params = config.fixation.params
+    changes: dict[str, Any] = {}
+    if not (isinstance(given, dict) and "profile" in given):
+        changes["correspondence"] = dataclasses.replace(params.correspondence, profile=config.gaze_map.profile)
+    if "exploration" not in fixation and config.gaze_map.profile == "paper":
+        changes["exploration"] = "random"
+    if not changes:
+        return config
+    fixation_config = dataclasses.replace(config.fixation, params=dataclasses.replace(params, **changes))
+    return dataclasses.replace(config, fixation=fixation_config)
 
 
 def resolve_backends(config: HeadConfig) -> dict[str, type]:

@@ -8,7 +8,11 @@ vergence, correspondence and confidence, and only converged, confident fixations
 Time is a `ManualClock`: waiting for the servos advances it, so nothing sleeps.
 
 The paper's figures come from the adaptations (one per taught fixation); the landing error
-is measured on the geometric model with the map as it is (`calib_free.experiments`).
+is measured on the geometric model with the map as it is (`calib_free.experiments`), on targets
+in the room the head explores, seen from poses fixating the room (`landing`), and on the
+geometric experiments' targets, anywhere within the joint limits (`landing_joint_range`): there
+the vergence goes up to 20 deg, points 17 cm away where the room has none, and the map answers
+for poses and disparities it was never taught.
 """
 from __future__ import annotations
 
@@ -26,11 +30,16 @@ from calib_free import GazeMap
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.experiments import (Change, ExperimentResult, ExperimentSpec, landing_errors_px, landing_targets,
                                     map_predictor)
+from calib_free.exploration import ExplorationKind, TeachingExplorer
 from calib_free.fixation import FixationController, FixationOutcome, FixationParams, FixationRecord
-from calib_free.gaze_map import AdaptResult
-from calib_free.sim import HeadModel
+from calib_free.gaze_map import AdaptResult, Vector
+from calib_free.sim import FixationSample, HeadModel
+from calib_free.correspondence import CorrespondenceParams
+from drivers.camera_config import SceneConfig
 from drivers.clock import ManualClock
+from drivers.config import read_config
 from drivers.sim_camera import SimulatedCamera
+from drivers.sim_scene import Scene, shared_scene
 from headctl.config import HeadConfig, load_config
 from headctl.errors import HeadctlError
 from headctl.head import RenderedPairSource
@@ -61,8 +70,13 @@ class OnlineResult:
     spec: OnlineSpec
     records: list[FixationRecord] = field(default_factory=list)
     adaptations: list[tuple[int, AdaptResult]] = field(default_factory=list)  # (fixation index, result)
-    landing: list[tuple[int, float]] = field(default_factory=list)  # (adaptations done, median px)
+    landing: list[tuple[int, float]] = field(default_factory=list)  # (adaptations done, median px), room targets
+    landing_joint_range: list[tuple[int, float]] = field(default_factory=list)  # ... targets anywhere in the limits
     landing_fixations: list[int] = field(default_factory=list)  # fixations done at each landing check
+    landing_start_px: float | None = None  # the random map's, before the first fixation
+    use_pose: bool = True  # samples and lookups carried the head's pose
+    exploration: str = ""  # FixationParams.exploration
+    exploration_stats: dict[str, dict[str, int]] = field(default_factory=dict)  # the explorer's, if it keeps any
     seconds: float = 0.0
     model: HeadModel | None = None  # the simulated head's geometry before any change
 
@@ -106,15 +120,59 @@ class OnlineResult:
 
 
 def sim_config(width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
-               base: HeadConfig | None = None) -> HeadConfig:
+               base: HeadConfig | None = None, room: str | None = None) -> HeadConfig:
     """The simulated head's config (default: the packaged one) with grey cameras of this size
-    and lens, papered with the room of `seed`."""
+    and lens, papered with the room of `seed`: `room` "generated" or "photos" (scikit-image's
+    photographs); None: the config's (`cameras.scene`)."""
     config = base if base is not None else load_config()
     if not config.simulated:
         raise HeadctlError(f"{config.path}: the online experiments need the simulated head (servo_bus.backend: sim)")
     cameras = {side: dataclasses.replace(getattr(config.cameras, side), width=width, height=height, lens=lens,
                                          seed=seed, image="grey") for side in ("left", "right")}
-    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, **cameras))
+    scene = config.cameras.scene if room is None else read_config(SceneConfig, {"room": room}, "cameras.scene")
+    return dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=scene, **cameras))
+
+
+class RoomSurfaces:
+    """The simulated room's surfaces as `calib_free.sim.Surroundings`: the first box face a ray
+    meets (the scene's first box is the room, seen from inside). Boxes at rest (where moving
+    objects start)."""
+
+    def __init__(self, scene: Scene) -> None:
+        self.lo = np.asarray(scene.lo, dtype=float)
+        self.hi = np.asarray(scene.hi, dtype=float)
+
+    def first_surface(self, origin: np.ndarray, direction: np.ndarray) -> np.ndarray | None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.asarray(direction, dtype=float)
+            a, b = (self.lo - origin) * inv, (self.hi - origin) * inv
+        near = np.max(np.fmin(a, b), axis=1)
+        far = np.min(np.fmax(a, b), axis=1)
+        distance = float(far[0])  # where the ray leaves the room
+        hits = (near[1:] > 1e-6) & (near[1:] < far[1:])
+        if np.any(hits):
+            distance = min(distance, float(np.min(near[1:][hits])))
+        if not (np.isfinite(distance) and distance > 0.0):
+            return None
+        point: np.ndarray = origin + distance * np.asarray(direction, dtype=float)
+        return point
+
+
+class _WithoutPose:
+    """The adapter as a map that never sees the head's pose: lookups and samples without it,
+    the paper's (x, y, d) alone."""
+
+    def __init__(self, adapter: MapAdapter) -> None:
+        self.adapter = adapter
+
+    def command(self, position: Vector, pose: Vector | None = None) -> np.ndarray:
+        return self.adapter.command(position)
+
+    def check_position(self, position: Vector) -> str:
+        return self.adapter.check_position(position)
+
+    def submit(self, sample: Sample) -> None:
+        self.adapter.submit(dataclasses.replace(sample, pose=None))
 
 
 class SimulatedHeadRig:
@@ -123,9 +181,9 @@ class SimulatedHeadRig:
 
     def __init__(self, width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
                  fixation: FixationParams | None = None, noise_std: float | None = None,
-                 config: HeadConfig | None = None) -> None:
+                 config: HeadConfig | None = None, room: str | None = None) -> None:
         self.clock = ManualClock()
-        self.config = sim_config(width, height, seed, lens, config)
+        self.config = sim_config(width, height, seed, lens, config, room)
         self.devices = HeadDevices.build(self.config, self.clock)
         world = self.devices.world
         assert world is not None  # sim_config checked that the head is simulated
@@ -140,6 +198,10 @@ class SimulatedHeadRig:
                                         world.true_joints, self.clock, noise_std=noise, seed=seed)
         self.head = build_head(self.config, self.bus, self.pairs, self.clock)
         self.fixation = fixation or FixationParams()
+        # The room the cameras render (the shared generated one unless the config names another).
+        self.scene = world.scene if world.scene is not None else shared_scene(left.config.seed,
+                                                                              left.config.image == "colour")
+        self.surroundings = RoomSurfaces(self.scene)
 
     def __enter__(self) -> "SimulatedHeadRig":
         self.devices.open()
@@ -161,13 +223,29 @@ def apply_change(change: Change, rig: SimulatedHeadRig, model: HeadModel) -> Hea
     return change.apply(model)
 
 
+def exploration_for(profile: str) -> str:
+    """The exploration a profile's experiments use: the paper's random commands for `paper`."""
+    return ExplorationKind.RANDOM if profile == "paper" else ExplorationKind.TEACHING
+
+
 def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width: int = 320, height: int = 240,
                landing_every: int = 100, landing_count: int = 300,
-               progress: Callable[[FixationRecord], None] | None = None) -> OnlineResult:
-    """Run `spec` on the simulated head from a random map; returns records and curves."""
-    result = OnlineResult(spec)
+               progress: Callable[[FixationRecord], None] | None = None,
+               exploration: str | None = None, room: str | None = None, use_pose: bool = True) -> OnlineResult:
+    """Run `spec` on the simulated head from a random map; returns records and curves.
+
+    `exploration`: `FixationParams.exploration`; None: the paper's random commands with the
+    `paper` profile, targets that teach with the `default` one. Correspondence follows the
+    profile (`CorrespondenceParams.profile_values`). `room`: "generated" or "photos" (None:
+    the packaged config's). `use_pose`: samples and lookups carry the head's pose (False: the
+    map learns and answers from (x, y, d) alone)."""
+    result = OnlineResult(spec, use_pose=use_pose)
     lock = threading.Lock()
-    fixation = FixationParams(executed_command=spec.executed_command)
+    if exploration is None:
+        exploration = exploration_for(profile)
+    fixation = FixationParams(executed_command=spec.executed_command, exploration=exploration,
+                              correspondence=CorrespondenceParams.profile_values(profile))
+    result.exploration = exploration
     gm = GazeMap.for_image(width, height, seed=seed, profile=profile)
 
     def on_adapted(sample: Sample, res: AdaptResult) -> None:
@@ -176,16 +254,33 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
 
     started = time.monotonic()
     changes = {c.at: c for c in spec.changes}
-    with SimulatedHeadRig(width, height, seed, fixation=fixation) as rig, \
+    with SimulatedHeadRig(width, height, seed, fixation=fixation, room=room) as rig, \
             MapAdapter(gm, on_adapted=on_adapted) as adapter:
         model = result.model = rig.model
-        targets = landing_targets(model, landing_count, gm.params.disparity_range, seed=seed + 7919)
-        controller = FixationController(rig.head, adapter, fixation, seed=seed, clock=rig.clock.monotonic,
-                                        learner=adapter)
+        drange = gm.params.disparity_range
+
+        def target_sets(at: int) -> tuple[list[FixationSample], list[FixationSample]]:
+            return (landing_targets(model, landing_count, drange, seed + 7919 + at, rig.surroundings),
+                    landing_targets(model, landing_count, drange, seed + 7919 + at))
+
+        def landing_px() -> tuple[float, float]:
+            """Median landing error (px) on the room's targets and on the joint range's."""
+            def medians(m: GazeMap) -> tuple[float, float]:
+                in_room, anywhere = (float(np.median(landing_errors_px(model, ts, map_predictor(m, use_pose))))
+                                     for ts in targets)
+                return in_room, anywhere
+            return adapter.with_map(medians)
+
+        targets = target_sets(0)
+        reader = adapter if use_pose else _WithoutPose(adapter)
+        controller = FixationController(rig.head, reader, fixation, seed=seed, clock=rig.clock.monotonic,
+                                        learner=reader)
+        if landing_every:  # the random map's, where the learning curve starts
+            result.landing_start_px = landing_px()[0]
         for n in range(spec.fixations):
             if n in changes:
                 model = apply_change(changes[n], rig, model)
-                targets = landing_targets(model, landing_count, gm.params.disparity_range, seed=seed + 7919 + n)
+                targets = target_sets(n)
                 log.info("fixation %d: %s", n, spec.description)
             record = controller.fixate()
             result.records.append(record)
@@ -193,12 +288,17 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
                 progress(record)
             if landing_every and ((n + 1) % landing_every == 0 or n + 1 == spec.fixations):
                 adapter.wait_idle()
-                errors = adapter.with_map(lambda m: landing_errors_px(model, targets, map_predictor(m)))
+                room_px, anywhere_px = landing_px()
                 with lock:
-                    result.landing.append((len(result.adaptations), float(np.median(errors))))
+                    result.landing.append((len(result.adaptations), room_px))
+                    result.landing_joint_range.append((len(result.adaptations), anywhere_px))
                 result.landing_fixations.append(n + 1)
         adapter.wait_idle()
         if adapter.error is not None:
             raise adapter.error
+        if isinstance(controller.exploration, TeachingExplorer):
+            stats = controller.exploration.stats
+            result.exploration_stats = {"chosen": dict(stats.chosen), "taught": dict(stats.taught),
+                                        "rejected": dict(stats.rejected)}
     result.seconds = time.monotonic() - started
     return result

@@ -12,7 +12,8 @@
   const MEAN_WINDOW = 10;       // the paper's figures: mean of the last 10 adaptations
   const MAX_EVENTS = 200;
   const EVENT_TYPES = ["saccade_onset", "saccade_done", "fixation_converged", "fixation_refused", "fault",
-    "fault_cleared", "look_started", "look_done", "exploration", "torque", "map"];
+    "fault_cleared", "look_started", "look_done", "track_started", "track_lost", "track_stopped", "exploration",
+    "torque", "map"];
   const JOINTS = ["pan", "tilt", "left_eye", "right_eye"];
   const COLORS = { pan: "#5b9bd5", tilt: "#e0a93b", vergence: "#c678dd", retinal: "#3fb27f", confidence: "#56b6c2" };
 
@@ -648,6 +649,7 @@
     ul.dataset.count = String(Number(ul.dataset.count || 0) + 1);
     if (REFRESH_ON.has(type)) refreshState();
     if (type === "look_done") onLookDone(data);
+    if (type.startsWith("track_")) onTrackEvent(type, data);
   }
 
   function connectEvents() {
@@ -710,6 +712,7 @@
     const at = { x: Math.round(x * 10) / 10, y: Math.round(y * 10) / 10 };
     img.dataset.clickX = String(at.x);
     img.dataset.clickY = String(at.y);
+    if (event.shiftKey || $("track-mode").checked) return trackAt(at);
     try {
       const job = await api("/look/target", { method: "POST", body: { ...at, replace: true } });
       const r = job.request;
@@ -720,6 +723,41 @@
     } catch (err) {
       showMessage(`no look at x ${at.x}, y ${at.y}: ${err.message}`, true);
     }
+  }
+
+  // -- tracking (smooth pursuit) where the user clicks with shift, or with the track switch on ------------
+  let trackId = null;         // the track started from this page, while it runs
+
+  async function trackAt(at) {
+    try {
+      const job = await api("/track", { method: "POST", body: at });
+      trackId = job.id;
+      $("eye-left").dataset.track = String(job.id);
+      $("track-stop").hidden = false;
+      $("track-state").textContent = `track ${job.id} at x ${fmt(at.x, 1)}, y ${fmt(at.y, 1)}: ${job.state}`;
+    } catch (err) {
+      showMessage(`no track at x ${at.x}, y ${at.y}: ${err.message}`, true);
+    }
+  }
+
+  async function stopTrack() {
+    try {
+      await api("/track", { method: "DELETE", params: { wait_s: 2 } });
+    } catch (err) {
+      showMessage(`stop tracking: ${err.message}`, true);
+    }
+  }
+
+  function onTrackEvent(type, data) {
+    if (type === "track_started") {
+      $("track-state").textContent = `tracking (track ${data.id}): the patch is marked in magenta`;
+      $("track-stop").hidden = false;
+      return;
+    }
+    $("track-state").textContent = `track ${data.id} ${type === "track_lost" ? "lost" : data.outcome}` +
+      (data.detail ? ` (${data.detail})` : "");
+    if (data.id === trackId) trackId = null;
+    $("track-stop").hidden = true;
   }
 
   function onLookDone(data) {
@@ -753,6 +791,7 @@
     window.addEventListener("resize", scheduleDraw);
     watchEyes();
     $("eye-left").addEventListener("click", lookAtClick);
+    $("track-stop").addEventListener("click", stopTrack);
     // The streams start after the page's load event: an endless multipart image must not keep the
     // page loading (a browser's spinner, or a test waiting for the load to finish).
     if (document.readyState === "complete") connectEyes(false);

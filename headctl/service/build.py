@@ -22,6 +22,8 @@ from drivers.camera_config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraError
 from drivers.servo_bus import ServoBus, create_servo_bus
+from drivers.sim_motion import moving_scene
+from drivers.sim_scene import Scene, shared_scene
 from drivers.sim_servo import SimulatedServoBus
 from headctl.config import HeadConfig
 from headctl.head import Head, HeadObserver, JointBus, PairSource
@@ -52,10 +54,20 @@ class SimulatedWorld:
     """What the simulated backends share: the head model the cameras render through, the
     servos' true positions they render from, and the faults a test may inject."""
 
-    def __init__(self, config: HeadConfig, servos: SimulatedServos) -> None:
+    def __init__(self, config: HeadConfig, servos: SimulatedServos, clock: Clock = SYSTEM_CLOCK) -> None:
         self.model = sim_head_model(config.cameras.left, config.fixation.vergence_range)
         self.servos = servos
         self.stalled: set[str] = set()
+        # The photo room (`cameras.scene`), and a room of its own when objects move in it
+        # (`sim_objects`); else None: the cameras' shared generated room.
+        self.scene: Scene | None = None
+        left, room = config.cameras.left, config.cameras.scene
+        if config.sim_objects or room.kind != "generated":  # the photo room (cameras.scene)
+            folder = None if room.folder is None else str(room.folder)
+            self.scene = shared_scene(left.seed, left.image == "colour", room.kind, folder)
+        if config.sim_objects:
+            assert self.scene is not None
+            self.scene = moving_scene(self.scene, config.sim_objects, clock)
 
     def true_joints(self) -> dict[str, float]:
         return {joint: self.servos.true_position(joint) for joint in JOINTS}
@@ -94,6 +106,8 @@ def build_cameras(config: HeadConfig, world: SimulatedWorld | None, clock: Clock
             if world is None:
                 raise CameraError(f"camera {side}: a simulated camera needs the simulated servo bus")
             resources = {"head": world.model, "pose_source": world.pose_source(side)}
+            if world.scene is not None:
+                resources["scene"] = world.scene
         cameras[side] = create_camera(camera_config, name=side, key_path=f"cameras.{side}", clock=clock,
                                       **resources)
     return cameras
@@ -117,7 +131,7 @@ class HeadDevices:
             if not isinstance(bus, SimulatedServoBus):
                 raise CameraError(f"{config.servo_bus.key_path}.backend: the simulated cameras need the simulated "
                                   f"servo bus, got {type(bus).__name__}")
-            world = SimulatedWorld(config, bus)
+            world = SimulatedWorld(config, bus, clock)
         return cls(bus, build_cameras(config, world, clock), world)
 
     @classmethod
@@ -125,7 +139,7 @@ class HeadDevices:
                    clock: Clock = SYSTEM_CLOCK) -> "HeadDevices":
         """The cameras alone, for a service whose servo process owns the bus; simulated cameras
         render the servos that process simulates."""
-        world = SimulatedWorld(config, servos) if config.simulated and servos is not None else None
+        world = SimulatedWorld(config, servos, clock) if config.simulated and servos is not None else None
         return cls(None, build_cameras(config, world, clock), world)
 
     def open(self, cameras: bool = True) -> "HeadDevices":

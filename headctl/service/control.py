@@ -12,21 +12,23 @@ import dataclasses
 import enum
 import logging
 import re
+import threading
 from pathlib import Path
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
 from calib_free import GazeMap
-from calib_free.correspondence import as_grey_float, horizontal_offset
+from calib_free.closed_loop import target_patch_problem
+from calib_free.disparity import as_grey_float, horizontal_offset
 from calib_free.errors import MapFileError
-from calib_free.fixation import FixationRecord
+from calib_free.fixation import FixationRecord, LookParams
 from calib_free.kinematics import JOINTS
 from drivers.camera import Frame
 from drivers.errors import DriverError
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
 from headctl.service.events import EventHub
-from headctl.service.looks import LookJob, LookKind, LookRequest
+from headctl.service.looks import LookJob, LookKind, LookRequest, LookState
 from headctl.service.parts import RunningParts, ServiceParts, ServicePhase
 from headctl.service.status import StatusSnapshot, status_snapshot
 
@@ -36,7 +38,64 @@ PAIR_MAX_AGE_S = 0.5  # a target's disparity is measured only in a pair this rec
 # A match this good or better gives a target's disparity; below, the patch is likely matched to
 # something else (a distinctly textured patch scores 0.8-1 on the simulated head).
 MIN_DISPARITY_NCC = 0.6
+# Rows searched either side of the target's own: off-centre, the fish-eye's vertical disparity
+# (the paper's lens: up to 3.5 px; the simulated head: 2.3 px at p90, 4.1 px at p99 of random pixels).
+DISPARITY_BAND_PX = 4
 MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
+
+
+def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
+                 disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX) -> tuple[float, float]:
+    """The disparity (px) at (x, y) of the left image of a pair, and its NCC: where the patch of
+    `patch_size` around it lies in the right image, within `disparity_range` along the same
+    rows and `band_px` rows either side. InvalidRequestError (naming `d`) when it matches below
+    MIN_DISPARITY_NCC."""
+    d, ncc = horizontal_offset(as_grey_float(left), as_grey_float(right), (x, y), patch_size, disparity_range,
+                               band_px)
+    if ncc < MIN_DISPARITY_NCC:
+        raise InvalidRequestError(
+            f"d: the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "
+            f"scores NCC {ncc:.2f} < {MIN_DISPARITY_NCC}: too near the border, no texture there, or "
+            "seen by one eye only); send d", "d")
+    return d, ncc
+
+
+@dataclasses.dataclass(frozen=True)
+class TargetDisparity:
+    """The disparity a target sent without one is looked at with: measured (`ncc` its match's),
+    or the fixation's own, 0, when it cannot be measured but the look can find the target by
+    its patch (`reason` says why it was not measured)."""
+
+    d: float
+    ncc: float | None = None
+    reason: str = ""
+
+    @property
+    def measured(self) -> bool:
+        return self.ncc is not None
+
+
+def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
+                     disparity_range: tuple[float, float], look: LookParams,
+                     band_px: int = DISPARITY_BAND_PX) -> TargetDisparity:
+    """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
+    be measured (seen by one eye only, a vertical disparity or depth edge the match does not
+    survive, a patch too near the border for `patch_size`), d = 0: the look starts at the depth
+    the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
+    InvalidRequestError (naming `d`) when the target has no patch for the closed loop to find it
+    again by (`target_patch_problem`: flat, repetitive, reaching beyond the image): no look can
+    end on it, whatever its d."""
+    problem = target_patch_problem(as_grey_float(left), (x, y), look)
+    try:
+        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
+    except InvalidRequestError as err:
+        unmeasured = str(err).removeprefix("d: ").removesuffix("; send d")
+        if problem:
+            raise InvalidRequestError(f"d: {unmeasured}, and the target cannot be looked at: {problem}", "d") from None
+        return TargetDisparity(0.0, None, f"{unmeasured}: looked at from the depth the eyes fixate (d = 0)")
+    if problem:
+        raise InvalidRequestError(f"d: the target at ({x:g}, {y:g}) cannot be looked at: {problem}", "d")
+    return TargetDisparity(d, ncc)
 
 
 class SimFault(enum.StrEnum):
@@ -82,6 +141,14 @@ class HeadService(Protocol):
 
     def last_fixation(self) -> FixationRecord | None: ...
 
+    def track(self, x: float | None, y: float | None) -> LookJob: ...
+
+    def stop_track(self) -> LookJob: ...
+
+    def get_track(self) -> dict[str, Any]: ...
+
+    def tracking_now(self) -> dict[str, Any] | None: ...
+
 
 class ServiceControl:
     """`HeadService` over the parts of a service (thread-safe; ControlError names the field at fault)."""
@@ -89,6 +156,8 @@ class ServiceControl:
     def __init__(self, parts: ServiceParts, more_faults: Callable[[], dict[str, str]] | None = None) -> None:
         self.parts = parts
         self.more_faults = more_faults
+        self._track: LookJob | None = None  # the last track queued
+        self._track_lock = threading.Lock()
 
     @property
     def events(self) -> EventHub:
@@ -135,9 +204,10 @@ class ServiceControl:
             for name, value, low, high, what in checks:
                 if not low <= value <= high:
                     raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [{low:g}, {high:g}]", name)
-            if d is None:  # sent without a disparity: measured where the client pointed
-                d, ncc = self.measure_disparity(x, y)
-                request = dataclasses.replace(request, values=(x, y, d), d_ncc=ncc)
+            if d is None:  # sent without a disparity: measured where the client pointed, else the fixation's
+                found = self.measure_disparity(x, y)
+                d = found.d
+                request = dataclasses.replace(request, values=(x, y, d), d_ncc=found.ncc, d_reason=found.reason)
             if not d_low <= d <= d_high:
                 raise InvalidRequestError(f"d = {d:g} is outside the map's disparity range "
                                           f"(gaze_map.disparity_range), [{d_low:g}, {d_high:g}]", "d")
@@ -163,11 +233,13 @@ class ServiceControl:
     def cancel_look(self, look_id: int) -> LookJob:
         return self.parts.looks.cancel(look_id)
 
-    def measure_disparity(self, x: float, y: float) -> tuple[float, float]:
-        """The disparity (px, x_right - x_left) at (x, y) of the left image in the latest stereo
-        pair, and the NCC of the match: where the patch around it lies in the right image, along
-        the same rows, within the map's disparity range (what fine vergence measures at the
-        fovea, measured off-centre)."""
+    def measure_disparity(self, x: float, y: float) -> TargetDisparity:
+        """The disparity (px, x_right - x_left) to look at (x, y) of the left image with, from the
+        latest stereo pair (`target_disparity`): where the patch around it lies in the right
+        image within the map's disparity range (what fine vergence measures at the fovea,
+        measured off-centre), else 0 when the look can find the target by its patch.
+        UnavailableError (naming `d`) without a recent pair; InvalidRequestError (naming `d`)
+        when the target cannot be looked at."""
         running = self._running()
         pair = running.pair.latest()
         now = self.parts.clock.monotonic()
@@ -176,14 +248,55 @@ class ServiceControl:
             raise UnavailableError(f"d: no stereo pair from the last {PAIR_MAX_AGE_S:g} s to measure the "
                                    f"disparity at ({x:g}, {y:g}) in; send d", "d")
         params = running.fixation.controller.params
-        d, ncc = horizontal_offset(as_grey_float(pair.left.image), as_grey_float(pair.right.image), (x, y),
-                                   params.vergence_patch_size, running.adapter.map.params.disparity_range)
-        if ncc < MIN_DISPARITY_NCC:
-            raise InvalidRequestError(
-                f"d: the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "
-                f"scores NCC {ncc:.2f} < {MIN_DISPARITY_NCC}: too near the border, no texture there, or "
-                "seen by one eye only); send d", "d")
-        return d, ncc
+        return target_disparity(pair.left.image, pair.right.image, x, y, params.vergence_patch_size,
+                                running.adapter.map.params.disparity_range, params.look)
+
+    # -- tracks -------------------------------------------------------------------------------
+    def track(self, x: float | None, y: float | None) -> LookJob:
+        """Queue a track of the patch at (x, y) of the left image (None, None: the fovea); it
+        preempts the look or track running (the fixation thread ends it)."""
+        self._running()  # UnavailableError unless the service runs
+        width, height = self.parts.config.image_size
+        if (x is None) != (y is None):
+            raise InvalidRequestError("send both x and y, or neither (the fovea)", "x" if x is None else "y")
+        if x is None or y is None:
+            x, y = (width - 1) / 2.0, (height - 1) / 2.0
+        for name, value, high, what in (("x", x, width - 1, "the image's columns"), ("y", y, height - 1, "the image's rows")):
+            if not 0 <= value <= high:
+                raise InvalidRequestError(f"{name} = {value:g} is outside {what}, [0, {high:g}]", name)
+        job = self.parts.looks.submit(LookRequest(LookKind.TRACK, (float(x), float(y), 0.0)))
+        with self._track_lock:
+            self._track = job
+        log.info("track %d queued at (%.1f, %.1f)", job.id, x, y)
+        return job
+
+    def stop_track(self) -> LookJob:
+        """Stop the track queued or running (ControlError when there is none)."""
+        with self._track_lock:
+            job = self._track
+        if job is None or job.state.finished:
+            raise ControlError("no track is queued or running", "id")
+        if job.state is LookState.RUNNING:
+            job.request_cancel("stopped", "stopped by a client")
+            return job
+        return self.parts.looks.cancel(job.id)
+
+    def get_track(self) -> dict[str, Any]:
+        """The last track queued (its job), with the running one's figures so far."""
+        with self._track_lock:
+            job = self._track
+        if job is None:
+            raise NotFoundError("no track has been queued since the service started", "id")
+        out = job.as_dict()
+        live = self.tracking_now()
+        if live is not None and job.state is LookState.RUNNING:
+            out["result"] = {"stats": live}
+        return out
+
+    def tracking_now(self) -> dict[str, Any] | None:
+        """The running track's figures (position of the patch, errors, latency), or None."""
+        running = self.parts.running
+        return running.fixation.tracking_status() if running is not None else None
 
     # -- switches -----------------------------------------------------------------------------
     def set_exploration(self, enabled: bool) -> bool:

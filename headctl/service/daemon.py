@@ -48,6 +48,7 @@ from headctl.service.persistence import Checkpointer, StateDirLock, restore_map,
 from headctl.service.servo_loop import ServoIO, ServoLoop
 from headctl.service.servo_process import ServoLoopProcess
 from headctl.service.status import FaultWatcher
+from headctl.service.tracking import Tracking
 from headctl.service.supervisor import Supervisor, status_line
 from headctl.service.systemd import SystemdNotifier
 
@@ -168,8 +169,12 @@ class Daemon:
         controller = FixationController(head, adapter, cfg.fixation.params,
                                         seed=None if not cfg.simulated else cfg.gaze_map.seed,
                                         clock=clock.monotonic, learner=adapter)
+        tracking = Tracking(head, adapter, adapter.map.params.disparity_range, cfg.tracking.params,
+                            frame_period_s=1.0 / (cfg.cameras.left.fps or 30.0), publish=parts.hub.publish,
+                            clock=clock)
         fixation = FixationThread(controller, head, interrupt, parts.looks, parts.hub, self._paused_reason,
-                                  explore=cfg.fixation.explore, rate_hz=cfg.fixation.rate_hz, clock=clock)
+                                  explore=cfg.fixation.explore, rate_hz=cfg.fixation.rate_hz, clock=clock,
+                                  tracking=tracking)
         parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
         fixation.start()
         stack.callback(fixation.stop)

@@ -1,4 +1,4 @@
-"""The fixation thread: clients' looks first, else exploratory fixations that teach the map.
+"""The fixation thread: clients' looks and tracks first, else exploratory fixations that teach the map.
 
 Each fixation is `calib_free.fixation.FixationController.fixate()` on the service's `Head`;
 taught ones go to the map adapter (the controller submits them). The thread is paused while
@@ -17,14 +17,17 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
+from calib_free.closed_loop import LookController
 from calib_free.fixation import (FixationController, FixationInterrupted, FixationOutcome,
                                  FixationRecord, HeadTimeoutError)
+from calib_free.pursuit import TrackOutcome
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from headctl.head import Head
 from headctl.service.events import EventHub, plain
 from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
 from headctl.service.servo_loop import join_thread
+from headctl.service.tracking import Tracking
 
 log = logging.getLogger(__name__)
 
@@ -82,11 +85,9 @@ class FixationThread(threading.Thread):
     """Clients' looks first, else exploratory fixations (back to back or at `rate_hz`) while
     exploration is on; paused while `paused_reason()` says why."""
 
-    SAME_VIEW_DEG = 0.25  # the head moved less than this on every axis: the same view
-
     def __init__(self, controller: FixationController, head: Head, interrupt: Interrupt, looks: LookQueue,
                  events: EventHub, paused_reason: Callable[[], str | None], *, explore: bool = True,
-                 rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK) -> None:
+                 rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK, tracking: Tracking | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
@@ -105,10 +106,18 @@ class FixationThread(threading.Thread):
         self.landing_errors_px: collections.deque[float] = collections.deque(maxlen=200)  # target looks'
         self.error: BaseException | None = None
         self._lock = threading.Lock()
+        # Clients' target looks, closed-loop; each of their fixations counted and told as it ends.
+        self.looker = LookController(controller, on_fixation=self._count)
+        # Smooth pursuit (`headctl.service.tracking`); without it, a track fails saying so.
+        self.tracking = tracking
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self.abort.set()
         join_thread(self, timeout_s)
+
+    def tracking_status(self) -> dict[str, Any] | None:
+        """The running track's figures (the patch's position, errors, latency), or None."""
+        return self.tracking.status() if self.tracking is not None else None
 
     def counts(self) -> dict[str, Any]:
         with self._lock:
@@ -158,6 +167,9 @@ class FixationThread(threading.Thread):
 
     def _look(self, job: LookJob) -> None:
         request = job.request
+        if request.kind is LookKind.TRACK:
+            self._track(job)
+            return
         self.events.publish("look_started", id=job.id, **request.as_dict())
         paused = self.paused_reason()
         try:
@@ -177,31 +189,68 @@ class FixationThread(threading.Thread):
             self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
 
     def _look_at_target(self, job: LookJob) -> None:
+        """A closed-loop look (`calib_free.closed_loop`): `done` only with the target within the
+        tolerance of the left fovea; every figure of the result from an accepted measurement."""
         target = np.asarray(job.request.values, dtype=float)
         reference = job.request.reference_pose
-        record = self._fixate(target, None if reference is None else np.asarray(reference))
-        result: dict[str, Any] = {"converged": record.converged, "taught": record.taught,
-                                  "vergence_steps": record.vergence_steps, "duration_s": record.duration_s,
-                                  "pose_before": record.pose_before, "pose_after": record.pose_after,
-                                  "planned": record.planned, "position": None, "confidence": None,
-                                  "landing_error_px": None}
-        moved = (None if reference is None or record.pose_before is None
-                 else float(np.max(np.abs(record.pose_before - np.asarray(reference)))))
-        result["head_moved_deg"] = moved
-        if record.match is not None and record.position is not None:
-            result.update(position=record.position, confidence=record.confidence)
-            # Where the head landed, in the image the target was chosen in: measurable only
-            # when the pre-fixation images are that view (the head has not moved since).
-            if moved is None or moved <= self.SAME_VIEW_DEG:
-                landing = float(np.hypot(*(record.position[:2] - target[:2])))
-                result["landing_error_px"] = landing
-                self.landing_errors_px.append(landing)
-        outcome = str(record.outcome)
-        if record.outcome is FixationOutcome.CANCELLED:
+        self.head.set_phase("look at target")
+        try:
+            look = self.looker.look(target, None if reference is None else np.asarray(reference))
+        finally:
+            self.head.set_phase("idle")
+        fixations = look.fixations
+        first, last = (fixations[0], fixations[-1]) if fixations else (None, None)
+        sighting = look.sightings[-1] if look.sightings and len(look.sightings) == len(fixations) else None
+        accepted = first is not None and first.taught  # its correspondence (position, confidence) was accepted
+        result: dict[str, Any] = {
+            "on_target": look.on_target, "final_error_px": look.final_error_px,
+            "tolerance_px": self.looker.params.tolerance_px, "corrective_steps": look.corrective_steps,
+            "landing_error_px": look.landing_error_px,
+            "target_px": None if sighting is None else [sighting.x, sighting.y],
+            "target_ncc": None if sighting is None else sighting.ncc,
+            "converged": last is not None and last.converged, "taught": sum(f.taught for f in fixations),
+            "vergence_steps": sum(f.vergence_steps for f in fixations), "duration_s": look.duration_s,
+            "pose_before": None if first is None else first.pose_before,
+            "pose_after": None if last is None else last.pose_after,
+            "planned": None if first is None else first.planned,
+            "position": first.position if accepted and first is not None else None,
+            "confidence": first.confidence if accepted and first is not None else None,
+            "head_moved_deg": look.view_restored_deg,
+            "fixations": [{"outcome": str(f.outcome), "detail": f.detail, "converged": f.converged,
+                           "taught": f.taught, "vergence_steps": f.vergence_steps} for f in fixations]}
+        if look.landing_error_px is not None:
+            self.landing_errors_px.append(look.landing_error_px)
+        if look.outcome is FixationOutcome.CANCELLED:
             self.looks.finish(job, LookState.CANCELLED, job.cancel_outcome, job.cancel_detail, plain(result))
         else:
-            self.looks.finish(job, LookState.DONE if record.converged else LookState.FAILED, outcome,
-                              record.detail, plain(result))
+            self.looks.finish(job, LookState.DONE if look.on_target else LookState.FAILED, str(look.outcome),
+                              look.detail, plain(result))
+
+    def _track(self, job: LookJob) -> None:
+        """Pursue the target until the track is stopped, lost or preempted (any look or track
+        queued meanwhile); the job ends `done` when a client stopped it, else `failed`."""
+        tracking = self.tracking
+        paused = self.paused_reason()
+        try:
+            if tracking is None or paused is not None:
+                why = paused or "tracking is not set up"
+                self.looks.finish(job, LookState.FAILED, "cannot track", why)
+                self.events.publish("track_stopped", id=job.id, outcome="cannot track", detail=why)
+                return
+            x, y, _ = job.request.values
+            with self.interrupt.during(job):
+                end = tracking.run(job.id, (x, y), lambda: self.looks.pending() > 0)
+        except BaseException as err:
+            if not job.done.is_set():
+                self.looks.finish(job, LookState.FAILED, "internal error", repr(err))
+            raise
+        result = plain({"stats": end.stats.as_dict()})
+        if end.outcome is TrackOutcome.STOPPED and job.cancel_outcome != "replaced":
+            self.looks.finish(job, LookState.DONE, "stopped", job.cancel_detail or end.detail, result)
+        elif end.outcome in (TrackOutcome.STOPPED, TrackOutcome.PREEMPTED):
+            self.looks.finish(job, LookState.CANCELLED, "preempted", job.cancel_detail or end.detail, result)
+        else:
+            self.looks.finish(job, LookState.FAILED, str(end.outcome), end.detail, result)
 
     def _look_at_angles(self, job: LookJob) -> None:
         request = job.request

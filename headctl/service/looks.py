@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 class LookKind(enum.StrEnum):
     TARGET = "target"  # an image target (x, y, d)
     ANGLES = "angles"  # joint angles (pan, tilt, vergence)
+    TRACK = "track"  # pursue the patch at an image target (x, y; d measured) until stopped or lost
 
 
 class LookState(enum.StrEnum):
@@ -52,13 +53,17 @@ class LookRequest:
     relative: bool = False
     # A target's: the pose whose view it was chosen in (the head's when it was queued).
     reference_pose: tuple[float, float, float] | None = None
-    # A target sent without d: the NCC of the match that measured it (Daemon.measure_disparity).
+    # A target sent without d: the NCC of the match that measured it (Daemon.measure_disparity),
+    # or None and why d could not be measured (the look then starts at the fixation's depth, d 0).
     d_ncc: float | None = None
+    d_reason: str = ""
 
     def as_dict(self) -> dict[str, Any]:
-        names = ("x", "y", "d") if self.kind is LookKind.TARGET else ("pan", "tilt", "vergence")
+        names = ("pan", "tilt", "vergence") if self.kind is LookKind.ANGLES else ("x", "y", "d")
         out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
-        if self.kind is LookKind.ANGLES:
+        if self.kind is LookKind.TRACK:
+            out.pop("d")  # measured where the patch is taken
+        elif self.kind is LookKind.ANGLES:
             out["relative"] = self.relative
         else:
             if self.reference_pose is not None:
@@ -66,6 +71,8 @@ class LookRequest:
             out["d_measured"] = self.d_ncc is not None
             if self.d_ncc is not None:
                 out["d_ncc"] = round(self.d_ncc, 3)
+            if self.d_reason:
+                out["d_reason"] = self.d_reason
         return out
 
 

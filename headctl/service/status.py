@@ -59,6 +59,7 @@ class FixationStatus:
     last: dict[str, Any] | None
     vergence_latency_ms: dict[str, Any]
     landing_error_px_median: float | None  # over the last target looks measured
+    tracking: dict[str, Any] | None = None  # the running track's figures (GET /api/v1/track has them too)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -256,7 +257,7 @@ def _fixation_status(parts: ServiceParts) -> FixationStatus:
         None if last is None else last_fixation(last),
         {"count": len(latency), "p50": None if l50 is None else round(l50 * 1e3, 3),
          "p99": None if l99 is None else round(l99 * 1e3, 3)},
-        float(np.median(landing)) if landing else None)
+        float(np.median(landing)) if landing else None, fix.tracking_status())
 
 
 def _learning_status(parts: ServiceParts) -> LearningStatus | None:

@@ -1,18 +1,22 @@
 """Correspondence and confidence (eqs. 1-7) on synthetic and rendered images."""
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 
 from calib_free.correspondence import (CorrespondenceError, CorrespondenceParams, EyeMatch, FixationMatch,
-                                       correspondence_map, foveal_disparity, foveal_patch, match_eye,
-                                       stereo_inconsistency)
+                                       correspondence_map, foveal_patch, match_eye, stereo_inconsistency)
+from calib_free.disparity import foveal_disparity
 from calib_free.sim import HeadModel, JointLimits
 from drivers.sim_scene import StereoRenderer, shared_scene
+from tests.support.saccade_pairs import accuracy, saccade_cases, scored
 from tests.support.sim_truth import first_surface, foveal_point, joints
 
 W, H = 320, 240
+PAPER = CorrespondenceParams.profile_values("paper")
 
 
 def texture(seed: int = 0, shape: tuple[int, int] = (600, 800)) -> np.ndarray:
@@ -62,8 +66,8 @@ def test_the_factors_pick_the_true_place_where_plain_ncc_picks_a_look_alike():
     pre[42:57, 42:57] = shrunk
     # a look-alike: the same pattern, darker and with less contrast (NCC ignores both)
     pre[180:200, 250:270] = 0.3 * fovea + 20
-    plain = match_eye(pre, post, CorrespondenceParams(use_factors=False))
-    weighted = match_eye(pre, post, CorrespondenceParams())
+    plain = match_eye(pre, post, CorrespondenceParams.profile_values("paper", use_factors=False))
+    weighted = match_eye(pre, post, PAPER)
     assert abs(plain.x - 259.5) < 2 and abs(plain.y - 189.5) < 2  # NCC alone: the look-alike
     assert abs(weighted.x - 49.5) < 4 and abs(weighted.y - 49.5) < 4  # with f1 f2: the truth
 
@@ -79,10 +83,11 @@ def test_correspondence_map_is_bounded():
 def test_confidence_follows_eqs_4_and_6():
     tex = texture(3)
     pre, post = view(tex, 100, 100), view(tex, 160, 130)
-    m = match_eye(pre, post, CorrespondenceParams(min_correlation=0.2))
+    m = match_eye(pre, post, CorrespondenceParams.profile_values("paper", min_correlation=0.2))
     c_s, c_t = 10 / (1 - 0.2), (1 + 0.2) / 2
     assert m.c1 == pytest.approx(1 / (1 + np.exp(-c_s * (m.c_max - c_t))))
     assert m.c2 == pytest.approx(1 / (1 + m.competitors))
+    assert m.confidence == pytest.approx(m.c1 * m.c2)  # the paper's per-eye figure
     fm = FixationMatch(m, m)
     assert fm.confidence == pytest.approx((m.c1 * m.c2) ** 2)
     assert fm.position[2] == 0.0
@@ -157,15 +162,16 @@ def test_rendered_correspondence_is_within_a_pixel_on_rich_texture(rendered_case
 
 
 def test_nearly_uniform_patches_get_far_less_confidence_than_textured(rendered_cases):
-    """Paper fig. 4: 0.93 on a detailed patch, 0.39 on one with little structure."""
-    conf = {"rich": [], "uniform": []}
-    for pre, post, _, kind in rendered_cases:
-        if kind in conf:
-            m = match_eye(pre, post, CorrespondenceParams())
-            conf[kind].append(m.c1 * m.c2)
-    assert len(conf["uniform"]) >= 10
-    assert np.median(conf["rich"]) > 0.85
-    assert np.median(conf["uniform"]) < 0.5
+    """Paper fig. 4: 0.93 on a detailed patch, 0.39 on one with little structure; in either
+    profile (the paper's c1 c2, the default's own confidence)."""
+    for params in (PAPER, CorrespondenceParams()):
+        conf = {"rich": [], "uniform": []}
+        for pre, post, _, kind in rendered_cases:
+            if kind in conf:
+                conf[kind].append(match_eye(pre, post, params).confidence)
+        assert len(conf["uniform"]) >= 10
+        assert np.median(conf["rich"]) > 0.85, params.profile
+        assert np.median(conf["uniform"]) < 0.5, params.profile
 
 
 def test_centre_weighting_is_what_brings_the_matches_within_a_pixel(rendered_cases):
@@ -174,4 +180,68 @@ def test_centre_weighting_is_what_brings_the_matches_within_a_pixel(rendered_cas
                   if kind == "rich" for m in [match_eye(pre, post, params)]]
         return float(np.mean(np.array(errors) <= 1.0))
 
-    assert rate(CorrespondenceParams()) > rate(CorrespondenceParams(refine_sigma_fraction=0.0))
+    # Without context and affine alignment (the search eqs. 1-6 make, as in the paper's profile).
+    plain = CorrespondenceParams(context_levels=0)
+    assert rate(plain) > rate(dataclasses.replace(plain, refine_sigma_fraction=0.0))
+
+
+# --- repeated structure: where eqs. 4-7 are sure of a wrong match --------------------------
+def test_a_repeat_fools_eqs_4_7_and_the_default_refuses_it():
+    """A row of alike books: the fovea's book is one of five, and in the pre-fixation image the
+    true one is a little blurred (the periphery of a fish-eye) while its neighbours are not.
+    Eq. 1 prefers a crisp neighbour 24 px away; eq. 5 weighs that near competitor by its
+    squared distance, so eqs. 4-7 accept it. The default sees the equal context peaks and the
+    backward check landing off the fovea, and refuses."""
+    rng = np.random.default_rng(7)
+    pre = cv2.GaussianBlur((rng.random((H, W)) * 80 + 90).astype(np.float32), (0, 0), 3.0)
+    book = cv2.GaussianBlur(rng.random((22, 18), dtype=np.float32) * 220, (0, 0), 1.2) + 10
+    truth = (150, 100)  # top-left of the true book
+    for k in range(-2, 3):
+        x0 = truth[0] + 24 * k
+        pre[truth[1]:truth[1] + 22, x0:x0 + 18] = book if k else cv2.GaussianBlur(book, (0, 0), 0.9)
+    # The head turned: the true book is now on the fovea (a pure shift of the pre image, crisp).
+    dx, dy = (W - 18) // 2 - truth[0], (H - 22) // 2 - truth[1]
+    post = np.roll(np.roll(pre, dy, axis=0), dx, axis=1)
+    post[(H - 22) // 2:(H - 22) // 2 + 22, (W - 18) // 2:(W - 18) // 2 + 18] = book
+    post = np.clip(post + rng.normal(0, 2.0, post.shape), 0, 255).astype(np.float32)
+    true_x = truth[0] + 8.5  # the centre of the fovea's 20 x 20 patch, in pre (x)
+    paper = match_eye(pre, post, PAPER)
+    assert abs(paper.x - true_x) > 20, "eqs. 1-6 must pick a neighbouring book for this test to mean anything"
+    assert paper.confidence >= 0.3, f"eqs. 4-7 accept it (c1 c2 = {paper.confidence:.2f})"
+    default = match_eye(pre, post, CorrespondenceParams())
+    assert default.confidence < 0.3, (default.x, default.confidence, default.second_peak, default.backward_px)
+
+
+def test_the_default_confidence_is_high_on_a_plain_shift():
+    tex = texture(8)
+    pre, post = view(tex, 200, 150), view(tex, 160, 190)
+    m = match_eye(pre, post, CorrespondenceParams())
+    assert (m.x, m.y) == pytest.approx(((W - 1) / 2 - 40, (H - 1) / 2 + 40), abs=0.3)
+    assert m.confidence > 0.9 and m.backward_px < 0.5 and m.second_peak < m.context_c_max - 0.2
+    assert FixationMatch(m, m).confidence == pytest.approx(m.confidence ** 2)  # eq. 7: the product
+
+
+def test_profiles():
+    assert PAPER.paper and not CorrespondenceParams().paper
+    with pytest.raises(ValueError, match="profile"):
+        CorrespondenceParams(profile="best")
+
+
+# --- the photo room (issue 14's goal, on fewer pairs than benchmarks/bench_fixation.py) ----
+@pytest.fixture(scope="module")
+def photo_room_cases():
+    model = HeadModel.default(limits=JointLimits(vergence=(1.0, 20.0)))
+    return saccade_cases(shared_scene(0, False, "photos"), model, 120, seed=5)
+
+
+def test_photo_room_correspondence_meets_the_goal_and_beats_eqs_4_7(photo_room_cases):
+    default = accuracy(list(scored(photo_room_cases, CorrespondenceParams())))
+    paper = accuracy(list(scored(photo_room_cases, PAPER)))
+    assert default.cases >= 200
+    assert default.within_1px >= 0.97, default.line()
+    assert default.wrong_accepted <= 0.01, default.line()
+    assert default.right_accepted >= 0.85, default.line()
+    assert paper.within_1px < default.within_1px, paper.line()
+    # The affine alignment is what takes the fish-eye periphery's last pixel of bias away.
+    translation_only = accuracy(list(scored(photo_room_cases, CorrespondenceParams(affine_iterations=0))))
+    assert translation_only.within_1px < default.within_1px, translation_only.line()

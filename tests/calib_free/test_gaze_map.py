@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from calib_free import GazeMap, GazeMapParams, MapFileError, OutOfRangeError
+from calib_free.adapter import MapAdapter, Sample
 from calib_free.experiments import landing_errors_px, landing_targets, map_predictor
 from calib_free.sim import FixationSampler, HeadModel, JointLimits, with_perturbation
 
@@ -307,3 +308,88 @@ def test_surprise_fires_within_two_windows_of_a_change_of_the_head():
         gm.adapt(*next(flipped))
         least_memory = min(least_memory, gm.memory)
     assert least_memory == gm.params.global_memory_min
+
+
+# --- the head's pose as an input (beyond the paper) ------------------------------------------
+def pose_trained(n: int, seed: int, use_pose: bool) -> GazeMap:
+    gm = GazeMap.for_image(320, 240, seed=seed)
+    sampler = FixationSampler(HeadModel.default(), seed=seed)
+    for _ in range(n):
+        s = sampler.draw()
+        assert gm.adapt(s.position, s.command, pose=s.pose_before if use_pose else None).accepted
+    return gm
+
+
+def test_the_pose_brings_targets_within_a_pixel_where_x_y_d_alone_cannot():
+    """The image rotates with tilt and vergence: from (x, y, d) alone a map lands ~3.5 px
+    off however long it learns; told the pose it lands within a pixel after 300 samples."""
+    head = HeadModel.default()
+    targets = landing_targets(head, 200, (-60, 60), seed=11)
+    gm = pose_trained(300, seed=4, use_pose=True)
+    assert gm.pose_trusted
+    with_pose = np.median(landing_errors_px(head, targets, map_predictor(gm, use_pose=True)))
+    without = np.median(landing_errors_px(head, targets, map_predictor(gm, use_pose=False)))
+    assert with_pose < 1.0
+    assert without > 2.5 * with_pose  # the same map read without a pose: its pose-free estimate
+
+
+def test_a_map_that_never_saw_a_pose_answers_a_lookup_with_one_from_its_pose_free_estimate():
+    gm = pose_trained(50, seed=2, use_pose=False)
+    assert not gm.pose_trusted
+    position = (100.0, 70.0, -5.0)
+    np.testing.assert_array_equal(gm.command(position, pose=(10.0, -20.0, 12.0)), gm.command(position))
+    np.testing.assert_array_equal(gm.inverse((1.0, 2.0, 0.5), pose=(10.0, -20.0, 12.0)),
+                                  gm.inverse((1.0, 2.0, 0.5)))
+
+
+def test_the_paper_profile_ignores_the_pose_bit_for_bit():
+    a = GazeMap.for_image(320, 240, seed=6, profile="paper")
+    b = GazeMap.for_image(320, 240, seed=6, profile="paper")
+    sampler = FixationSampler(HeadModel.default(), seed=6)
+    for _ in range(40):
+        s = sampler.draw()
+        assert (a.adapt(s.position, s.command, 0.9).retinal_error
+                == b.adapt(s.position, s.command, 0.9, pose=s.pose_before).retinal_error)
+    np.testing.assert_array_equal(a.grid, b.grid)
+    np.testing.assert_array_equal(a.command((50.0, 60.0, 3.0)), b.command((50.0, 60.0, 3.0), pose=(1.0, 2.0, 9.0)))
+
+
+@pytest.mark.parametrize("pose", [(0.0, float("nan"), 10.0), (0.0, 1.0), (0.0, 1e4, 10.0)])
+def test_a_bad_pose_is_refused_and_named(pose):
+    gm = GazeMap.for_image(320, 240, seed=0)
+    st = gm.adapt((100.0, 100.0, 0.0), (1.0, 1.0, 1.0), pose=pose)
+    assert not st.accepted and "pose must be 3 finite angles" in st.reason and gm.adaptations == 0
+    with pytest.raises(OutOfRangeError, match="pose"):
+        gm.command((100.0, 100.0, 0.0), pose=pose)
+
+
+@pytest.mark.parametrize("use_pose", [False, True])
+def test_uncertainty_is_largest_where_the_map_has_seen_no_sample(use_pose):
+    """Samples only in the left half of the image: the polynomial's predictive variance is
+    higher in the right half, and falls where samples came."""
+    gm = GazeMap.for_image(320, 240, seed=0)
+    sampler = FixationSampler(HeadModel.default(), seed=0)
+    pose = (0.0, 5.0, 10.0) if use_pose else None
+    fresh = gm.uncertainty((60.0, 120.0, 0.0), pose=pose)
+    taught = 0
+    while taught < 150:
+        s = sampler.draw()
+        if s.position[0] < 140:
+            gm.adapt(s.position, s.command, pose=s.pose_before if use_pose else None)
+            taught += 1
+    seen, unseen = gm.uncertainty((60.0, 120.0, 0.0), pose=pose), gm.uncertainty((300.0, 120.0, 0.0), pose=pose)
+    assert seen < fresh / 10
+    assert unseen > 10 * seen
+    assert GazeMap.for_image(320, 240, profile="paper").uncertainty((60.0, 120.0, 0.0)) == 1.0
+
+
+def test_the_adapter_passes_a_samples_pose_to_the_map():
+    gm = GazeMap.for_image(320, 240, seed=0)
+    sampler = FixationSampler(HeadModel.default(), seed=0)
+    with MapAdapter(gm) as adapter:
+        for n in range(3):
+            s = sampler.draw()
+            adapter.submit(Sample(s.position, s.command, 1.0, tag=n, pose=s.pose_before))
+        assert adapter.wait_idle(10.0)
+    assert gm.adaptations == 3 and np.isfinite(gm.fit_errors).all()  # the pose-aware part learned
+    np.testing.assert_array_equal(adapter.command(s.position, pose=s.pose_before), gm.command(s.position, s.pose_before))

@@ -16,15 +16,17 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from calib_free import GazeMap, MapFileError
+from calib_free import GazeMap, GazeMapParams, MapFileError
 from calib_free.map_file import MAX_MEMBERS, read_map, temporary_files
 
 
-def _small_map(profile: str = "default", adaptations: int = 12) -> GazeMap:
+def _small_map(profile: str = "default", adaptations: int = 12, pose: bool = False) -> GazeMap:
     gm = GazeMap.for_image(32, 24, disparity_range=(-6.0, 6.0), seed=3, profile=profile, grid_shape=(6, 5, 4))
     rng = np.random.default_rng(0)
     for _ in range(adaptations):
-        gm.adapt((rng.uniform(0, 31), rng.uniform(0, 23), rng.uniform(-5, 5)), rng.uniform(-5, 5, size=3))
+        seen_at = (rng.uniform(-40, 40), rng.uniform(-25, 25), rng.uniform(3, 20)) if pose else None
+        gm.adapt((rng.uniform(0, 31), rng.uniform(0, 23), rng.uniform(-5, 5)), rng.uniform(-5, 5, size=3),
+                 pose=seen_at)
     return gm
 
 
@@ -100,6 +102,65 @@ def test_a_file_without_surprised_loads_with_none_pending(tmp_path):
     members = _members(_saved(tmp_path))
     del members["surprised.npy"]
     assert GazeMap.load(_write_members(tmp_path / "older.npz", members)).surprised == 0.0
+
+
+POSE = (5.0, -10.0, 8.0)
+
+
+def test_a_pose_aware_map_loads_and_continues_identically(tmp_path):
+    gm = _small_map(pose=True, adaptations=30)
+    assert np.isfinite(gm.fit_errors).all()  # its pose-aware part learned
+    gm.save(tmp_path / "m.npz")
+    assert {"pose_coef.npy", "pose_covariance.npy", "pose_noise.npy", "fit_errors.npy"} <= _members(tmp_path / "m.npz").keys()
+    loaded = GazeMap.load(tmp_path / "m.npz")
+    np.testing.assert_array_equal(loaded.pose_polynomial.coef, gm.pose_polynomial.coef)
+    np.testing.assert_array_equal(loaded.fit_errors, gm.fit_errors)
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        position, command = (rng.uniform(0, 31), rng.uniform(0, 23), rng.uniform(-5, 5)), rng.uniform(-5, 5, 3)
+        pose = (rng.uniform(-40, 40), rng.uniform(-25, 25), rng.uniform(3, 20))
+        assert gm.adapt(position, command, pose=pose).retinal_error == loaded.adapt(position, command,
+                                                                                      pose=pose).retinal_error
+        np.testing.assert_array_equal(gm.command(position, pose=pose), loaded.command(position, pose=pose))
+        assert gm.uncertainty(position, pose=pose) == loaded.uncertainty(position, pose=pose)
+
+
+def _older_file(tmp_path: Path, gm: GazeMap) -> Path:
+    """`gm` as a map file from before the pose inputs: no pose parameters, noise or pose entries."""
+    gm.save(tmp_path / "new.npz")
+    members = _members(tmp_path / "new.npz")
+    params = json.loads(np.load(io.BytesIO(members["params.npy"]))[()])
+    for key in ("pose_degree", "pose_position_degree", "pose_cross_degree"):
+        del params[key]
+    members["params.npy"] = _npy(np.array(json.dumps(params, sort_keys=True)))
+    for entry in ("polynomial_noise", "pose_coef", "pose_covariance", "pose_noise", "fit_errors"):
+        members.pop(f"{entry}.npy", None)
+    return _write_members(tmp_path / "older.npz", members)
+
+
+@pytest.mark.parametrize("profile", ["default", "paper"])
+def test_an_older_map_file_loads_answers_as_before_and_learns_the_pose(tmp_path, profile):
+    gm = _small_map(profile, adaptations=30)
+    loaded = GazeMap.load(_older_file(tmp_path, gm))
+    # The parameters a config of the same profile makes today: the service keeps the file.
+    assert loaded.params == GazeMapParams.profile_values(profile, **{
+        k: getattr(gm.params, k) for k in ("image_size", "disparity_range", "grid_shape")})
+    position = (12.0, 9.0, 1.0)
+    np.testing.assert_array_equal(loaded.command(position), gm.command(position))
+    np.testing.assert_array_equal(loaded.command(position, pose=POSE), gm.command(position))  # never saw a pose
+    if profile == "default":
+        assert loaded.pose_polynomial is not None and not loaded.pose_trusted
+        assert loaded.adapt(position, (1.0, -1.0, 0.5), pose=POSE).accepted
+        assert np.isfinite(loaded.fit_errors).all()
+        loaded.save(tmp_path / "again.npz")
+        assert "pose_coef.npy" in _members(tmp_path / "again.npz")
+
+
+def test_pose_entries_come_all_or_none(tmp_path):
+    _small_map(pose=True).save(tmp_path / "m.npz")
+    members = _members(tmp_path / "m.npz")
+    del members["pose_covariance.npy"]
+    _refused(_write_members(tmp_path / "bad.npz", members), "'pose_covariance'", "all of")
 
 
 def test_a_fortran_ordered_or_deflated_file_loads_the_same(tmp_path):
@@ -384,13 +445,14 @@ def _corruptions(draw):
 
 _ENTRY_SHAPES = {"format": (), "params": (), "grid": (3, 6, 5, 4), "recent_errors": (10,), "adaptations": (),
                  "long_run_error": (), "memory": (), "residual_scale": (), "surprised": (),
-                 "polynomial_coef": (20, 3), "polynomial_covariance": (20, 20)}
+                 "polynomial_coef": (20, 3), "polynomial_covariance": (20, 20), "polynomial_noise": (3,),
+                 "pose_coef": (106, 3), "pose_covariance": (106, 106), "pose_noise": (3,), "fit_errors": (2,)}
 
 
 @pytest.fixture(scope="module")
 def valid_file(tmp_path_factory) -> bytes:
     path = tmp_path_factory.mktemp("valid") / "m.npz"
-    _small_map().save(path)
+    _small_map(pose=True).save(path)
     return path.read_bytes()
 
 
@@ -427,7 +489,8 @@ def test_a_randomly_corrupted_file_gives_a_usable_map_or_map_file_error(tmp_path
                                      and np.isfinite(gm.polynomial.covariance).all())
     with np.errstate(all="ignore"):
         assert np.isfinite(gm.command((16.0, 12.0, 0.0))).all()
-        result = gm.adapt((10.0, 10.0, 1.0), (1.0, -1.0, 0.5))
+        assert np.isfinite(gm.command((16.0, 12.0, 0.0), pose=POSE)).all()
+        result = gm.adapt((10.0, 10.0, 1.0), (1.0, -1.0, 0.5), pose=POSE)
     assert result.accepted and np.isfinite(gm.grid).all() and np.isfinite(result.mean_retinal_error)
 
 

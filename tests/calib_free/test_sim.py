@@ -145,3 +145,39 @@ def test_sampled_pairs_are_exact_fixations(perturbation):
         np.testing.assert_allclose(uv_r[0], centre, atol=1e-6)
         assert -0.5 <= s.position[0] <= 319.5 and -0.5 <= s.position[1] <= 239.5
         assert -60 <= s.position[2] <= 60
+
+
+class HalfDome:
+    """A sphere of radius `radius_m` about the origin, seen from inside, only where y >= 0 (the
+    head's left and straight ahead): rays elsewhere meet nothing."""
+
+    def __init__(self, radius_m: float) -> None:
+        self.radius_m = radius_m
+
+    def first_surface(self, origin, direction):
+        b = float(origin @ direction)
+        t = -b + np.sqrt(b * b - (origin @ origin - self.radius_m ** 2))
+        point = origin + t * direction
+        return point if point[1] > -1e-9 else None
+
+
+def test_with_surroundings_every_pose_fixates_the_first_surface_ahead():
+    head = HeadModel.default()
+    dome = HalfDome(0.8)  # 4.4 deg of vergence: within the default 3-20
+    sampler = FixationSampler(head, (-60, 60), seed=5, surroundings=dome)
+    for _ in range(40):
+        s = sampler.draw()
+        after = s.pose_before + s.command
+        for pose in (s.pose_before, after):
+            # the eyes' axes cross on the dome, on the head's left, within the vergence limits
+            point = head.fixation_point(pose)
+            assert np.linalg.norm(point) == pytest.approx(0.8, abs=1e-6)
+            assert point[1] > -1e-9 and head.limits.contains(pose)
+        np.testing.assert_allclose(s.target, head.fixation_point(after), atol=1e-9)
+    # a 0.8 m sphere seen from 2 cm in front of and 6 cm above its centre
+    distance = np.sqrt(0.8 ** 2 - 0.06 ** 2) - 0.02
+    vergence = head.vergence_fixating(np.array([-30.0, 0.0]), dome)
+    assert vergence is None  # the head's right: nothing there
+    vergence = head.vergence_fixating(np.array([30.0, 0.0]), dome)
+    expected = np.degrees(2 * np.arctan(0.03 / distance))
+    assert vergence == pytest.approx(expected, rel=1e-6)

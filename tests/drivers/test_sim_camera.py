@@ -9,12 +9,12 @@ import pytest
 
 from calib_free.sim import HeadModel
 from drivers.camera import StreamHealth, create_camera
-from drivers.camera_config import CameraConfig
+from drivers.camera_config import CameraConfig, StereoCamerasConfig
 from drivers.stereo import StereoPair
 from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError, CameraError, CameraTimeoutError
 from drivers.sim_camera import SimulatedCamera, fixed_pose
-from drivers.sim_scene import Scene, StereoRenderer
+from drivers.sim_scene import Scene, StereoRenderer, shared_scene
 
 HEAD = HeadModel.default(160, 120)
 REST = {"pan": 0.0, "tilt": 0.0, "left_eye": 2.0, "right_eye": -2.0}
@@ -176,3 +176,42 @@ def test_config_errors_name_the_key():
                                                 r"by the 'sim' backend"):
         create_camera(CameraConfig(backend="sim", eye="left", serial="X"), key_path="cameras.left",
                       head=HEAD, pose_source=fixed_pose())
+
+
+def scene_section(scene, backend="sim"):
+    cameras = {side: {"backend": backend, "eye": side, "width": 160, "height": 120} for side in ("left", "right")}
+    if backend != "sim":
+        cameras = {side: {"backend": backend} for side in ("left", "right")}
+    return {**cameras, "scene": scene}
+
+
+def test_the_scene_section_chooses_the_room(tmp_path):
+    assert StereoCamerasConfig.from_mapping(scene_section({})).scene.kind == "generated"
+    assert StereoCamerasConfig.from_mapping(scene_section({"room": "photos"})).scene.kind == "photos"
+    (tmp_path / "poster.png").write_bytes(b"")  # found by name; read when the room is built
+    chosen = StereoCamerasConfig.from_mapping(scene_section({"textures": str(tmp_path)})).scene
+    assert chosen.kind == "photos" and chosen.folder == tmp_path
+
+
+@pytest.mark.parametrize("scene, backend, key, says", [
+    ({"room": "attic"}, "sim", "cameras.scene.room", "'generated' or 'photos'"),
+    ({"textures": "/no/such/folder"}, "sim", "cameras.scene.textures", "/no/such/folder: no such folder"),
+    ({"room": "generated", "textures": "/tmp"}, "sim", "cameras.scene.room", "papers the photo room"),
+    ({"room": "photos"}, "opencv", "cameras.scene", "not simulated"),
+])
+def test_scene_config_errors_name_the_key_and_the_path(scene, backend, key, says):
+    with pytest.raises(CameraConfigError) as err:
+        StereoCamerasConfig.from_mapping(scene_section(scene, backend))
+    assert f"{key}:" in str(err.value) and says in str(err.value)
+
+
+def test_a_simulated_camera_renders_the_photo_room():
+    clock = ManualClock()
+    # Seed 0: the rooms other tests build too (shared_scene keeps them for the process).
+    config = CameraConfig.from_mapping({"backend": "sim", "eye": "left", "width": 160, "height": 120, "seed": 0})
+    photos = create_camera(config, clock=clock, head=HEAD, pose_source=fixed_pose(**REST),
+                           scene=shared_scene(0, False, "photos"), paced_by_clock=False)
+    generated = create_camera(config, clock=clock, head=HEAD, pose_source=fixed_pose(**REST), paced_by_clock=False)
+    with photos, generated:
+        assert not np.array_equal(photos.render(REST), generated.render(REST))
+        assert photos.render(REST).std() > 10

@@ -41,7 +41,8 @@ STREAMS = {("GET", "/api/v1/events"), ("GET", "/api/v1/eyes/{side}.mjpg")}
 OPERATIONS = [
     ("GET", "/api/v1/state"), ("GET", "/api/v1/learning"), ("GET", "/api/v1/eyes/{side}.jpg"),
     ("POST", "/api/v1/look/target"), ("POST", "/api/v1/look/angles"), ("GET", "/api/v1/looks/{look_id}"),
-    ("DELETE", "/api/v1/looks/{look_id}"), ("POST", "/api/v1/exploration"), ("POST", "/api/v1/map/save"),
+    ("DELETE", "/api/v1/looks/{look_id}"), ("POST", "/api/v1/track"), ("GET", "/api/v1/track"),
+    ("DELETE", "/api/v1/track"), ("POST", "/api/v1/exploration"), ("POST", "/api/v1/map/save"),
     ("POST", "/api/v1/map/load"), ("POST", "/api/v1/map/reset"), ("POST", "/api/v1/torque"),
     ("POST", "/api/v1/sim/faults"),
 ]

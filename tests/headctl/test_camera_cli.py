@@ -58,7 +58,7 @@ def test_stereo_section_shape_is_checked():
     with pytest.raises(CameraConfigError, match=r"cameras\.right: missing"):
         StereoCamerasConfig.from_mapping({"left": {"backend": "sim", "eye": "left"}})
     with pytest.raises(CameraConfigError, match=r"cameras\.centre: got \{\}, expected a known key \(cameras takes "
-                                                r"left, right, tolerance_s\); 'centre' is an unknown key"):
+                                                r"left, right, tolerance_s, scene\); 'centre' is an unknown key"):
         StereoCamerasConfig.from_mapping({"left": {}, "right": {}, "centre": {}})
     with pytest.raises(CameraConfigError, match=r"cameras\.tolerance_s: got 'x', expected a number"):
         StereoCamerasConfig.from_mapping({"left": {}, "right": {}, "tolerance_s": "x"})

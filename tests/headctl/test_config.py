@@ -80,7 +80,7 @@ def test_a_relative_state_dir_is_relative_to_the_config_file(tmp_path):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.update(colour=True), (": colour: got True, expected a known key (the top level takes servo_bus, "
-                                       "cameras, gaze_map, fixation, service, state_dir, logging, api); "
+                                       "cameras, gaze_map, fixation, service, state_dir, logging, api, tracking, sim_objects); "
                                        "'colour' is an unknown key")),
     (lambda d: d["fixation"].update(rate=3), "fixation.rate: got 3, expected a known key (fixation takes vergence_"),
     (lambda d: d["fixation"].update(rate=3), "rate_hz, vergence_range); 'rate' is an unknown key"),
@@ -509,3 +509,35 @@ def test_map_parameters_a_saved_map_would_refuse_are_refused_in_the_config(tmp_p
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match=f"gaze_map.{key}"):
         load_config(path)
+
+
+@pytest.mark.parametrize(("profile", "given", "expected"), [
+    ("paper", None, "paper"), ("default", None, "default"), ("paper", "default", "default")])
+def test_the_correspondence_follows_the_map_profile_unless_set(tmp_path, profile, given, expected):
+    data = _sim()
+    data.setdefault("gaze_map", {})["profile"] = profile
+    if given is not None:
+        data.setdefault("fixation", {})["correspondence"] = {"profile": given}
+    config = load_config(_write(tmp_path, data))
+    assert config.fixation.params.correspondence.profile == expected
+    # Exploration too: the paper's random poses in motor space with its profile, unless set.
+    assert config.fixation.params.exploration == ("random" if profile == "paper" else "teaching")
+    data["fixation"] = {**data.get("fixation", {}), "exploration": "teaching"}
+    assert load_config(_write(tmp_path, data)).fixation.params.exploration == "teaching"
+
+
+def test_a_relative_textures_folder_is_found_beside_the_config(tmp_path, monkeypatch):
+    import cv2
+    import numpy as np
+
+    photos = tmp_path / "heads" / "photos"
+    photos.mkdir(parents=True)
+    cv2.imwrite(str(photos / "wall.png"), np.random.default_rng(0).integers(0, 255, (64, 64), dtype=np.uint8))
+    data = _sim()
+    data["cameras"]["scene"] = {"textures": "photos"}
+    monkeypatch.chdir(tmp_path)  # elsewhere than the config: the folder is found beside it all the same
+    config = load_config(_write(tmp_path / "heads", data))
+    assert config.cameras.scene.folder == photos
+    data["cameras"]["scene"] = {"textures": "missing"}
+    with pytest.raises(ConfigError, match=r"cameras\.scene\.textures: got '.*heads/missing'"):
+        load_config(_write(tmp_path / "heads", data))

@@ -183,10 +183,29 @@ def test_dashboard_live(daemon, browser):
     if not refused_click:
         job = daemon.client.look(int(eye.get_attribute("data-look")))
         request = job["request"]
-        assert (request["x"], request["y"]) == (x, y) and request["d_measured"] is True, request
+        assert (request["x"], request["y"]) == (x, y), request
+        # d measured there, or (not measurable, the target findable) the look starts at the fixation depth.
+        assert request["d_measured"] is True or request["d_reason"], request
         assert f"look {job['id']}" in text("message")
     else:
         assert "(d)" in text("message"), text("message")   # refused naming the field: d not measurable
+
+    # with the track switch on, a click on the left eye starts a track there; the page's stop
+    # button stops it on the server
+    driver.find_element(By.ID, "track-mode").click()
+    ActionChains(driver).move_to_element_with_offset(eye, 0, 0).click().perform()
+    wait.until(lambda d: eye.get_attribute("data-track") or "no track at" in text("message"),
+               "the click with the track switch on gave neither a track nor a reason")
+    assert eye.get_attribute("data-track"), text("message")
+    track = daemon.client.get_track()
+    assert track["id"] == int(eye.get_attribute("data-track")) and track["request"]["kind"] == "track"
+    assert abs(track["request"]["x"] - (w - 1) / 2) <= 2 and abs(track["request"]["y"] - (h - 1) / 2) <= 2
+    stop = driver.find_element(By.ID, "track-stop")
+    if daemon.client.get_track()["state"] in ("queued", "running"):
+        wait.until(lambda d: stop.is_displayed(), "no stop button while the track runs")
+        stop.click()
+    wait.until(lambda d: daemon.client.get_track()["state"] not in ("queued", "running"), "the track did not stop")
+    driver.find_element(By.ID, "track-mode").click()
 
     # a fault shows in the fault list (and as a fault event) while it lasts
     daemon.inject("bus_down")

@@ -41,6 +41,30 @@ def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_s
         devices.world.pose_source("right")()  # the other eye still sees
 
 
+def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path):
+    import dataclasses
+
+    from drivers.camera_config import SceneConfig
+    from drivers.sim_scene import shared_scene
+
+    config = load_config()
+    photos = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=SceneConfig(room="photos")))
+    joints = dict(SIM_START_JOINTS)
+    views = {}
+    for name, cfg in (("generated", config), ("photos", photos)):
+        devices = HeadDevices.build(cfg, ManualClock())
+        assert devices.world is not None
+        with devices:
+            views[name] = devices.cameras["left"].render(joints)
+        if name == "photos":
+            left = cfg.cameras.left
+            assert devices.world.scene is shared_scene(left.seed, left.image == "colour", "photos")
+        else:
+            assert devices.world.scene is None  # the cameras' own shared generated room
+    assert views["generated"].shape == views["photos"].shape
+    assert np.mean(np.abs(views["generated"].astype(float) - views["photos"].astype(float))) > 10  # another room
+
+
 def test_the_experiments_build_the_head_the_service_builds():
     config = load_config()
     with SimulatedHeadRig(seed=0) as rig:

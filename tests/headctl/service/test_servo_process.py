@@ -137,9 +137,14 @@ def test_the_shared_block_is_never_read_torn():
     writer.start()
     try:
         wait_until(lambda: block.values[1] > 0, 30.0, "the writer writing")
-        reads = [block.read()[1:] for _ in range(20000)]
+        reads: list[np.ndarray] = []
+
+        def read_more() -> bool:  # until the writer has written 100 times meanwhile (it may run seldom)
+            reads.extend(block.read()[1:] for _ in range(2000))
+            return len({float(r[0]) for r in reads}) > 100
+
+        wait_until(read_more, 60.0, "100 of the writer's writes read")
     finally:
         stop.set()
         writer.join(10)
     assert all(np.all(r == r[0]) for r in reads)  # every copy from one write
-    assert len({float(r[0]) for r in reads}) > 100  # and the writer was writing meanwhile

@@ -1,0 +1,83 @@
+"""Disparity between the two eyes' images, measured along rows: where a left-image patch is in
+the right image (`horizontal_offset`), and at the foveae (`foveal_disparity`, what fine
+vergence drives to zero). Also the image helpers the matching shares: `as_grey_float`, and
+`subpixel_peak`, the parabolic refinement of a correlation peak.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calib_free.errors import CorrespondenceError
+
+
+def as_grey_float(image: np.ndarray) -> np.ndarray:
+    """A 2-D float32 grey image from a grey or BGR uint8/float image."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    elif img.ndim != 2:
+        raise CorrespondenceError(f"expected a grey (H, W) or colour (H, W, 3) image, got shape {img.shape}")
+    return img.astype(np.float32, copy=False)
+
+
+def subpixel_peak(values: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
+    """Parabolic refinement of a peak at (iy, ix) along each axis."""
+
+    def offset(a: float, b: float, c: float) -> float:
+        denom = a - 2 * b + c
+        return 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+
+    dx = offset(values[iy, ix - 1], values[iy, ix], values[iy, ix + 1]) if 0 < ix < values.shape[1] - 1 else 0.0
+    dy = offset(values[iy - 1, ix], values[iy, ix], values[iy + 1, ix]) if 0 < iy < values.shape[0] - 1 else 0.0
+    return ix + dx, iy + dy
+
+
+def horizontal_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, float],
+                      patch_size: tuple[int, int], search: tuple[float, float],
+                      band_px: int = 0) -> tuple[float, float]:
+    """Where the left image's patch around `centre` is in the right image, along the same rows
+    and `band_px` rows either side (a fish-eye pair's vertical disparity away from the centre).
+
+    Returns (x_r - x_l in px, sub-pixel; its NCC) for offsets searched within `search`
+    (low, high); (0, 0) when the patch reaches beyond the image. A best match on the search's
+    left or right edge scores 0: the true one may lie beyond.
+    """
+    h, w = left.shape
+    pw, ph = patch_size
+    x0 = int(round(centre[0] - (pw - 1) / 2.0))
+    y0 = int(round(centre[1] - (ph - 1) / 2.0))
+    if x0 < 0 or y0 < 0 or x0 + pw > w or y0 + ph > h:
+        return 0.0, 0.0
+    patch = left[y0:y0 + ph, x0:x0 + pw]
+    lo = max(0, x0 + int(np.floor(search[0])))
+    hi = min(w, x0 + pw + int(np.ceil(search[1])))
+    if hi - lo < pw + 2:
+        return 0.0, 0.0
+    top, bottom = max(0, y0 - band_px), min(h, y0 + ph + band_px)
+    scores = np.nan_to_num(cv2.matchTemplate(right[top:bottom, lo:hi], patch, cv2.TM_CCOEFF_NORMED))
+    iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    if ix in (0, scores.shape[1] - 1):
+        return float(lo + ix - x0), 0.0
+    u, _ = subpixel_peak(scores, int(iy), int(ix))
+    return float(lo + u - x0), float(scores[iy, ix])
+
+
+def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int] = (32, 20),
+                     search_px: int | None = None) -> tuple[float, float]:
+    """Horizontal offset (px, sub-pixel) of the left fovea's content in the right image, and its NCC.
+
+    Positive when the right eye sees the fixated content to the right of its centre: the same
+    sign as d = x_r - x_l, so fine vergence drives it to zero. The search is a strip of
+    +-`search_px` (default: a third of the width) around the right image's centre; a best
+    match on the strip's edge scores 0 (the true one may lie beyond).
+    """
+    left = as_grey_float(left)
+    right = as_grey_float(right)
+    if left.shape != right.shape:
+        raise CorrespondenceError(f"left image {left.shape} and right image {right.shape} differ")
+    h, w = left.shape
+    search_px = w // 3 if search_px is None else search_px
+    pw, ph = patch_size
+    centre = ((w - pw) // 2 + (pw - 1) / 2.0, (h - ph) // 2 + (ph - 1) / 2.0)
+    return horizontal_offset(left, right, centre, patch_size, (-search_px, search_px))

@@ -1,0 +1,118 @@
+"""Rendered pre/post-fixation images of random saccades, with the true answer of correspondence.
+
+For each saccade (pan and tilt within +-`max_step_deg`, vergence kept) and each eye: the
+pre- and post-fixation images of that eye with sensor noise, and where the world point on
+that eye's post-fixation fovea (its optical axis' first surface) was in the pre-fixation
+image. Saccades whose foveal point was out of view or hidden before are skipped: they have
+no right answer. Shared by the correspondence tests and `benchmarks/bench_fixation.py`.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib_free.correspondence import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
+from calib_free.sim import HeadModel
+from drivers.sim_scene import Scene, StereoRenderer
+from tests.support.sim_truth import first_surface, joints
+
+
+@dataclass(frozen=True)
+class SaccadeCase:
+    pre: np.ndarray  # one eye's pre-fixation image, grey uint8 with noise
+    post: np.ndarray  # its post-fixation image
+    truth: np.ndarray  # (x, y): where the post-fixation fovea's point was in `pre`
+    eye: int  # 0 left, 1 right
+    texture: str  # the texture kind of the surface on the fovea
+    patch_std: float  # grey-level spread of the noise-free foveal patch (20 x 20)
+
+    @property
+    def textured(self) -> bool:
+        """A foveal patch with structure to match (not a nearly uniform surface)."""
+        return self.texture != "uniform" and self.patch_std >= 8.0
+
+
+def _texture_at(scene: Scene, point: np.ndarray) -> str:
+    """The texture kind of the (innermost) box whose surface holds `point`."""
+    for i in range(len(scene.boxes) - 1, -1, -1):
+        if np.all(point >= scene.lo[i] - 1e-6) and np.all(point <= scene.hi[i] + 1e-6):
+            return scene.boxes[i].texture
+    return scene.boxes[0].texture
+
+
+def saccade_cases(scene: Scene, model: HeadModel, count: int, seed: int = 11, noise_std: float = 2.0,
+                  max_step_deg: float = 15.0) -> list[SaccadeCase]:
+    """`count` saccades' cases (up to two per saccade: one per eye whose answer exists)."""
+    rng = np.random.default_rng(seed)
+    cases: list[SaccadeCase] = []
+    lenses = (model.lens_left, model.lens_right)
+    with StereoRenderer(model, scene, parallel=False) as renderer:
+        for _ in range(count):
+            pre = rng.uniform(model.limits.low, model.limits.high)
+            post = model.limits.clamp(pre + np.r_[rng.uniform(-max_step_deg, max_step_deg, 2), 0.0])
+            images = [renderer.render(joints(p)) for p in (pre, post)]
+            noise = [noise_std * rng.standard_normal(images[0][0].shape, dtype=np.float32) for _ in range(4)]
+            for eye in (0, 1):
+                (r_post, c_post) = model.eye_frames(post)[eye]
+                target = first_surface(scene, c_post, r_post.T @ np.array([0.0, 0.0, 1.0]))
+                r_pre, c_pre = model.eye_frames(pre)[eye]
+                uv, seen = lenses[eye].project((target[None, :] - c_pre) @ r_pre.T)
+                ray = (target - c_pre) / np.linalg.norm(target - c_pre)
+                hidden = np.linalg.norm(first_surface(scene, c_pre, ray) - c_pre)
+                if not seen[0] or hidden < np.linalg.norm(target - c_pre) - 0.01:
+                    continue  # out of view or occluded before the saccade: no right answer
+                clean_post = images[1][eye]
+                noisy = [np.clip(images[k][eye] + noise[2 * k + eye], 0, 255).astype(np.uint8) for k in (0, 1)]
+                std = float(foveal_patch(clean_post.astype(np.float32), (20, 20)).std())
+                cases.append(SaccadeCase(noisy[0], noisy[1], uv[0], eye, _texture_at(scene, target), std))
+    return cases
+
+
+@dataclass(frozen=True)
+class Scored:
+    case: SaccadeCase
+    match: EyeMatch
+    error_px: float
+
+
+def scored(cases: list[SaccadeCase], params: CorrespondenceParams) -> Iterator[Scored]:
+    for case in cases:
+        m = match_eye(case.pre, case.post, params)
+        yield Scored(case, m, float(np.hypot(m.x - case.truth[0], m.y - case.truth[1])))
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """The figures of issue 14 over textured foveal patches: within 1 px; of the accepted, wrong
+    by more than 3 px; of the right (within 1 px), accepted."""
+
+    cases: int
+    within_1px: float
+    accepted: float
+    wrong_accepted: float  # of the accepted, the fraction wrong by > 3 px
+    right_accepted: float  # of those within 1 px, the fraction accepted
+    median_confidence_wrong: float  # of the accepted wrong ones
+
+    def line(self) -> str:
+        return (f"{self.cases} textured cases: {self.within_1px:.1%} within 1 px; accepted {self.accepted:.1%}; "
+                f"of the accepted, {self.wrong_accepted:.2%} wrong by > 3 px (median confidence "
+                f"{self.median_confidence_wrong:.2f}); of the right, {self.right_accepted:.1%} accepted")
+
+
+def accuracy(results: list[Scored], floor: float = 0.3) -> Accuracy:
+    textured = [r for r in results if r.case.textured]
+    errors = np.array([r.error_px for r in textured])
+    confidence = np.array([r.match.confidence for r in textured])
+    accepted = confidence >= floor
+    right, wrong = errors <= 1.0, errors > 3.0
+    return Accuracy(
+        cases=len(textured),
+        within_1px=float(right.mean()),
+        accepted=float(accepted.mean()),
+        wrong_accepted=float((wrong & accepted).sum() / max(1, accepted.sum())),
+        right_accepted=float((right & accepted).sum() / max(1, right.sum())),
+        median_confidence_wrong=float(np.median(confidence[wrong & accepted])) if (wrong & accepted).any()
+        else float("nan"),
+    )
