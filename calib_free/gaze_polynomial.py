@@ -22,6 +22,7 @@ the half-span of their relative command range.
 """
 from __future__ import annotations
 
+import abc
 import itertools
 import logging
 from typing import Sequence
@@ -43,12 +44,12 @@ def monomials(variables: int, degree: int) -> np.ndarray:
 
 
 def _position_terms(degree: int) -> np.ndarray:
-    """The (x, y, d) monomials of `PolynomialPart`, in its historical order."""
+    """The (x, y, d) monomials of `PolynomialPart`, in the order its saved coefficients have (map files depend on it)."""
     return np.array([(i, j, k) for i in range(degree + 1) for j in range(degree + 1 - i)
                      for k in range(degree + 1 - i - j)], dtype=int)
 
 
-class _RecursiveFit:
+class _RecursiveFit(abc.ABC):
     """Coefficients (n, 3) fitted by weighted, forgetting recursive least squares, with a
     running estimate of each motor axis's noise variance (for `predictive_variance`)."""
 
@@ -56,8 +57,9 @@ class _RecursiveFit:
     covariance: np.ndarray
     noise_variance: np.ndarray  # (3,), deg^2; NOISE_PRIOR until samples say otherwise
 
+    @abc.abstractmethod
     def coefficients_changed(self) -> None:
-        raise NotImplementedError
+        """What a subclass derives from `coef` is out of date."""
 
     def rls_step(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float,
                  samples: int) -> None:

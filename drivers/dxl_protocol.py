@@ -18,6 +18,7 @@ Protocol 1.0 is `drivers.dxl_protocol1`.
 """
 from __future__ import annotations
 
+import abc
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -103,7 +104,7 @@ class Packet:
     crc_ok: bool
 
 
-class StreamParser:
+class StreamParser(abc.ABC):
     """Splits a byte stream into packets, resynchronising on the header after garbage.
 
     What differs between the protocols is a packet's frame: `_frame(buf)` looks at a buffer
@@ -120,11 +121,11 @@ class StreamParser:
     def reset(self) -> None:
         self._buffer.clear()
 
-    def _frame(self, buf: bytearray) -> int | None:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _frame(self, buf: bytearray) -> int | None: ...
 
-    def _packet(self, raw: bytes) -> Packet:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def _packet(self, raw: bytes) -> Packet: ...
 
     def feed(self, data: bytes) -> Iterator[Packet]:
         self._buffer += data
