@@ -40,6 +40,7 @@ from drivers.dxl_control_table import (
     ticks_to_deg,
 )
 from drivers.dxl_protocol import ERRBIT_ALERT
+from drivers.dxl_scan import REPLY_SLACK_MS, ping_servos
 from drivers.dxl_sdk import PORT_ERRORS, BlockingPortHandler, port_access_hint
 from drivers.errors import JointLimitError, ServoCommError, ServoError, ServoTimeoutError
 from drivers.servo_config import SUPPORTED_BAUDS, ServoBusConfig
@@ -48,7 +49,6 @@ from drivers.servo_probe import FoundServo, MotionSafety, ServoStatus
 log = logging.getLogger(__name__)
 
 PROTOCOLS = (2.0, 1.0)
-REPLY_SLACK_MS = 3.0
 
 
 # Protocol 1.0 status error bits that are hardware errors (input voltage, overheating, overload),
@@ -111,16 +111,8 @@ class DynamixelProbe:
                 port = self._at(baud)
                 log.info("%s: scanning at %d baud, protocol %.1f", self.name, baud, protocol)
                 try:
-                    if protocol == 2.0:
-                        replies, _result = packet.broadcastPing(port)
-                        hits = [(i, model, fw) for i, (model, fw) in sorted(replies.items()) if i in self.ids]
-                    else:
-                        hits = []
-                        for servo_id in self.ids:
-                            model, result, _error = packet.ping(port, servo_id)
-                            if result == COMM_SUCCESS:
-                                fw, result, _error = packet.read1ByteTxRx(port, servo_id, 2)
-                                hits.append((servo_id, model, fw if result == COMM_SUCCESS else -1))
+                    hits = [(r.servo_id, r.model_number, r.firmware)
+                            for r in ping_servos(port, packet, protocol, self.ids, baud)]
                 except PORT_ERRORS as err:
                     raise ServoCommError(f"{self.name}: the port failed during the scan: {err}") from err
                 for servo_id, model, fw in hits:

@@ -1,6 +1,7 @@
 """The Dynamixel backend: Protocol 2.0 X-series servos through dynamixel-sdk 4.1.0.
 
-This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` and `scan()`.
+This module owns the `DynamixelBus` backend of `drivers.servo_bus.ServoBus` (the bus scan is
+`drivers.dxl_scan`).
 A `protocol: 1.0` config gets its subclass `drivers.dxl_bus1.Protocol1Bus`, which shares
 the port, retried transactions, blamed group reads and model checks defined here. A cycle
 reads every servo in one Fast Sync Read where all have it (firmware >= 45, confirmed by one
@@ -41,7 +42,6 @@ from __future__ import annotations
 import logging
 import struct
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
 from typing import Any, NoReturn, TypeVar
 
 from dynamixel_sdk import (
@@ -51,7 +51,6 @@ from dynamixel_sdk import (
     COMM_SUCCESS,
     GroupSyncWrite,
     PacketHandler,
-    PortHandler,
 )
 
 from drivers.clock import SYSTEM_CLOCK, Clock
@@ -538,68 +537,3 @@ class DynamixelBus(ServoBus):
         if thing is None:
             raise BusDownError(f"{self.name}: the port is not open")
         return thing
-
-
-# --- scanning --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ScanResult:
-    servo_id: int
-    model_number: int
-    firmware: int
-    baud: int
-    protocol: float
-
-    @property
-    def model_name(self) -> str:
-        return KNOWN_MODEL_NAMES.get(self.model_number, "unknown model")
-
-
-def scan(port: str, bauds: Iterable[int], *, protocol: float = 2.0, ids: Iterable[int] = range(253),
-         latency_timer_ms: float = 1.0) -> list[ScanResult]:
-    """Find the servos on `port` at each baud rate.
-
-    Protocol 2.0 uses one broadcast ping per baud (every servo 0-252 answers in turn);
-    Protocol 1.0 has no broadcast ping reply, so each id is pinged and its model read.
-    Raises `ServoCommError` naming the fix when the port cannot be opened.
-    """
-    handler = BlockingPortHandler(port, latency_timer_ms, DynamixelBus.REPLY_SLACK_MS)
-    packet = PacketHandler(protocol)
-    wanted = set(ids)
-    found: list[ScanResult] = []
-    try:
-        for baud in bauds:
-            try:
-                ok = handler.setBaudRate(baud)
-            except PORT_ERRORS as err:
-                raise ServoCommError(port_access_hint(port, err)) from err
-            if not ok:
-                raise ServoConfigError(f"baud {baud}: not supported by dynamixel-sdk (max 4000000)")
-            log.info("%s: scanning at %d baud, protocol %.1f", port, baud, protocol)
-            try:
-                if protocol == 2.0:
-                    replies, _result = packet.broadcastPing(handler)
-                    found += [ScanResult(i, model, fw, baud, protocol)
-                              for i, (model, fw) in sorted(replies.items()) if i in wanted]
-                else:
-                    found += _scan_unicast(handler, packet, sorted(wanted), baud, protocol)
-            except PORT_ERRORS as err:
-                raise ServoCommError(f"{port}: the port failed during the scan: {err}") from err
-    finally:
-        if handler.ser is not None:
-            try:
-                handler.closePort()
-            except PORT_ERRORS:
-                log.debug("%s: closing after the scan failed", port)
-    return found
-
-
-def _scan_unicast(handler: PortHandler, packet: PacketHandler, ids: list[int], baud: int,
-                  protocol: float) -> list[ScanResult]:
-    found: list[ScanResult] = []
-    for servo_id in ids:
-        model, result, _error = packet.ping(handler, servo_id)
-        if result != COMM_SUCCESS:
-            continue
-        firmware, result, _error = packet.read1ByteTxRx(handler, servo_id, 2 if protocol == 1.0 else XAddr.FIRMWARE_VERSION)
-        found.append(ScanResult(servo_id, model, firmware if result == COMM_SUCCESS else -1, baud, protocol))
-    return found

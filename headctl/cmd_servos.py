@@ -117,7 +117,7 @@ def _emulate(args: argparse.Namespace) -> int:
 
 
 def _scan(args: argparse.Namespace) -> int:
-    from drivers.dynamixel import scan
+    from drivers.dxl_scan import scan
 
     try:
         found = scan(args.port, args.baud, protocol=float(args.protocol))

@@ -15,7 +15,8 @@ import pytest
 
 from drivers.dxl_emulator import DxlEmulator
 from drivers.dxl_sdk import BlockingPortHandler, BulkRead1
-from drivers.dynamixel import DynamixelBus, scan
+from drivers.dxl_scan import scan
+from drivers.dynamixel import DynamixelBus
 from drivers.errors import ServoConfigError, ServoError
 from drivers.servo_config import ServoBusConfig
 from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping

@@ -13,7 +13,8 @@ import pytest
 from drivers.dxl_control_table import READ_BLOCK_ADDRESSES, XAddr
 from drivers.dxl_emulator import DxlEmulator
 from drivers.dxl_sdk import BlockingPortHandler, port_access_hint
-from drivers.dynamixel import DynamixelBus, scan
+from drivers.dxl_scan import scan
+from drivers.dynamixel import DynamixelBus
 from drivers.errors import ServoCommError, ServoConfigError, ServoModelError, ServoTimeoutError
 from drivers.servo_bus import JOINTS
 from drivers.servo_config import ServoBusConfig
