@@ -89,6 +89,9 @@ class CorrespondenceParams:
     # width; 0: off): see `_centre_weighted_peak`. Beyond the paper: default profile only.
     refine_sigma_fraction: float = 0.25
     stereo_tolerance_px: float = 2.0
+    # A repeat of the left patch along the same rows of the right pre-fixation image scoring
+    # within this much NCC of the match at d* makes the fixation's d* ambiguous.
+    stereo_rival_margin: float = 0.1
     # "paper": eqs. 1-7 as written (no context, no relocation, confidence c1 c2); "default":
     # the module doc's search and confidence.
     profile: str = "default"
@@ -535,4 +538,23 @@ def stereo_inconsistency(match: FixationMatch, pre_left: np.ndarray, pre_right: 
     if score < params.min_correlation or abs(d_pre - d_star) > params.stereo_tolerance_px:
         return (f"the pre-fixation pair's disparity at (x*, y*) is {d_pre:.1f} px (NCC {score:.2f}), "
                 f"d* = {d_star:.1f} px")
+    search_px = pre_left.shape[1] / 3.0
+    rival = row_rival_ncc(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y), params.patch_size,
+                          d_pre, search_px)
+    if rival > score - params.stereo_rival_margin:
+        return (f"the patch at (x*, y*) repeats along its rows in the right image (NCC {rival:.2f} against "
+                f"{score:.2f} at d* = {d_star:.1f} px): the eyes may have verged on different repeats")
     return ""
+
+
+def row_rival_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
+                  d: float, search_px: float) -> float:
+    """NCC of the best placement of the left patch at `xy` along the same rows of `right`,
+    within +-`search_px` of disparity and more than half a patch from `d`: how well a repeat
+    of it matches (-1 when nothing is searched)."""
+    exclude = patch_size[0] / 2.0
+    best = -1.0
+    for side in ((-search_px, d - exclude), (d + exclude, search_px)):
+        if side[1] - side[0] > patch_size[0]:
+            best = max(best, horizontal_offset(left, right, xy, patch_size, side)[1])
+    return best

@@ -13,11 +13,16 @@ pair that will teach, and lets the map's command take the head there:
 - each one's d: the patch's place in the right image along the same rows (as
   `measure_disparity` of the service finds it, `disparity.horizontal_offset`), matched
   well and without a rival along the row, within the map's disparity range; and the pose the
-  map's command for (x, y, d) reaches, within the joint limits;
-- ranked by how little has been taught near them, in the image and in the joint range that
-  pose lies in, by how often targets as far from the fovea taught before, and by how
-  uncertain the map is there (when the map says: `UncertainMap`, the predictive variance of
-  its polynomial part);
+  map's command for (x, y, d) reaches, its pan and tilt within the joint limits (its
+  vergence clipped into them: the far wall needs about the least there is);
+- ranked by how near that pose comes to an aim drawn for the choice where the paper's
+  random command would go (uniform within the limits and the exploration step), so that the
+  poses fixations start from spread over the joint range as random commands do (the map
+  takes the pose as an input, and where the head looks the room has texture or not); by how
+  little has been taught near them in the image; by how often targets as far from the fovea
+  taught before (strongly: `teach_rate_power`); and by how uncertain the map is there (when
+  the map says: `UncertainMap`, the predictive variance of its polynomial part; weakly, as it
+  points to where fixations teach least);
 - checked in that order until one has no rival elsewhere in either pre-fixation image
   (`correspondence.correspondence_map`: a repeat is what makes the two eyes' matches
   disagree).
@@ -29,7 +34,8 @@ draws the paper's random command instead. What a fixation taught and where it la
 back through `observe`.
 
 Both policies keep every command within the joint limits: `RandomMotor` draws inside them,
-and a target whose command would leave them is not chosen.
+a target whose pan or tilt would leave them is not chosen, and a chosen target's vergence is
+clipped into them.
 """
 from __future__ import annotations
 
@@ -42,7 +48,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import cv2
 import numpy as np
 
-from calib_free.correspondence import CorrespondenceParams, correspondence_map
+from calib_free.correspondence import CorrespondenceParams, correspondence_map, row_rival_ncc
 from calib_free.disparity import horizontal_offset
 from calib_free.errors import OutOfRangeError
 
@@ -70,13 +76,14 @@ class ChoiceKind(enum.StrEnum):
 
 @dataclass(frozen=True)
 class ExplorationChoice:
-    """Where an exploratory saccade goes: a relative command (deg), and the image target
-    (x, y, d) it was planned for, when it was."""
+    """Where an exploratory saccade goes: a relative command (deg), the image target (x, y, d)
+    it was planned for, when it was, and the pan and tilt the choice aimed at (`TeachingParams.aim_spread_deg`)."""
 
     command: np.ndarray
     kind: ChoiceKind
     target: np.ndarray | None = None
     detail: str = ""
+    aim: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -163,22 +170,26 @@ class TeachingParams:
     stereo_rival_margin: float = 0.15  # a rival along the row must score this much less
     max_rival_ncc: float = 0.8  # C (eq. 1) of the patch's best rival elsewhere in its own image
     disparity_margin_px: float = 4.0  # d this far inside the map's range
-    pose_margin_deg: float = 0.5  # the pose reached this far inside the joint limits
+    pose_margin_deg: float = 0.5  # pan and tilt reached this far inside the joint limits
     max_checks: int = 20  # candidates checked in full per fixation
     warmup_taught: int = 10  # random commands until this many fixations have taught
     doubt_window: int = 20  # recent target fixations judged for the map's landing
     doubt_miss_fraction: float = 0.1  # median miss above this fraction of the width: in doubt
     doubt_random: float = 0.5  # in doubt, the chance of a random command instead of a target
-    pose_bins: tuple[int, int, int] = (6, 5, 4)  # the joint range's cells, for spreading
+    # Each choice draws an aim, a pan and tilt uniform within the joint limits and the
+    # exploration step of the pose (where the paper's random command would go), and prefers
+    # candidates whose saccade reaches near it: a Gaussian of this width (deg).
+    aim_spread_deg: float = 8.0
     position_bins: tuple[int, int, int] = (8, 6, 4)  # (x, y, d) cells, for spreading
-    uncertainty_weight: float = 1.0  # exponent of the map's relative uncertainty in the rank
+    uncertainty_weight: float = 0.3  # exponent of the map's relative uncertainty in the rank
     ring_width_fraction: float = 1.0 / 16  # rings of eccentricity whose teach rates are kept, of the width
-    teach_rate_power: float = 1.0  # exponent of a ring's teach rate in the rank
+    teach_rate_power: float = 4.0  # exponent of a ring's teach rate in the rank
 
     def __post_init__(self) -> None:
-        if min(self.cells) < 1 or min(self.pose_bins) < 1 or min(self.position_bins) < 1:
-            raise ValueError(f"cells and bins must be at least 1, got {self.cells}, {self.pose_bins}, "
-                             f"{self.position_bins}")
+        if min(self.cells) < 1 or min(self.position_bins) < 1:
+            raise ValueError(f"cells and bins must be at least 1, got {self.cells}, {self.position_bins}")
+        if self.aim_spread_deg <= 0:
+            raise ValueError(f"aim_spread_deg must be positive, got {self.aim_spread_deg}")
         if self.max_checks < 1:
             raise ValueError(f"max_checks must be at least 1, got {self.max_checks}")
         if not 0.0 <= self.doubt_random <= 1.0:
@@ -218,7 +229,6 @@ class TeachingExplorer:
         self.params = params or TeachingParams()
         self.taught_count = 0
         self.misses_px: collections.deque[float] = collections.deque(maxlen=self.params.doubt_window)
-        self._pose_counts = np.zeros(self.params.pose_bins)
         rings = int(np.ceil(0.5 / self.params.ring_width_fraction * np.hypot(1.0, 1.0))) + 1
         self._ring_attempts = np.zeros(rings)  # target fixations by eccentricity
         self._ring_taught = np.zeros(rings)
@@ -270,9 +280,6 @@ class TeachingExplorer:
             self.stats.taught[pending.kind] += 1
         if self._image is not None:
             self._position_counts[self._position_bin(position)] += 1
-        pose = record.pose_after
-        if pose is not None and self._limits is not None:
-            self._pose_counts[self._pose_bin(pose)] += 1
 
     # -- choosing a target ----------------------------------------------------------------
     def _in_doubt(self) -> bool:
@@ -287,6 +294,7 @@ class TeachingExplorer:
         if not len(candidates):
             self.stats.rejected["no structure"] += 1
             return None
+        aim = self.random.choose(view).command[:2] + view.pose[:2]
         # Each candidate's d (cheap: along one strip of rows), so that the pose its saccade
         # reaches, vergence included, is known when ranking.
         ranked: list[tuple[np.ndarray, np.ndarray, float]] = []
@@ -300,26 +308,31 @@ class TeachingExplorer:
             if not self._within_limits(reached):
                 self.stats.rejected["beyond the joint limits"] += 1
                 continue
-            ranked.append((target, plan, self._novelty(target, reached) * self._teach_rate(target)))
+            # A far target asks for about the least vergence there is (the far wall: 1.1 deg
+            # against a limit of 1): the map's command may fall a little beyond it. The head
+            # goes to the limit and fine vergence takes it from there.
+            assert self._limits is not None
+            vergence = float(np.clip(reached[2], self._limits[0][2], self._limits[1][2]))
+            plan = plan + np.array([0.0, 0.0, vergence - reached[2]])
+            reached = view.pose + plan
+            ranked.append((target, plan, self._rank(target, reached, aim)))
         if not ranked:
             return None
-        # Rank by novelty (image and joint range), the teach rate at that eccentricity and the
-        # map's uncertainty; draw the order at random in proportion to the rank, so that equal
-        # candidates take turns.
+        # Rank by the aim, novelty in the image, the teach rate at that eccentricity and the
+        # map's uncertainty; check the best first.
         weights = np.array([w for _, _, w in ranked])
         if view.uncertainty is not None and p.uncertainty_weight > 0:
             variances = np.array([view.uncertainty(target) for target, _, _ in ranked])
             if np.all(np.isfinite(variances)) and np.max(variances) > 0:
                 weights = weights * (variances / np.max(variances)) ** p.uncertainty_weight
-        weights = np.maximum(weights, 1e-12)
-        order = self.rng.choice(len(ranked), size=len(ranked), replace=False, p=weights / weights.sum())
+        order = np.argsort(-weights, kind="stable")
         for index in order[:p.max_checks]:
             target, plan, _ = ranked[index]
             problem = self.repeat_problem(view, target)
             if problem:
                 self.stats.rejected[problem] += 1
                 continue
-            return ExplorationChoice(plan, ChoiceKind.TARGET, target=target)
+            return ExplorationChoice(plan, ChoiceKind.TARGET, target=target, aim=aim)
         return None
 
     def candidates(self, left: np.ndarray) -> np.ndarray:
@@ -365,12 +378,8 @@ class TeachingExplorer:
         d, ncc = horizontal_offset(left, right, (x, y), cp.patch_size, (-search, search))
         if ncc < p.min_stereo_ncc:
             return None, "no match in the right image"
-        exclude = cp.patch_size[0] / 2.0
-        for side in ((-search, d - exclude), (d + exclude, search)):
-            if side[1] - side[0] > cp.patch_size[0]:
-                _, rival = horizontal_offset(left, right, (x, y), cp.patch_size, side)
-                if rival > ncc - p.stereo_rival_margin:
-                    return None, "a rival along the row"
+        if row_rival_ncc(left, right, (x, y), cp.patch_size, d, search) > ncc - p.stereo_rival_margin:
+            return None, "a rival along the row"
         target = np.array([x, y, d])
         for margin in (-p.disparity_margin_px, p.disparity_margin_px):
             if view.check_position(target + np.array([0.0, 0.0, margin])):
@@ -405,12 +414,12 @@ class TeachingExplorer:
             return None
         return plan if plan.shape == (3,) and np.all(np.isfinite(plan)) else None
 
-    def _within_limits(self, pose: np.ndarray, axes: int = 3) -> bool:
-        """Whether the first `axes` of (pan, tilt, vergence) are within the limits, with the margin."""
+    def _within_limits(self, pose: np.ndarray) -> bool:
+        """Whether pan and tilt are within the limits, with the margin (vergence is clipped)."""
         assert self._limits is not None
         margin = self.params.pose_margin_deg
-        low, high = (limit[:axes] for limit in self._limits)
-        return bool(np.all(pose[:axes] >= low + margin) and np.all(pose[:axes] <= high - margin))
+        low, high = (limit[:2] for limit in self._limits)
+        return bool(np.all(pose[:2] >= low + margin) and np.all(pose[:2] <= high - margin))
 
     def _ring(self, xy: np.ndarray) -> int:
         """The ring of eccentricity (distance from the fovea) `xy` lies in."""
@@ -428,11 +437,6 @@ class TeachingExplorer:
         rate = (self._ring_taught[ring] + 1.0) / (self._ring_attempts[ring] + 1.0)
         return float(rate ** self.params.teach_rate_power)
 
-    def _pose_bin(self, pose: np.ndarray) -> tuple[int, ...]:
-        assert self._limits is not None
-        low, high = self._limits
-        return _bin(pose, low, high, self.params.pose_bins)
-
     def _position_bin(self, position: np.ndarray) -> tuple[int, ...]:
         assert self._image is not None
         width, height, search = self._image
@@ -440,12 +444,13 @@ class TeachingExplorer:
         high = np.array([width - 0.5, height - 0.5, search])
         return _bin(position, low, high, self.params.position_bins)
 
-    def _novelty(self, position: np.ndarray, pose: np.ndarray) -> float:
-        """High where little has been taught: in the image (x, y; all d) and around the pose."""
-        image_cell = self._position_bin(position)[:2]
-        taught_here = float(self._position_counts[image_cell].sum())
-        taught_pose = float(self._pose_counts[self._pose_bin(pose)])
-        return float(1.0 / np.sqrt((1.0 + taught_here) * (1.0 + taught_pose)))
+    def _rank(self, target: np.ndarray, reached: np.ndarray, aim: np.ndarray) -> float:
+        """How much a fixation on `target`, reaching the pose `reached`, is wanted: near the
+        aim, where little has been taught in the image (x, y; all d), at an eccentricity
+        that teaches."""
+        off = (reached[:2] - aim) / self.params.aim_spread_deg
+        taught_here = float(self._position_counts[self._position_bin(target)[:2]].sum())
+        return float(np.exp(max(-0.5 * off @ off, -30.0)) / np.sqrt(1.0 + taught_here) * self._teach_rate(target))
 
 
 def _bin(value: np.ndarray, low: np.ndarray, high: np.ndarray, bins: Sequence[int]) -> tuple[int, ...]:

@@ -123,6 +123,23 @@ def test_stereo_inconsistency_catches_rows_that_disagree():
     assert "d* = 24.0 px" in stereo_inconsistency(repeat, left, right, CorrespondenceParams())
 
 
+def test_stereo_inconsistency_refuses_a_d_that_a_repeat_along_the_row_could_give():
+    """On a texture repeating along the rows, the eyes can verge on different repeats: each eye's
+    match is right for what it sees, the pre-fixation pair agrees with d*, and d* is wrong."""
+    rng = np.random.default_rng(0)
+    period = 40
+    tile = cv2.GaussianBlur(rng.random((240, period)).astype(np.float32), (0, 0), 2.0)
+    stripes = cv2.normalize(np.tile(tile, (1, 10)), None, 0, 255, cv2.NORM_MINMAX)
+    left, right = stripes[:, 20:340].copy(), stripes[:, 10:330].copy()  # d = +10, and +10 + 40 k
+    for d_star in (10.0, 50.0):
+        match = FixationMatch(EyeMatch(150, 120, 0.9, 1, 1, 0), EyeMatch(150 + d_star, 120, 0.9, 1, 1, 0))
+        assert "repeats along its rows" in stereo_inconsistency(match, left, right, CorrespondenceParams())
+    tex = texture(6)
+    unique_left, unique_right = view(tex, 200, 150), view(tex, 190, 150)
+    good = FixationMatch(EyeMatch(150, 120, 0.9, 1, 1, 0), EyeMatch(160, 120, 0.9, 1, 1, 0))
+    assert stereo_inconsistency(good, unique_left, unique_right, CorrespondenceParams()) == ""
+
+
 # --- on rendered fish-eye images of the simulated room -----------------------------------
 @pytest.fixture(scope="module")
 def rendered_cases():

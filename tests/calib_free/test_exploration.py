@@ -121,6 +121,42 @@ def test_targets_spread_over_the_image():
     assert len(cells) >= 5  # of the 4 x 3 quarters of the image
 
 
+def test_targets_follow_the_aim_drawn_over_the_joint_range():
+    """Each choice aims at a pan and tilt drawn as the paper's random command would be, and
+    takes the target whose saccade reaches nearest it: the poses reached spread over the joint
+    range as random commands do, whatever the image offers where."""
+    left, right = textured_pair(3)
+    explorer = TeachingExplorer(np.random.default_rng(0), params=TeachingParams(warmup_taught=0))
+    pose, reached, aims = np.array([0.0, 0.0, 10.0]), [], []
+    for _ in range(24):
+        choice = explorer.choose(view(left, right, pose))
+        assert choice.kind is ChoiceKind.TARGET and choice.aim is not None
+        reached.append(pose[:2] + choice.command[:2])
+        aims.append(choice.aim)
+        explorer.observe(taught(choice.target, pose + choice.command))
+    reached_, aims_ = np.array(reached), np.array(aims)
+    # The image spans about 80 x 60 deg of this map's commands: a saccade lands within a few
+    # degrees of its own aim, and tens of degrees from the next choice's.
+    own = np.median(np.hypot(*(reached_ - aims_).T))
+    other = np.median(np.hypot(*(reached_ - np.roll(aims_, 1, axis=0)).T))
+    assert own < 6.0 and other > 3 * own
+    assert np.ptp(reached_[:, 0]) > 40 and np.ptp(reached_[:, 1]) > 25
+
+
+def test_a_far_target_below_the_least_vergence_is_planned_at_the_limit():
+    class FarMap(LinearMap):  # every target needs 3 deg less vergence than the head has now
+        def command(self, position, pose=None):
+            return super().command(position, pose) + np.array([0.0, 0.0, -3.0])
+
+    left, right = textured_pair()
+    explorer = TeachingExplorer(np.random.default_rng(0), params=TeachingParams(warmup_taught=0))
+    pose = np.array([0.0, 0.0, LOW[2] + 1.0])
+    choice = explorer.choose(view(left, right, pose, FarMap()))
+    assert choice.kind is ChoiceKind.TARGET
+    assert pose[2] + choice.command[2] == pytest.approx(LOW[2])  # at the limit, never beyond it
+    np.testing.assert_allclose(choice.command[:2], FarMap().command(choice.target)[:2])
+
+
 @pytest.mark.parametrize("pattern", ["checkerboard", "flat"])
 def test_without_a_target_that_could_teach_the_command_is_random(pattern):
     if pattern == "checkerboard":  # structure everywhere, repeated every 16 px
