@@ -2,7 +2,9 @@
 and extremes; the landing-error curves' median and interquartile band.
 
 Figures are read from each run's own summary JSON (`headctl experiment`'s): the landing error
-at the end and at each check, the paper's errors (last 10, mean of the last 200), and for the
+at the end and at each check, the paper's errors (last 10, mean of the last 200), the
+representation's floor, for the re-adaptation experiments each change's recovery and the
+landing error before it, at worst within 700 fixations after it and 700 after, and for the
 online experiments the share of fixations that taught, the exploration's choices, and the
 fixations until the landing error had made 90 % of its improvement (from the random map's
 to the last).
@@ -25,7 +27,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 IMPROVEMENT_SHARE = 0.9  # "90 % of the final improvement"
-# The columns of the printed table (all figures are in the CSV and JSON).
+# The rows of the printed table, besides each change's recovery (all figures are in the CSV and JSON).
 TABLE_FIGURES = ("landing_error_px", "retinal_error_last200", "taught_fraction", "fixations_to_90pct")
 
 
@@ -48,10 +50,14 @@ def run_figures(summary: dict[str, Any]) -> tuple[dict[str, float | None], list[
         "landing_joint_range_px": summary.get("landing_joint_range_px"),  # online runs: anywhere in the limits
         "landing_over_floor": summary.get("landing_over_floor"),
         "retinal_error_last10": summary["final"]["retinal_error"],
+        "pan_deg_last10": summary["final"]["pan_deg"],
+        "tilt_deg_last10": summary["final"]["tilt_deg"],
+        "vergence_deg_last10": summary["final"]["vergence_deg"],
         "retinal_error_last200": summary["steady"]["retinal_error"],
         "pan_deg_last200": summary["steady"]["pan_deg"],
         "tilt_deg_last200": summary["steady"]["tilt_deg"],
         "vergence_deg_last200": summary["steady"]["vergence_deg"],
+        "floor_px": summary.get("floor_px"),
         "seconds": summary.get("seconds"),
     }
     landing = [(float(at), float(px)) for at, px in summary.get("landing_curve_px", [])]
@@ -72,6 +78,7 @@ def run_figures(summary: dict[str, Any]) -> tuple[dict[str, float | None], list[
     for change in summary.get("changes", []):
         at = change["at"]
         figures[f"recovery_at_{at}"] = change.get("recovery_fixations")
+        figures[f"landing_before_{at}_px"] = change.get("landing_before_px")
         figures[f"landing_700_after_{at}_px"] = change.get("landing_700_after_px")
         figures[f"landing_worst_after_{at}_px"] = change.get("landing_worst_after_px")
     return figures, landing
@@ -113,7 +120,9 @@ class SweepSummary:
         for name, s in self.settings.items():
             lines.append(f"  {name} (seeds {', '.join(map(str, s.seeds))})")
             spreads = s.spreads()
-            for figure in TABLE_FIGURES:
+            recoveries = sorted((f for f in spreads if f.startswith("recovery_at_")),
+                                key=lambda f: int(f.removeprefix("recovery_at_")))
+            for figure in (*TABLE_FIGURES, *recoveries):
                 sp = spreads.get(figure)
                 if sp is None or sp["median"] is None:
                     continue

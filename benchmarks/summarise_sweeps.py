@@ -1,0 +1,256 @@
+"""The geometric experiments' sweeps summed up: the figures docs/results.md states, and plots.
+
+Reads the runs that `headctl experiment sweep NAME --profiles default,paper` kept under
+`<sweeps>/sweep-NAME/runs/` (each run's JSON and per-fixation CSV) for `learn` (also
+`learn-nopose`, the same sweep with `--no-pose`), `baseline`, `prism`, `pan-defect` and `swap`,
+and prints per experiment and profile, as median [interquartile range] across the seeds:
+
+- learn: pan, tilt, vergence and retinal error over the last 10 fixations (the paper's
+  figure) and the mean of the last 200; the landing error and the representation's floor;
+  the landing error at a few checks along the run;
+- re-adaptation: per change, the fixations until the retinal error is back (how many seeds
+  came back within the run and within the goal) and the landing error before, at worst within
+  700 fixations after (and at which check), and 700 fixations after; the fixations until a
+  landing check is back within 1.25 times the last one before the change.
+
+Plots (`--figures DIR`): per experiment and profile, the median across seeds of the paper's
+curves (pan, tilt, vergence and retinal error, each averaged over the last 10 fixations) and
+of the landing error, each with its interquartile band.
+
+    .venv/bin/python benchmarks/summarise_sweeps.py [--sweeps runs] [--figures DIR]
+        [--plots learn-default,prism-default,...] [--json FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from headctl.plots import PAPER_FIG5  # noqa: E402
+from headctl.sweep import RUN_FILE, result_json  # noqa: E402
+from headctl.sweep_summary import run_figures, spread  # noqa: E402
+
+EXPERIMENTS = ("learn", "learn-nopose", "baseline", "prism", "pan-defect", "swap")
+LEARN_FIGURES = ("pan_deg", "tilt_deg", "vergence_deg", "retinal_error")
+CURVE_COLUMNS = ("pan_error_avg10_deg", "tilt_error_avg10_deg", "vergence_error_avg10_deg", "retinal_error_avg10")
+RECOVERY_TOLERANCE = 1.25  # "back": within this factor of the level before the change (as the retinal error's)
+LANDING_CHECKS = (100, 300, 500, 1000, 2000)  # fixations at which the learn table gives the landing error
+
+
+@dataclass
+class Run:
+    profile: str
+    seed: int
+    summary: dict[str, Any]
+    figures: dict[str, float | None]
+    curves: np.ndarray  # (fixations, 4): CURVE_COLUMNS
+
+
+def load_runs(folder: Path) -> list[Run]:
+    """Every finished run of a sweep folder, in (profile, seed) order."""
+    runs = []
+    for run_folder in sorted((folder / "runs").iterdir()):
+        if run_folder.name.startswith(".") or not (run_folder / RUN_FILE).is_file():
+            continue
+        record = json.loads((run_folder / RUN_FILE).read_text())
+        if record.get("code") != 0:
+            continue
+        path = result_json(run_folder)
+        summary = json.loads(path.read_text())
+        with open(path.with_suffix(".csv"), newline="") as f:
+            rows = list(csv.DictReader(f))
+        curves = np.array([[float(row[c]) for c in CURVE_COLUMNS] for row in rows])
+        figures, _ = run_figures(summary)
+        runs.append(Run(record["profile"], int(record["seed"]), summary, figures, curves))
+    return sorted(runs, key=lambda r: (r.profile, r.seed))
+
+
+def by_profile(runs: Sequence[Run]) -> dict[str, list[Run]]:
+    profiles: dict[str, list[Run]] = {}
+    for run in runs:
+        profiles.setdefault(run.profile, []).append(run)
+    return profiles
+
+
+def fmt(values: Sequence[float | None], scale: float = 1.0, digits: int = 2, unit: str = "") -> str:
+    """'median [q25, q75]' of the values (None and NaN left out; their count said)."""
+    s = spread([None if v is None else scale * v for v in values])
+    if s["median"] is None:
+        return "–"
+    text = f"{s['median']:.{digits}f}{unit} [{s['q25']:.{digits}f}, {s['q75']:.{digits}f}]"
+    missing = len(values) - int(s["n"] or 0)
+    return text + (f" ({missing} of {len(values)} without)" if missing else "")
+
+
+def landing_at(run: Run, fixation: int) -> float | None:
+    return next((float(px) for at, px in run.summary["landing_curve_px"] if at == fixation), None)
+
+
+def learn_rows(runs: Sequence[Run]) -> dict[str, dict[str, str]]:
+    rows: dict[str, dict[str, str]] = {}
+    for profile, group in by_profile(runs).items():
+        row: dict[str, str] = {"seeds": ", ".join(str(r.seed) for r in group)}
+        for window in ("last10", "last200"):
+            for name in LEARN_FIGURES:
+                percent = name == "retinal_error"
+                row[f"{name}_{window}"] = fmt([r.figures[f"{name}_{window}"] for r in group],
+                                              scale=100.0 if percent else 1.0, unit=" %" if percent else "°")
+        row["landing_px"] = fmt([r.figures["landing_error_px"] for r in group], unit=" px")
+        row["floor_px"] = fmt([r.figures["floor_px"] for r in group], unit=" px")
+        row["landing_over_floor"] = fmt([r.figures["landing_over_floor"] for r in group])
+        for at in LANDING_CHECKS:
+            row[f"landing_at_{at}_px"] = fmt([landing_at(r, at) for r in group], unit=" px")
+        rows[profile] = row
+    return rows
+
+
+def landing_back(run: Run, at: int, tolerance: float = RECOVERY_TOLERANCE) -> int | None:
+    """Fixations after the change at `at` until a landing check is within `tolerance` times the
+    last check before it (None if none is); the checks' spacing is the resolution."""
+    before = [px for x, px in run.summary["landing_curve_px"] if x <= at]
+    after = [(x, px) for x, px in run.summary["landing_curve_px"] if x > at]
+    if not before:
+        return None
+    return next((int(x) - at for x, px in after if px <= tolerance * before[-1]), None)
+
+
+def worst_check(run: Run, at: int) -> int | None:
+    """Fixations after the change at `at` of the worst landing check within 700 after it."""
+    after = [(px, int(x)) for x, px in run.summary["landing_curve_px"] if at < x <= at + 700]
+    return max(after)[1] - at if after else None
+
+
+def readaptation_rows(runs: Sequence[Run]) -> dict[str, list[dict[str, str]]]:
+    rows: dict[str, list[dict[str, str]]] = {}
+    for profile, group in by_profile(runs).items():
+        changes = []
+        for change in group[0].summary["changes"]:
+            at = change["at"]
+            recovery = [r.figures[f"recovery_at_{at}"] for r in group]
+            back = sum(v is not None for v in recovery)
+            changes.append({
+                "at": str(at),
+                "recovery_fixations": fmt(recovery, digits=0),
+                "recovery_each_seed": ", ".join("not back" if v is None else f"{v:.0f}" for v in recovery),
+                "back": f"{back} of {len(group)}",
+                "goal": str(change.get("goal_fixations")),
+                "within_goal": f"{sum(v is not None and v <= change['goal_fixations'] for v in recovery)} of {len(group)}",
+                "landing_before_px": fmt([r.figures[f"landing_before_{at}_px"] for r in group], digits=1),
+                "landing_worst_after_px": fmt([r.figures[f"landing_worst_after_{at}_px"] for r in group], digits=1),
+                "landing_700_after_px": fmt([r.figures[f"landing_700_after_{at}_px"] for r in group], digits=1),
+                "landing_worst_at": ", ".join(str(worst_check(r, at)) for r in group),
+                "landing_back_fixations": fmt([landing_back(r, at) for r in group], digits=0),
+                "landing_back_each_seed": ", ".join(str(landing_back(r, at)) for r in group),
+            })
+        rows[profile] = changes
+    return rows
+
+
+def band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    q25, median, q75 = np.percentile(values, [25, 50, 75], axis=0)
+    return median, q25, q75
+
+
+def plot(name: str, profile: str, group: Sequence[Run], path: Path) -> None:
+    """The median and interquartile band across seeds of the paper's curves and the landing error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
+
+    length = min(len(r.curves) for r in group)
+    curves = np.stack([r.curves[:length] for r in group])  # (seeds, fixations, 4)
+    n = np.arange(1, length + 1)
+    fig, axes = plt.subplots(5, 1, figsize=(8, 11), sharex=True)
+    panels = (("pan error [deg]", "pan", 1.0), ("tilt error [deg]", "tilt", 1.0),
+              ("vergence error [deg]", "vergence", 1.0), ("retinal error [%]", "retinal", 100.0))
+    for k, (ax, (label, key, scale)) in enumerate(zip(axes, panels)):
+        median, q25, q75 = band(curves[:, :, k] * scale)
+        ax.fill_between(n, q25, q75, color="tab:blue", alpha=0.4, lw=0, label="interquartile range")
+        ax.plot(n, median, lw=0.6, color="navy", label=f"median of {len(group)} seeds")
+        ax.axhline(PAPER_FIG5[key], ls="--", lw=0.8, color="tab:red", label="paper, fig. 5 at 2,000")
+        ax.set_ylabel(label)
+        ax.set_ylim(0, max(3 * PAPER_FIG5[key], float(np.percentile(median, 99)) * 1.1))
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    ax = axes[4]
+    checks = [int(at) for at, _ in group[0].summary["landing_curve_px"]]
+    landing = np.array([[landing_at(r, at) or np.nan for at in checks] for r in group])
+    median, q25, q75 = band(landing)
+    ax.fill_between(checks, q25, q75, color="tab:green", alpha=0.25, lw=0)
+    ax.plot(checks, median, "o-", ms=3, color="tab:green", label="median landing error")
+    floors = [r.figures["floor_px"] for r in group if r.figures["floor_px"]]
+    if floors:
+        ax.axhline(float(np.median(floors)), ls=":", color="black",
+                   label=f"(x, y, d) floor {np.median(floors):.1f} px")
+    ax.set_yscale("log")
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    ax.yaxis.set_major_formatter(plain)
+    ax.yaxis.set_minor_formatter(plain)
+    ax.tick_params(axis="y", which="minor", labelsize=7)
+    ax.set_ylabel("landing error [px]")
+    ax.set_xlabel("fixations")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(loc="upper right", fontsize=8)
+    for change in group[0].summary["changes"]:
+        for a in axes:
+            a.axvline(change["at"], color="gray", lw=0.8, ls="-.")
+    seeds = ", ".join(str(r.seed) for r in group)
+    shown = "learn --no-pose" if name == "learn-nopose" else name
+    fig.suptitle(f"{shown} ({profile} profile): median and interquartile range over seeds {seeds}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sweeps", type=Path, default=Path("runs"), help="where the sweep-NAME folders are")
+    parser.add_argument("--figures", type=Path, default=None, help="write the plots into this folder")
+    parser.add_argument("--plots", default=None,
+                        help="which plots, NAME-PROFILE comma-separated (default: every experiment and profile)")
+    parser.add_argument("--json", type=Path, default=None, help="also write every figure printed as JSON")
+    args = parser.parse_args()
+    wanted = set(args.plots.split(",")) if args.plots else None
+    report: dict[str, Any] = {}
+    for name in EXPERIMENTS:
+        folder = args.sweeps / f"sweep-{name}"
+        if not (folder / "runs").is_dir():
+            print(f"{name}: no sweep at {folder}")
+            continue
+        runs = load_runs(folder)
+        if not runs:
+            print(f"{name}: no finished run in {folder}")
+            continue
+        rows: Any = learn_rows(runs) if name.startswith("learn") else readaptation_rows(runs)
+        report[name] = rows
+        print(f"\n{name} ({folder}): median [interquartile range] across seeds")
+        for profile, row in rows.items():
+            print(f"  {profile}")
+            for entry in (row if isinstance(row, list) else [row]):
+                for key, value in entry.items():
+                    print(f"    {key:<26} {value}")
+                print()
+        if args.figures:
+            args.figures.mkdir(parents=True, exist_ok=True)
+            for profile, group in by_profile(runs).items():
+                if wanted is None or f"{name}-{profile}" in wanted:
+                    path = args.figures / f"{name}-{profile}.png"
+                    plot(name, profile, group, path)
+                    print(f"  wrote {path}")
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
