@@ -1,12 +1,15 @@
-"""Compiled inner loops of the gaze map (numba): the neighbourhood update and the node search.
+"""Compiled inner loops of the gaze map (numba): the neighbourhood update, the node search and
+the polynomial part's least-squares fit.
 
-Both run on every adaptation over a few thousand nodes; written with numpy they cost a dozen
-temporary arrays and as many Python-level calls each, which capped adaptation near 1,000
-per second. Here each is one pass over the window, no temporaries. `cache=True` keeps the
-compiled code beside this file, so only the first process pays the compile time.
+All run on every adaptation: the first two over a few thousand nodes, the fit over 20 and 106
+terms (features, one recursive least-squares step, the coefficient tensor at a pose). Written
+with numpy each costs a dozen temporary arrays and as many Python-level calls; here each is
+one pass with no temporaries but its result. `cache=True` keeps the compiled code beside
+this file, so only the first process pays the compile time.
 
 Layout: the grid is planar, (3, nx, ny, nd). The polynomial part of W (default profile) is
-passed as its dense coefficient tensor (n, n, n, 3) and per-axis scaling to [-1, 1].
+passed as its dense coefficient tensor (n, n, n, 3) and per-axis scaling to [-1, 1]; a fit's
+terms as exponent arrays (`calib_free.gaze_polynomial`).
 """
 from __future__ import annotations
 
@@ -171,16 +174,93 @@ def best_coarse_nodes(coarse: np.ndarray, command: np.ndarray, motor_scale: np.n
 
 
 @njit(cache=True, nogil=True)
-def rls_step(coef: np.ndarray, covariance: np.ndarray, phi: np.ndarray, command: np.ndarray, confidence: float,
-             forget: float) -> tuple[float, np.ndarray, float, bool]:
-    """One weighted, forgetting recursive-least-squares step, in place on `coef` (n, 3) and the
-    symmetric `covariance` (n, n), kept exactly symmetric.
+def _monomial_values(values: np.ndarray, exponents: np.ndarray, degree: int) -> np.ndarray:
+    """prod over a of values[a] ** exponents[t, a], for every row t (exponents at most `degree`)."""
+    table = np.empty((values.shape[0], degree + 1))
+    for a in range(values.shape[0]):
+        table[a] = _powers(values[a], degree)
+    out = np.empty(exponents.shape[0])
+    for t in range(exponents.shape[0]):
+        product = 1.0
+        for a in range(exponents.shape[1]):
+            product *= table[a, exponents[t, a]]
+        out[t] = product
+    return out
 
-    Returns the features' leverage phi' P phi and the a-priori residual (3,) (both before the
-    step), the new covariance's trace, and whether it stayed positive on its diagonal and finite.
+
+@njit(cache=True, nogil=True)
+def polynomial_features(unit_position: np.ndarray, position_terms: np.ndarray, cross_terms: np.ndarray,
+                        unit_pose: np.ndarray, pose_terms: np.ndarray, degree: int) -> np.ndarray:
+    """The features of a fit of P: the monomials `position_terms` (t, 3) of the scaled position
+    (x, y, d), then, for every monomial `pose_terms` (p, 2) of the scaled pose (tilt, vergence)
+    in turn, it times each of the monomials `cross_terms` (c, 3) of the position.
+
+    `degree` bounds every position exponent. With no pose terms, the position monomials alone.
+    """
+    n_pos, n_cross = position_terms.shape[0], cross_terms.shape[0]
+    table = np.empty((3, degree + 1))
+    for a in range(3):
+        table[a] = _powers(unit_position[a], degree)
+    factors = _monomial_values(unit_pose, pose_terms, pose_terms.max() if pose_terms.size else 0)
+    phi = np.empty(n_pos + factors.shape[0] * n_cross)
+    for t in range(n_pos):
+        phi[t] = table[0, position_terms[t, 0]] * table[1, position_terms[t, 1]] * table[2, position_terms[t, 2]]
+    for c in range(n_cross):
+        cross = table[0, cross_terms[c, 0]] * table[1, cross_terms[c, 1]] * table[2, cross_terms[c, 2]]
+        for p in range(factors.shape[0]):
+            phi[n_pos + p * n_cross + c] = factors[p] * cross
+    return phi
+
+
+@njit(cache=True, nogil=True)
+def polynomial_tensor(coef: np.ndarray, position_terms: np.ndarray, cross_terms: np.ndarray,
+                      unit_pose: np.ndarray, pose_terms: np.ndarray, degree: int) -> np.ndarray:
+    """The dense coefficient tensor (n, n, n, 3), n = degree + 1, of P(x, y, d) at a pose: the
+    fit's coefficients `coef` over the features of `polynomial_features`, the pose's
+    monomials summed into the cross terms."""
+    n = degree + 1
+    n_pos, n_cross = position_terms.shape[0], cross_terms.shape[0]
+    tensor = np.zeros((n, n, n, 3))
+    for t in range(n_pos):
+        for a in range(3):
+            tensor[position_terms[t, 0], position_terms[t, 1], position_terms[t, 2], a] = coef[t, a]
+    factors = _monomial_values(unit_pose, pose_terms, pose_terms.max() if pose_terms.size else 0)
+    for c in range(n_cross):
+        for a in range(3):
+            acc = 0.0
+            for p in range(factors.shape[0]):
+                acc += factors[p] * coef[n_pos + p * n_cross + c, a]
+            tensor[cross_terms[c, 0], cross_terms[c, 1], cross_terms[c, 2], a] += acc
+    return tensor
+
+
+@njit(cache=True, nogil=True)
+def quadratic_form(matrix: np.ndarray, vector: np.ndarray) -> float:
+    """vector' matrix vector."""
+    total = 0.0
+    for i in range(vector.shape[0]):
+        acc = 0.0
+        for j in range(vector.shape[0]):
+            acc += matrix[i, j] * vector[j]
+        total += vector[i] * acc
+    return total
+
+
+@njit(cache=True, nogil=True)
+def rls_step(coef: np.ndarray, covariance: np.ndarray, noise_variance: np.ndarray, phi: np.ndarray,
+             command: np.ndarray, confidence: float, forget: float, noise_rate: float, trace_limit: float) -> bool:
+    """One weighted, forgetting recursive-least-squares step, in place on `coef` (n, 3), the
+    symmetric `covariance` (n, n) and `noise_variance` (3,).
+
+    The gain is P phi c / (forget + c phi' P phi), the covariance (P - gain (P phi)') / forget,
+    kept exactly symmetric (the mean of it and its transpose) and scaled down to a trace of
+    `trace_limit` when above it. The a-priori residual's variance is noise * (1 + phi' P phi):
+    `noise_variance` moves towards residual^2 / (1 + phi' P phi) by `noise_rate`. Returns
+    whether the covariance stayed finite and positive on its diagonal; when not, it is left
+    as computed (not scaled) for the caller to reset.
     """
     n = phi.shape[0]
-    p_phi = np.zeros(n)
+    p_phi = np.empty(n)
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -191,15 +271,19 @@ def rls_step(coef: np.ndarray, covariance: np.ndarray, phi: np.ndarray, command:
         leverage += phi[i] * p_phi[i]
     residual = np.empty(3)
     for a in range(3):
-        acc = command[a]
+        acc = 0.0
         for i in range(n):
-            acc -= phi[i] * coef[i, a]
-        residual[a] = acc
-    scale = confidence / (forget + confidence * leverage)
-    gain = p_phi * scale
+            acc += phi[i] * coef[i, a]
+        residual[a] = command[a] - acc
+    denominator = forget + confidence * leverage
+    gain = np.empty(n)
     for i in range(n):
+        gain[i] = p_phi[i] * confidence / denominator
         for a in range(3):
             coef[i, a] += gain[i] * residual[a]
+    for a in range(3):
+        estimate = residual[a] ** 2 / (1.0 + leverage)
+        noise_variance[a] = noise_variance[a] + noise_rate * (estimate - noise_variance[a])
     trace = 0.0
     healthy = True
     for i in range(n):
@@ -214,4 +298,9 @@ def rls_step(coef: np.ndarray, covariance: np.ndarray, phi: np.ndarray, command:
         if covariance[i, i] <= 0.0:
             healthy = False
         trace += covariance[i, i]
-    return leverage, residual, trace, healthy
+    if healthy and trace > trace_limit:
+        scale = trace_limit / trace
+        for i in range(n):
+            for j in range(n):
+                covariance[i, j] *= scale
+    return healthy

@@ -19,6 +19,10 @@ map's kernels (node search, slopes, blocks of nodes) serve both.
 
 Coordinates: grid indices scaled to [-1, 1] per axis; tilt and vergence in degrees divided by
 the half-span of their relative command range.
+
+Both fits build their features, take their least-squares steps and (at a pose) their tensors
+with the same compiled kernels (`calib_free._kernels`): the pose-free fit is the pose-aware
+one without pose terms.
 """
 from __future__ import annotations
 
@@ -35,18 +39,22 @@ log = logging.getLogger(__name__)
 
 PRIOR = 100.0  # P0 = 100 I: a weak prior, the first samples dominate at once
 NOISE_PRIOR = 1.0  # deg^2 per motor axis: the noise variance assumed before any sample
+_NO_CROSS_TERMS = np.zeros((0, 3), dtype=np.int64)  # the pose-free fit has no pose terms
+_NO_POSE_TERMS = np.zeros((0, 2), dtype=np.int64)
+_NO_POSE = np.zeros(2)
 
 
 def monomials(variables: int, degree: int) -> np.ndarray:
     """Exponents (n, variables) of every monomial of total degree <= `degree`, in a fixed order."""
     terms = [e for e in itertools.product(range(degree + 1), repeat=variables) if sum(e) <= degree]
-    return np.array(sorted(terms, key=lambda e: (sum(e), tuple(-v for v in e))), dtype=int).reshape(-1, variables)
+    ordered = sorted(terms, key=lambda e: (sum(e), tuple(-v for v in e)))
+    return np.array(ordered, dtype=np.int64).reshape(-1, variables)
 
 
 def _position_terms(degree: int) -> np.ndarray:
     """The (x, y, d) monomials of `PolynomialPart`, in the order its saved coefficients have (map files depend on it)."""
     return np.array([(i, j, k) for i in range(degree + 1) for j in range(degree + 1 - i)
-                     for k in range(degree + 1 - i - j)], dtype=int)
+                     for k in range(degree + 1 - i - j)], dtype=np.int64)
 
 
 class _RecursiveFit(abc.ABC):
@@ -61,38 +69,30 @@ class _RecursiveFit(abc.ABC):
     def coefficients_changed(self) -> None:
         """What a subclass derives from `coef` is out of date."""
 
-    def rls_step(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float,
-                 samples: int) -> None:
-        """One weighted RLS step on features `phi` and its command; `samples` learned before it."""
+    def learn(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float, samples: int = 0) -> None:
+        """One weighted RLS step on features `phi` (of the sample) and its command, forgetting
+        with the map's `memory` (fixations); `samples` learned before it.
+
+        The noise estimate averages over the memory (its first samples at once). Round-off
+        makes P drift from symmetric and, thousands of samples on, indefinite, and then the fit
+        diverges: the kernel keeps it symmetric, and a P that broke starts afresh. Forgetting
+        inflates P along directions no sample excites: its trace is bounded.
+        """
         forget = 1.0 - 1.0 / max(memory, 1.0)
-        p_phi = self.covariance @ phi
-        leverage = float(phi @ p_phi)
-        residual = command - phi @ self.coef
-        gain = p_phi * confidence / (forget + confidence * leverage)
-        self.coef += gain[:, None] * residual[None, :]
+        noise_rate = confidence / min(max(memory, 1.0), samples + 1.0)
+        size = len(phi)
+        healthy = _kernels.rls_step(self.coef, self.covariance, self.noise_variance, np.asarray(phi, dtype=float),
+                                    np.asarray(command, dtype=float), float(confidence), forget, noise_rate,
+                                    PRIOR * size)
         self.coefficients_changed()
-        # The a-priori residual's variance is noise * (1 + leverage): the noise, weighted by
-        # confidence, averaged over the fit's memory (its first samples at once).
-        rate = confidence / min(max(memory, 1.0), samples + 1.0)
-        estimate = residual ** 2 / (1.0 + leverage)
-        self.noise_variance = self.noise_variance + rate * (estimate - self.noise_variance)
-        covariance = (self.covariance - gain[:, None] * p_phi[None, :]) / forget
-        # Round-off makes P drift from symmetric and, thousands of samples on, indefinite,
-        # and then the fit diverges: keep it symmetric, and start it afresh if it broke.
-        covariance = 0.5 * (covariance + covariance.T)
-        if np.min(np.diag(covariance)) <= 0.0 or not np.all(np.isfinite(covariance)):
-            log.warning("gaze map: the least-squares covariance lost positive definiteness; reset")
-            covariance = np.eye(len(phi)) * PRIOR
-        # Forgetting inflates P along directions no sample excites: keep it bounded.
-        limit = PRIOR * len(phi)
-        trace = np.trace(covariance)
-        if trace > limit:
-            covariance *= limit / trace
-        self.covariance = covariance
+        if not healthy:
+            log.warning("gaze map: the least-squares covariance (%d terms) lost positive definiteness; reset", size)
+            self.covariance = np.eye(size) * PRIOR
 
     def predictive_variance(self, phi: np.ndarray) -> np.ndarray:
         """Variance (3,) of the fit's value at features `phi`, deg^2 per motor axis."""
-        variance: np.ndarray = float(phi @ self.covariance @ phi) * self.noise_variance
+        variance: np.ndarray = _kernels.quadratic_form(self.covariance, np.asarray(phi, dtype=float)) \
+            * self.noise_variance
         return variance
 
 
@@ -157,13 +157,14 @@ class PolynomialPart(_RecursiveFit):
 
     def coefficients_changed(self) -> None:
         """Rebuild the dense (i, j, k, axis) coefficient tensor `block` contracts with."""
-        n = self.degree + 1
-        self.tensor = np.zeros((n, n, n, 3))
-        self.tensor[tuple(self.terms.T)] = self.coef
+        self.tensor = _kernels.polynomial_tensor(self.coef, self.terms, _NO_CROSS_TERMS, _NO_POSE, _NO_POSE_TERMS,
+                                                 self.degree)
 
     def features(self, g: np.ndarray) -> np.ndarray:
+        """The monomials `terms` of the grid position `g` scaled to [-1, 1]."""
         u = np.asarray(g, dtype=float) / self.half_span - 1.0
-        phi: np.ndarray = np.prod(u[None, :] ** self.terms, axis=1)
+        phi: np.ndarray = _kernels.polynomial_features(u, self.terms, _NO_CROSS_TERMS, _NO_POSE, _NO_POSE_TERMS,
+                                                       self.degree)
         return phi
 
     def at(self, g: np.ndarray) -> np.ndarray:
@@ -173,10 +174,6 @@ class PolynomialPart(_RecursiveFit):
     def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray = (1, 1, 1)) -> np.ndarray:
         """Values at the nodes lo..hi (exclusive) with `stride`: (3, a, b, c)."""
         return block_values(self.tensor, self._powers(lo, hi, stride))
-
-    def learn(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float, samples: int = 0) -> None:
-        """One weighted RLS step on features `phi` (of the sample's position) and its command."""
-        self.rls_step(phi, command, confidence, memory, samples)
 
 
 class PosePolynomialPart(_RecursiveFit):
@@ -198,9 +195,6 @@ class PosePolynomialPart(_RecursiveFit):
         self._powers = _Powers(self.half_span, self.degree)
         n_pos, n_cross = len(self.position_terms), len(self.cross_terms)
         self.size = n_pos + len(self.pose_terms) * n_cross
-        # Where each monomial sits in the dense (i, j, k) tensor.
-        self._position_index = tuple(self.position_terms.T)
-        self._cross_index = tuple(self.cross_terms.T)
         position_of = {tuple(t): n for n, t in enumerate(self.position_terms)}
         self._base_rows = np.array([position_of[tuple(t)] for t in base.terms], dtype=int)
         self.coef = np.zeros((self.size, 3))
@@ -215,19 +209,17 @@ class PosePolynomialPart(_RecursiveFit):
     def coefficients_changed(self) -> None:
         self._tensor_pose = None
 
-    def pose_factors(self, pose: np.ndarray) -> np.ndarray:
-        """The (tilt, vergence) monomials of a pose (pan, tilt, vergence), scaled."""
-        q = np.asarray(pose, dtype=float)[1:] / self.pose_scale
-        factors: np.ndarray = np.prod(q[None, :] ** self.pose_terms, axis=1)
-        return factors
+    def unit_pose(self, pose: np.ndarray) -> np.ndarray:
+        """(tilt, vergence) of a pose (pan, tilt, vergence), scaled by `pose_scale`."""
+        q: np.ndarray = np.asarray(pose, dtype=float)[1:] / self.pose_scale
+        return q
 
     def features(self, g: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """The monomials `position_terms` of the grid position `g` scaled to [-1, 1], then each
+        (tilt, vergence) monomial of `pose_terms` times each of `cross_terms`."""
         u = np.asarray(g, dtype=float) / self.half_span - 1.0
-        powers = u[:, None] ** np.arange(self.degree + 1)[None, :]  # (3, degree + 1)
-        cube = powers[0][:, None, None] * powers[1][None, :, None] * powers[2][None, None, :]
-        cross = cube[self._cross_index]
-        phi: np.ndarray = np.concatenate([cube[self._position_index],
-                                          (self.pose_factors(pose)[:, None] * cross[None, :]).ravel()])
+        phi: np.ndarray = _kernels.polynomial_features(u, self.position_terms, self.cross_terms, self.unit_pose(pose),
+                                                       self.pose_terms, self.degree)
         return phi
 
     def at(self, g: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -238,35 +230,15 @@ class PosePolynomialPart(_RecursiveFit):
         """The dense (i, j, k, axis) coefficient tensor of P(x, y, d) at this pose."""
         key = (float(pose[1]), float(pose[2]))
         if self._tensor_pose != key:
-            n_pos, n_cross = len(self.position_terms), len(self.cross_terms)
-            tensor = np.zeros_like(self._tensor)
-            tensor[self._position_index] = self.coef[:n_pos]
-            pose_coef = self.coef[n_pos:].reshape(len(self.pose_terms), n_cross * 3)
-            tensor[self._cross_index] += (self.pose_factors(pose) @ pose_coef).reshape(n_cross, 3)
-            self._tensor, self._tensor_pose = tensor, key
+            self._tensor = _kernels.polynomial_tensor(self.coef, self.position_terms, self.cross_terms,
+                                                      self.unit_pose(pose), self.pose_terms, self.degree)
+            self._tensor_pose = key
         return self._tensor
 
     def block(self, lo: np.ndarray, hi: np.ndarray, stride: Sequence[int] | np.ndarray,
               pose: np.ndarray) -> np.ndarray:
         """Values at the nodes lo..hi (exclusive) with `stride` at this pose: (3, a, b, c)."""
         return block_values(self.tensor_at(pose), self._powers(lo, hi, stride))
-
-    def learn(self, phi: np.ndarray, command: np.ndarray, confidence: float, memory: float, samples: int = 0) -> None:
-        """`rls_step` as a compiled kernel: with five times the terms of the pose-free fit,
-        numpy's temporaries would cost more than the arithmetic."""
-        forget = 1.0 - 1.0 / max(memory, 1.0)
-        leverage, residual, trace, healthy = _kernels.rls_step(self.coef, self.covariance, phi,
-                                                                np.asarray(command, dtype=float), confidence, forget)
-        self.coefficients_changed()
-        rate = confidence / min(max(memory, 1.0), samples + 1.0)
-        self.noise_variance = self.noise_variance + rate * (residual ** 2 / (1.0 + leverage) - self.noise_variance)
-        if not healthy:
-            log.warning("gaze map: the pose-aware least-squares covariance lost positive definiteness; reset")
-            self.covariance = np.eye(self.size) * PRIOR
-            return
-        limit = PRIOR * self.size
-        if trace > limit:
-            self.covariance *= limit / trace
 
     def restart(self) -> None:
         """Keep the coefficients but trust them no more than the prior: the next samples
