@@ -3,9 +3,15 @@
 It owns the frame timing of the simulation: frames fall on a grid of the injected clock
 (frame n at n / fps seconds), so the left and right cameras of a head, sharing a clock,
 produce frames with identical timestamps, like hardware-triggered stereo cameras. At each
-frame the capture thread reads the current joint angles from a pose source (a callable
-returning {"pan", "tilt", "left_eye", "right_eye"} in degrees; the service wires the
-simulated servo bus to it) and renders this eye's view with `drivers.sim_scene`.
+frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
+"left_eye", "right_eye"} in degrees; the service wires the simulated servos to it) and
+renders this eye's view with `drivers.sim_scene`.
+
+A frame shows the world at its timestamp, however late it is rendered (on a loaded machine
+the capture thread runs milliseconds to tens of milliseconds after it): the moving objects
+are placed at the frame's time, and so are the joints when the pose source can tell where
+they were then (`TimedPoseSource`, as the service's simulated world does); a plain callable
+gives the joints at the render time. So both eyes of a pair show the same instant.
 
 Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the next frame
 (real time with the system clock; a `ManualClock` then advances as fast as frames render).
@@ -14,10 +20,12 @@ the simulated servo loop) advances it.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import time
 from collections.abc import Callable, Mapping
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -29,10 +37,20 @@ from drivers.sim_scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, sh
 
 log = logging.getLogger(__name__)
 
-PoseSource = Callable[[], Mapping[str, float]]
+PoseSource = Callable[[], Mapping[str, float]]  # the joint angles now
 DEFAULT_FPS = 30.0
+RENDER_LAGS_KEPT = 1000  # the last frames' render lags (`render_lags_s`)
 _PACING_STEP_S = 0.02  # longest uninterrupted sleep, so stop() is prompt
 _WATCH_STEP_S = 0.0005  # how often an unpaced camera looks at the clock
+
+
+@runtime_checkable
+class TimedPoseSource(Protocol):
+    """A pose source that also tells where the joints were at a past time of the clock."""
+
+    def __call__(self) -> Mapping[str, float]: ...
+
+    def at(self, time_s: float) -> Mapping[str, float]: ...
 
 
 def fixed_pose(pan: float = 0.0, tilt: float = 0.0, left_eye: float = 0.0, right_eye: float = 0.0) -> PoseSource:
@@ -77,14 +95,24 @@ class SimulatedCamera(Camera):
         self._scene = scene
         self._renderer: EyeRenderer | None = None
         self._last_index: int | None = None
+        # (frame time, render start, image ready) of the last frames, clock seconds.
+        self._render_times: collections.deque[tuple[float, float, float]] = collections.deque(
+            maxlen=RENDER_LAGS_KEPT)
+
+    def render_lags_s(self) -> list[tuple[float, float, float]]:
+        """The last frames' (timestamp, lag of the render's start, lag of the image ready),
+        seconds after the timestamp: how late the capture thread rendered (what the frame
+        shows does not depend on it)."""
+        return [(t, start - t, ready - t) for t, start, ready in list(self._render_times)]
 
     # -- synchronous use ----------------------------------------------------------------------
-    def render(self, joints: Mapping[str, float]) -> np.ndarray:
-        """This eye's image at the given joint angles (degrees), now, without the thread."""
+    def render(self, joints: Mapping[str, float], time_s: float | None = None) -> np.ndarray:
+        """This eye's image at the given joint angles (degrees), the moving objects where they
+        are at `time_s` (None: now), without the thread."""
         self.require_open()
         assert self._renderer is not None
         rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
-        return self._renderer.render(rotation, centre)
+        return self._renderer.render(rotation, centre, time_s)
 
     # -- hooks --------------------------------------------------------------------------------
     def _open_device(self) -> None:
@@ -104,7 +132,7 @@ class SimulatedCamera(Camera):
         while True:
             now_s = self.clock.monotonic()
             # No rounding up: a frame's time is never later than the clock when it renders,
-            # so the pose it shows is the pose at (or after) its timestamp.
+            # so where the world was at its timestamp is known by then.
             index = math.floor(now_s * self.fps)
             if self._last_index is None or index > self._last_index:
                 break
@@ -118,17 +146,20 @@ class SimulatedCamera(Camera):
                 return None
         self._last_index = index
         frame_time_s = index / self.fps
+        started_s = self.clock.monotonic()
         try:
-            joints = self.pose_source()
+            source = self.pose_source
+            joints = source.at(frame_time_s) if isinstance(source, TimedPoseSource) else source()
         except Exception as err:
             raise CameraError(f"{self.name}: the pose source failed: {err!r}") from err
         if self._renderer is None:
             raise DeviceStateError(f"{self.name}: rendering on a closed camera")
         rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
-        image = self._renderer.render(rotation, centre)
+        image = self._renderer.render(rotation, centre, frame_time_s)
         if self.config.noise_std > 0:
             # Sensor noise, deterministic per (seed, eye, frame).
             rng = np.random.default_rng((self.config.seed, self.eye_index, index))
             noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
             image = np.clip(noisy, 0, 255).astype(np.uint8)
+        self._render_times.append((frame_time_s, started_s, self.clock.monotonic()))
         return Grab(image, frame_time_s, frame_time_s)

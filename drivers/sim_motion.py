@@ -5,9 +5,9 @@ eyes' height) that sweeps back and
 forth along an arc (a great circle through its centre direction, slanted by `direction_deg`
 from the horizontal) at a constant angular speed, slowing down and turning at the arc's ends
 with a bounded angular acceleration, so that pursuit can be measured at a known target speed.
-`SceneMotion` holds a scene's moving boxes and gives the renderer their translations at the
-clock's time (`drivers.sim_scene.SceneMotion`); the cube keeps its orientation (boxes are
-axis-aligned) and carries its texture with it.
+`SceneMotion` holds a scene's moving boxes and gives the renderer their translations at a
+frame's time (`drivers.sim_scene.SceneMotion`; by default the clock's now); the cube keeps its
+orientation (boxes are axis-aligned) and carries its texture with it.
 
 World frame as in `drivers.sim_scene`: x forward, y left, z up, metres; azimuth + to the
 head's left, elevation + up.
@@ -112,9 +112,9 @@ class MovingObject:
 
 
 class SceneMotion:
-    """The moving boxes of a scene: `box_offsets()` is each box's translation at the clock's
-    time, counted from `start_s` (default: the clock's time when made). `speed_scale` stops (0)
-    or resumes (1) every object without a jump."""
+    """The moving boxes of a scene: `box_offsets(time_s)` is each box's translation at a time
+    of the clock (default: now), counted from `start_s` (default: the clock's time when made);
+    before `start_s` every object rests where it starts (a later `start_s` holds them there)."""
 
     def __init__(self, objects: Sequence[tuple[int, MovingObject]], n_boxes: int, clock: Clock = SYSTEM_CLOCK,
                  start_s: float | None = None) -> None:
@@ -128,7 +128,8 @@ class SceneMotion:
         self.start_s = clock.monotonic() if start_s is None else start_s
 
     def elapsed_s(self, time_s: float | None = None) -> float:
-        return (self.clock.monotonic() if time_s is None else time_s) - self.start_s
+        """Seconds of motion at `time_s` (default: now): 0 until `start_s`."""
+        return max(0.0, (self.clock.monotonic() if time_s is None else time_s) - self.start_s)
 
     def box_offsets(self, time_s: float | None = None) -> np.ndarray | None:
         if not self.objects:

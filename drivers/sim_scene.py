@@ -47,9 +47,10 @@ class Lens(Protocol):
 
 
 class SceneMotion(Protocol):
-    """What moves in a scene (`drivers.sim_motion.SceneMotion`): each box's translation now."""
+    """What moves in a scene (`drivers.sim_motion.SceneMotion`): each box's translation at a
+    time of the clock (None: now)."""
 
-    def box_offsets(self) -> np.ndarray | None:
+    def box_offsets(self, time_s: float | None = None) -> np.ndarray | None:
         """(boxes, 3) metres each box is moved from where the scene placed it; None: none moves."""
 
 
@@ -360,8 +361,9 @@ class EyeRenderer:
             windows.append((slice(r0, r1), slice(c0, c1)) if c0 < c1 and r0 < r1 else None)
         return windows
 
-    def render(self, rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
-        """The image (H, W) grey or (H, W, 3) BGR seen from camera-from-world `rotation` at `centre`."""
+    def render(self, rotation: np.ndarray, centre: np.ndarray, time_s: float | None = None) -> np.ndarray:
+        """The image (H, W) grey or (H, W, 3) BGR seen from camera-from-world `rotation` at `centre`,
+        the moving boxes where they are at `time_s` on the scene's clock (None: now)."""
         scene = self.scene
         world_from_cam = np.asarray(rotation, np.float32).T
         d = cv2.split(cv2.transform(self.rays_cam, world_from_cam))  # 3 planes (H, W)
@@ -377,7 +379,7 @@ class EyeRenderer:
             # Face ids in uint8 throughout: byte-wide temporaries, and what cv2.LUT indexes with.
             face = np.where(nearer_z, _u8(d[2] > 0) + 4, np.where(nearer_y, _u8(d[1] > 0) + 2, _u8(d[0] > 0)))
             # A box moved by s is met where the ray from o - s meets it unmoved.
-            shift = scene.motion.box_offsets() if scene.motion is not None else None
+            shift = scene.motion.box_offsets(time_s) if scene.motion is not None else None
             for b, window in enumerate(self._footprints(rotation, centre, shift), start=1):
                 if window is not None:
                     self._hit_box(b, window, o if shift is None else o - shift[b], d, inv, best, face)
@@ -468,13 +470,14 @@ class StereoRenderer:
         )
         self._lock = threading.Lock()
 
-    def render(self, joints: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    def render(self, joints: Mapping[str, float], time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Both eyes at `joints`, the moving boxes where they are at `time_s` (None: now)."""
         (r_left, c_left), (r_right, c_right) = self.head.eye_frames_from_joints(*joints_tuple(joints))
         if self._pool is None:
-            return self.eyes[0].render(r_left, c_left), self.eyes[1].render(r_right, c_right)
+            return self.eyes[0].render(r_left, c_left, time_s), self.eyes[1].render(r_right, c_right, time_s)
         with self._lock:
-            future = self._pool.submit(self.eyes[1].render, r_right, c_right)
-            left = self.eyes[0].render(r_left, c_left)
+            future = self._pool.submit(self.eyes[1].render, r_right, c_right, time_s)
+            left = self.eyes[0].render(r_left, c_left, time_s)
             return left, future.result()
 
     def close(self) -> None:

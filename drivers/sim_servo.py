@@ -15,6 +15,11 @@ which has to find the wiring out from the cameras.
 Time comes from an injectable clock, so tests run faster than real time with a
 `drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
 across `open()`/`close()` like real servos do.
+
+Where the joints were at a past time (a simulated frame's exposure, rendered later) comes
+from `JointTrace`: the bus records its servos' motion-model state at every change of course
+(goals, torque, a hold) and at reads into a short ring, and `true_joints_at` replays the motion
+model from it.
 """
 from __future__ import annotations
 
@@ -22,6 +27,8 @@ import logging
 import math
 import threading
 from collections.abc import Iterable, Mapping
+
+import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
@@ -38,6 +45,17 @@ _STEP_S = 0.001
 # Hardware Error Status bits that cut torque under the X-series default Shutdown (63) = 52:
 # overheating, electrical shock, overload.
 DEFAULT_SHUTDOWN_BITS = 0b0011_0100
+# The trace of the joints' true motion: a row each time the motion changes course (goals
+# written, torque, a hold) and at each read, at least 2 ms apart (a read sooner after the
+# newest row is not kept, a change replaces it), so 128 rows span over a second at the servo
+# loop's 100 Hz, longer than a simulated frame waits for its rendering.
+TRACE_SAMPLES = 128
+_TRACE_SPACING_S = 0.002
+TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
+TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
+# A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
+# loop writes goals every 10 ms, so past rows are a cycle apart).
+_REPLAY_MAX_S = 0.1
 
 
 class ProfileAxis:
@@ -98,6 +116,64 @@ class ProfileAxis:
             self.position, self.velocity = self.goal, 0.0
             return
         self.position = new_position
+
+
+class JointTrace:
+    """The joints' true motion at past times: rows of the motion model's state (time, then for
+    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
+    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
+    have a NaN time), a ring of the last `size`.
+
+    `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
+    `time_s`: exact as long as every change of course is a row (the bus records one at each);
+    before the oldest row, the oldest position. Not thread-safe: its owner serialises access
+    (a reader in another process copies `rows` under its own lock)."""
+
+    def __init__(self, size: int = TRACE_SAMPLES) -> None:
+        self.rows = np.full((size, TRACE_WIDTH), np.nan)
+        self._next = 0
+
+    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
+            change: bool = False) -> None:
+        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
+        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
+        sample is not kept."""
+        newest = self.rows[(self._next - 1) % len(self.rows)]
+        if time_s - newest[0] < _TRACE_SPACING_S:
+            if not change:
+                return
+            row = newest
+        else:
+            row = self.rows[self._next]
+            self._next = (self._next + 1) % len(self.rows)
+        row[0] = time_s
+        for j, joint in enumerate(JOINTS):
+            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
+
+    def at(self, time_s: float) -> dict[str, float] | None:
+        return joints_at(self.rows, time_s)
+
+
+def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
+    """The joint angles at `time_s` from `JointTrace` rows (in any order); None without a row."""
+    times = rows[:, 0]
+    known = np.isfinite(times)
+    if not known.any():
+        return None
+    before = known & (times <= time_s)
+    if not before.any():  # older than the trace: the oldest position known
+        row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
+        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
+    row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
+    joints = {}
+    for j, joint in enumerate(JOINTS):
+        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
+                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
+        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
+        axis.velocity, axis.goal = float(velocity), float(goal)
+        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
+        joints[joint] = axis.position
+    return joints
 
 
 class _SimServo:
@@ -163,6 +239,8 @@ class SimulatedServoBus(ServoBus):
         self._linked = False
         self._adapter_present = True
         self._last_contact_s = now
+        self._trace = JointTrace()
+        self._sample(now, change=True)
 
     # -- fault injection -----------------------------------------------------------------
     def inject_bus_down(self) -> None:
@@ -181,12 +259,14 @@ class SimulatedServoBus(ServoBus):
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
         with self._sim_lock:
+            now = self.clock.monotonic()
             servo = self._servos[joint]
-            servo.axis.advance_to(self.clock.monotonic())
+            servo.axis.advance_to(now)
             servo.hardware_error_bits |= bits
             if bits & DEFAULT_SHUTDOWN_BITS:
                 servo.torque_on = False
                 servo.axis.hold()
+                self._sample(now, change=True)
         log.info("%s: injected hardware error 0x%02x on %s (%s)", self.name, bits, joint,
                  "; ".join(decode_hardware_error(bits)))
 
@@ -194,9 +274,39 @@ class SimulatedServoBus(ServoBus):
         """Where the simulated joint really is now (joint frame, degrees), bus or no bus: as
         the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes."""
         with self._sim_lock:
-            servo = self._wired[joint]
-            servo.axis.advance_to(self.clock.monotonic())
-            return self._wired_as[joint].joint_angle(servo.axis.position)
+            self._sample(self.clock.monotonic())
+            return self._wired_as[joint].joint_angle(self._wired[joint].axis.position)
+
+    def true_joints_at(self, time_s: float) -> dict[str, float]:
+        """Where the simulated joints really were at `time_s` (joint frame, degrees; at most
+        now): from the motion model when no servo has moved on past it, else replayed from the
+        trace of their motion (`JointTrace`)."""
+        with self._sim_lock:
+            time_s = min(time_s, self.clock.monotonic())
+            if all(servo.axis.time_s <= time_s for servo in self._wired.values()):
+                return self._sample(time_s)
+            joints = self._trace.at(time_s)
+            assert joints is not None  # sampled since construction
+            return joints
+
+    def true_trace(self) -> np.ndarray:
+        """A copy of the trace's rows (`JointTrace.rows`), for a reader in another process."""
+        with self._sim_lock:
+            return self._trace.rows.copy()
+
+    def _sample(self, time_s: float, change: bool = False) -> dict[str, float]:
+        """Move every servo forward to `time_s` and record their motion in the trace, a `change`
+        of course (goals, torque, a hold) always (lock held); the joints' positions."""
+        axes = {}
+        for joint, servo in self._wired.items():
+            servo.axis.advance_to(time_s)
+            if joint not in JOINTS:  # a servo that turns nothing the cameras see
+                continue
+            wired, axis = self._wired_as[joint], servo.axis
+            axes[joint] = (wired.joint_angle(axis.position), wired.direction * axis.velocity,
+                           wired.joint_angle(axis.goal), axis.max_velocity, axis.max_acceleration)
+        self._trace.add(time_s, axes, change)
+        return {joint: values[0] for joint, values in axes.items()}
 
     # -- ServoBus hooks ------------------------------------------------------------------
     def _connect(self) -> None:
@@ -219,10 +329,12 @@ class SimulatedServoBus(ServoBus):
                 servo.axis.advance_to(now)
                 servo.axis.max_velocity = jc.profile_velocity or self.max_velocity_dps
                 servo.axis.max_acceleration = jc.profile_acceleration or math.inf
+            self._sample(now, change=True)
 
     def _read_servos(self) -> dict[str, JointState]:
         with self._sim_lock:
             now = self._contact()
+            self._sample(now)
             states = {}
             for joint, servo in self._servos.items():
                 servo.axis.advance_to(now)
@@ -246,24 +358,28 @@ class SimulatedServoBus(ServoBus):
                 servo.goal_deg = goal
                 if servo.torque_on:
                     servo.axis.set_goal(goal)
+            self._sample(now, change=True)  # the motion turns toward the new goals here
 
     def _set_torque(self, joints: Iterable[str], on: bool) -> None:
         with self._sim_lock:
             now = self._contact()
-            for joint in joints:
-                servo = self._servos[joint]
-                servo.axis.advance_to(now)
-                if on and servo.hardware_error_bits & DEFAULT_SHUTDOWN_BITS:
-                    raise ServoHardwareError(
-                        f"{self.describe(joint)}: torque refused, hardware error 0x{servo.hardware_error_bits:02x}: "
-                        + "; ".join(decode_hardware_error(servo.hardware_error_bits))
-                    )
-                servo.torque_on = on
-                if on:
-                    # Like a real servo: torque on drives toward the Goal Position register.
-                    servo.axis.set_goal(servo.goal_deg)
-                else:
-                    servo.axis.hold()
+            try:
+                for joint in joints:
+                    servo = self._servos[joint]
+                    servo.axis.advance_to(now)
+                    if on and servo.hardware_error_bits & DEFAULT_SHUTDOWN_BITS:
+                        raise ServoHardwareError(
+                            f"{self.describe(joint)}: torque refused, hardware error "
+                            f"0x{servo.hardware_error_bits:02x}: " + "; ".join(decode_hardware_error(
+                                servo.hardware_error_bits)))
+                    servo.torque_on = on
+                    if on:
+                        # Like a real servo: torque on drives toward the Goal Position register.
+                        servo.axis.set_goal(servo.goal_deg)
+                    else:
+                        servo.axis.hold()
+            finally:
+                self._sample(now, change=True)
 
     def _reboot_servo(self, joint: str) -> None:
         with self._sim_lock:
@@ -274,6 +390,7 @@ class SimulatedServoBus(ServoBus):
             servo.goal_deg = servo.axis.position
             servo.torque_on = False
             servo.hardware_error_bits = 0
+            self._sample(now, change=True)
 
     def _contact(self) -> float:
         """One packet on the bus: check the link, apply the Bus Watchdog, return now."""
@@ -293,6 +410,7 @@ class SimulatedServoBus(ServoBus):
                     servo.goal_deg = servo.axis.position
                     log.warning("%s: bus watchdog expired on %s after %.3f s of silence: servo stopped",
                                 self.name, joint, now - self._last_contact_s)
+                    self._sample(trip_s, change=True)
         self._last_contact_s = now
         return now
 

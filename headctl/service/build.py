@@ -43,6 +43,8 @@ class SimulatedServos(Protocol):
 
     def true_position(self, joint: str) -> float: ...
 
+    def true_joints_at(self, time_s: float) -> dict[str, float]: ...
+
     def inject_bus_down(self) -> None: ...
 
     def restore_bus(self) -> None: ...
@@ -72,12 +74,32 @@ class SimulatedWorld:
     def true_joints(self) -> dict[str, float]:
         return {joint: self.servos.true_position(joint) for joint in JOINTS}
 
-    def pose_source(self, side: str) -> Callable[[], dict[str, float]]:
-        def pose() -> dict[str, float]:
-            if side in self.stalled:
-                raise CameraError(f"camera {side}: stalled (injected fault)")
-            return self.true_joints()
-        return pose
+    def true_joints_at(self, time_s: float) -> dict[str, float]:
+        """Where the joints were at `time_s` (a frame's exposure, rendered later)."""
+        return self.servos.true_joints_at(time_s)
+
+    def pose_source(self, side: str) -> EyePose:
+        return EyePose(self, side)
+
+
+class EyePose:
+    """One simulated camera's pose source (`drivers.sim_camera.TimedPoseSource`): the world's
+    joints now, or at a frame's exposure; fails while the camera is stalled."""
+
+    def __init__(self, world: SimulatedWorld, side: str) -> None:
+        self.world, self.side = world, side
+
+    def _check(self) -> None:
+        if self.side in self.world.stalled:
+            raise CameraError(f"camera {self.side}: stalled (injected fault)")
+
+    def __call__(self) -> dict[str, float]:
+        self._check()
+        return self.world.true_joints()
+
+    def at(self, time_s: float) -> dict[str, float]:
+        self._check()
+        return self.world.true_joints_at(time_s)
 
 
 def sim_head_model(camera: CameraConfig, vergence_range: tuple[float, float] | None = None) -> HeadModel:

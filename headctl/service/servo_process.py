@@ -7,7 +7,8 @@ tens of milliseconds, and the servo loop's period with it. So the service runs t
 
 - a shared-memory state block (`SharedState`), written by the child after every cycle under
   a sequence lock and read by the service without waiting: the latest joint states, the goals
-  in force, the loop's counters, the simulated servos' true positions; and a ring of the last
+  in force, the loop's counters, the simulated servos' true positions and the trace of their
+  motion (what the simulated cameras render a frame's exposure from); and a ring of the last
   periods, from which the service computes the quantiles;
 - a heartbeat block written by the service whenever it reads or commands: the child's loop
   holds the present position when it goes stale for `service.input_timeout_s` (the loop's
@@ -47,19 +48,14 @@ from drivers.errors import (BusDownError, DriverError, JointLimitError, ServoCom
                             ServoTimeoutError)
 from drivers.servo_bus import BusState, JointState, ServoBus
 from drivers.servo_faults import HardwareErrorEpisode
+from drivers.sim_servo import TRACE_SAMPLES, TRACE_WIDTH, joints_at
 from headctl.config import HeadConfig
 from headctl.errors import HeadctlError, ServoLoopStoppedError, StaleStateError
 from headctl.service.servo_loop import ServoLoop, _WriteRequest, period_quantiles
+from headctl.service.servo_shared import SIZE, TRACE_BASE, SharedState, _H, _J, _joint_base
 
 log = logging.getLogger(__name__)
 
-HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
-               "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state")
-JOINT_FIELDS = ("position", "velocity", "moving", "torque_on", "hardware_error_bits", "temperature_c",
-                "input_voltage_v", "goal", "true_position")
-_H = {name: i for i, name in enumerate(HEAD_FIELDS)}
-_J = {name: i for i, name in enumerate(JOINT_FIELDS)}
-SIZE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)
 HISTORY = 6000  # periods kept for the quantiles, as ServoLoop keeps them
 COUNTERS = ("cycles", "overruns", "long_periods", "read_errors", "write_errors", "bus_down_count")
 # The errors a goal request can end with, by name across the process boundary.
@@ -73,42 +69,6 @@ MAX_BACKLOG_BYTES = 4 << 20  # past this much unread by the service, the child's
 
 class ServoProcessError(HeadctlError):
     """The servo process failed to start, or died."""
-
-
-def _joint_base(j: int) -> int:
-    return len(HEAD_FIELDS) + j * len(JOINT_FIELDS)
-
-
-class SharedState:
-    """The state block: float64 values in shared memory under a sequence lock (the writer makes
-    `seq` odd while it writes; a reader retries until it copied the block between two equal,
-    even values of `seq`). One writer (the child), any number of readers."""
-
-    def __init__(self, raw: Any) -> None:
-        self.raw = raw
-        self.values = np.frombuffer(raw, dtype=np.float64)
-
-    @classmethod
-    def create(cls, size: int = SIZE) -> "SharedState":
-        raw = multiprocessing.get_context("spawn").RawArray("d", size)
-        block = cls(raw)
-        block.values[:] = np.nan
-        block.values[_H["seq"]] = 0.0
-        return block
-
-    def write(self, values: np.ndarray) -> None:
-        seq = self.values[0]
-        self.values[0] = seq + 1.0
-        self.values[1:] = values[1:]
-        self.values[0] = seq + 2.0
-
-    def read(self) -> np.ndarray:
-        while True:
-            before = self.values[0]
-            copy = self.values.copy()
-            if before % 2 == 0 and self.values[0] == before:
-                return copy
-            time.sleep(0)
 
 
 # --- the child ---------------------------------------------------------------------------------
@@ -297,6 +257,8 @@ class _Child:
             v[base + _J["goal"]] = goals.get(joint, np.nan)
             if self._sim:
                 v[base + _J["true_position"]] = self.bus.true_position(joint)  # type: ignore[union-attr]
+        if self._sim:
+            v[TRACE_BASE:] = self.bus.true_trace().ravel()  # type: ignore[union-attr]
         self.shared.write(v)
         answers, self._answers = self._answers, []
         for answer in answers:
@@ -585,6 +547,15 @@ class ServoLoopProcess:
     # -- the simulated servos (what SimulatedWorld needs) -----------------------------------------
     def true_position(self, joint: str) -> float:
         return float(self._shared.values[_joint_base(JOINTS.index(joint)) + _J["true_position"]])
+
+    def true_joints_at(self, time_s: float) -> dict[str, float]:
+        """Where the simulated joints were at `time_s` (at most now), from the trace of their
+        motion the child publishes after each cycle (`drivers.sim_servo.JointTrace`)."""
+        rows = self._shared.read()[TRACE_BASE:].reshape(TRACE_SAMPLES, TRACE_WIDTH)
+        joints = joints_at(rows, min(time_s, self.clock.monotonic()))
+        if joints is None:
+            raise StaleStateError(f"{self.bus_name}: the simulated servos' motion is not published yet")
+        return joints
 
     def inject(self, fault: str, joint: str | None = None, bits: int = 0, timeout_s: float = 2.0) -> None:
         self._request(("inject", fault, joint, bits), timeout_s)
