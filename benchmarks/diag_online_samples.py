@@ -7,9 +7,11 @@ angles before and after it. Then:
 1. The samples against the truth: what ended on the left fovea (the first surface along the
    left optical axis at the true final joints, `tests.support.sim_truth`), projected into the
    pre-fixation pair at the true joints before: the true (x, y, d), beside the correspondence's;
-   and the pose read against the true one, the executed command against the true motion.
+   and the pose read against the true one, the executed command against the true motion; the
+   (x, y) error's mean and spread, radial and tangential, by eccentricity (a bias the map learns).
 2. Fresh maps taught, in the run's order, (a) the run's samples again, (b) the true positions
-   with the true commands, (c) exact geometric samples on the run's own poses (the fixation
+   with the true commands, (b') the run's samples with only their (x, y), or only their d, made
+   true, (c) exact geometric samples on the run's own poses (the fixation
    point of the pose after, seen from the pose before), (d) as many exact samples from
    `FixationSampler` (poses uniform over the joint limits, the geometric experiments'); each with
    and without the pose, each scored (median landing px) on the geometric experiments' targets
@@ -82,6 +84,28 @@ def truth(model: HeadModel, scene: Any, sample: dict[str, Any]) -> tuple[np.ndar
     return np.array([uv_l[0, 0], uv_l[0, 1], uv_r[0, 0] - uv_l[0, 0]]), bool(seen_l[0] and seen_r[0] and not hidden)
 
 
+def xy_bias_by_eccentricity(measured: np.ndarray, true_r: np.ndarray, model: HeadModel,
+                            rings_px: tuple[float, ...] = (0, 30, 60, 90, 1e9)) -> list[dict[str, float]]:
+    """The correspondence's (x, y) error, radial (outwards from the image centre, positive) and
+    tangential, mean and standard deviation per ring of the true position's eccentricity."""
+    centre = np.array([(model.width - 1) / 2.0, (model.height - 1) / 2.0])
+    offset = true_r[:, :2] - centre
+    radius = np.hypot(*offset.T)
+    unit = offset / np.maximum(radius, 1e-9)[:, None]
+    error = measured[:, :2] - true_r[:, :2]
+    radial = np.sum(error * unit, axis=1)
+    tangential = error[:, 1] * unit[:, 0] - error[:, 0] * unit[:, 1]
+    out = []
+    for lo, hi in zip(rings_px[:-1], rings_px[1:]):
+        m = (radius >= lo) & (radius < hi)
+        if m.any():
+            out.append({"eccentricity_px": f"{lo:g}-{hi:g}", "n": int(m.sum()),
+                        "radial_mean_px": round(float(radial[m].mean()), 3), "radial_sd_px": round(float(radial[m].std()), 3),
+                        "tangential_mean_px": round(float(tangential[m].mean()), 3),
+                        "tangential_sd_px": round(float(tangential[m].std()), 3)})
+    return out
+
+
 def taught_map(seed: int, positions: np.ndarray, commands: np.ndarray, poses: np.ndarray, use_pose: bool) -> GazeMap:
     gm = GazeMap.for_image(320, 240, seed=seed)
     for r, m, q in zip(positions, commands, poses):
@@ -115,6 +139,7 @@ def main() -> int:
             "xy_over_1px": float(np.mean(off_xy > 1)), "xy_over_3px": float(np.mean(off_xy > 3)),
             "d_px_median": float(np.median(np.abs(off[:, 2]))), "d_over_1px": float(np.mean(np.abs(off[:, 2]) > 1)),
             "d_over_3px": float(np.mean(np.abs(off[:, 2]) > 3)), "not_in_view_before": int(np.sum(~in_view))},
+        "xy_bias_by_eccentricity": xy_bias_by_eccentricity(position[in_view], true_r[in_view], model),
         "pose_read_minus_true_max_deg": np.abs(read_before - before).max(axis=0).tolist(),
         "executed_minus_true_motion_max_deg": np.abs(executed - (after - before)).max(axis=0).tolist(),
         "poses_before_5_50_95": np.percentile(before, [5, 50, 95], axis=0).round(1).tolist(),
@@ -133,6 +158,11 @@ def main() -> int:
     teachings = {
         "the run's samples": (position, executed, read_before),
         "true positions, true motion": (true_r[in_view], (after - before)[in_view], before[in_view]),
+        # Which part of the correspondence's error costs what: its (x, y) or its d replaced by the truth.
+        "true (x, y), measured d, the run's commands": (
+            np.where(in_view[:, None], np.c_[true_r[:, :2], position[:, 2]], position), executed, read_before),
+        "measured (x, y), true d, the run's commands": (
+            np.where(in_view[:, None], np.c_[position[:, :2], true_r[:, 2]], position), executed, read_before),
         "exact samples on the run's poses": (exact_r[exact_ok], (after - before)[exact_ok], before[exact_ok]),
         "exact samples, FixationSampler poses": tuple(np.array([getattr(s, f) for s in drawn])
                                                       for f in ("position", "command", "pose_before")),

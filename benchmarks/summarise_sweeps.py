@@ -13,12 +13,21 @@ and prints per experiment and profile, as median [interquartile range] across th
   700 fixations after (and at which check), and 700 fixations after; the fixations until a
   landing check is back within 1.25 times the last one before the change.
 
+The online sweeps, the same way: `online-prism` and `online-pan-defect` as the re-adaptation
+experiments, and the exploration sweep (`--exploration FOLDER`: `online` over
+`--set exploration=random,teaching --set room=generated,photos`, with `landing_every` 50),
+per setting: the share of fixations that taught, the landing error on the room's targets and
+on the joint range's, each over `learn`'s at the same number of fixations seed by seed
+(`--learn FOLDER`, a `learn` sweep of as many fixations), the fixations until 90 % of the
+improvement, and what the refused fixations were.
+
 Plots (`--figures DIR`): per experiment and profile, the median across seeds of the paper's
 curves (pan, tilt, vergence and retinal error, each averaged over the last 10 fixations) and
 of the landing error, each with its interquartile band.
 
     .venv/bin/python benchmarks/summarise_sweeps.py [--sweeps runs] [--figures DIR]
         [--plots learn-default,prism-default,...] [--json FILE]
+        [--exploration runs/sweep-exploration --learn runs/sweep-learn-exploration]
 """
 from __future__ import annotations
 
@@ -28,7 +37,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -38,7 +47,7 @@ from headctl.plots import PAPER_FIG5  # noqa: E402
 from headctl.sweep import RUN_FILE, result_json  # noqa: E402
 from headctl.sweep_summary import run_figures, spread  # noqa: E402
 
-EXPERIMENTS = ("learn", "learn-nopose", "baseline", "prism", "pan-defect", "swap")
+EXPERIMENTS = ("learn", "learn-nopose", "baseline", "prism", "pan-defect", "swap", "online-prism", "online-pan-defect")
 LEARN_FIGURES = ("pan_deg", "tilt_deg", "vergence_deg", "retinal_error")
 CURVE_COLUMNS = ("pan_error_avg10_deg", "tilt_error_avg10_deg", "vergence_error_avg10_deg", "retinal_error_avg10")
 RECOVERY_TOLERANCE = 1.25  # "back": within this factor of the level before the change (as the retinal error's)
@@ -54,16 +63,20 @@ class Run:
     curves: np.ndarray  # (fixations, 4): CURVE_COLUMNS
 
 
-def load_runs(folder: Path) -> list[Run]:
-    """Every finished run of a sweep folder, in (profile, seed) order."""
-    runs = []
+def finished_runs(folder: Path) -> Iterator[tuple[dict[str, Any], Path]]:
+    """(what the run was, its result JSON) for every run of a sweep folder that finished well."""
     for run_folder in sorted((folder / "runs").iterdir()):
         if run_folder.name.startswith(".") or not (run_folder / RUN_FILE).is_file():
             continue
         record = json.loads((run_folder / RUN_FILE).read_text())
-        if record.get("code") != 0:
-            continue
-        path = result_json(run_folder)
+        if record.get("code") == 0:
+            yield record, result_json(run_folder)
+
+
+def load_runs(folder: Path) -> list[Run]:
+    """Every finished run of a sweep folder, in (profile, seed) order."""
+    runs = []
+    for record, path in finished_runs(folder):
         summary = json.loads(path.read_text())
         with open(path.with_suffix(".csv"), newline="") as f:
             rows = list(csv.DictReader(f))
@@ -154,6 +167,71 @@ def readaptation_rows(runs: Sequence[Run]) -> dict[str, list[dict[str, str]]]:
     return rows
 
 
+def exploration_rows(folder: Path, learn_folder: Path) -> dict[str, dict[str, str]]:
+    """Per setting of an exploration sweep (exploration x room), the figures of the exploration
+    goals; ratios over `learn` seed by seed."""
+    learn = {r.seed: r for r in load_runs(learn_folder)}
+    groups: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    for record, path in finished_runs(folder):
+        name = ", ".join(f"{k}={v}" for k, v in record["settings"].items())
+        groups.setdefault(name, []).append((int(record["seed"]), json.loads(path.read_text())))
+    rows: dict[str, dict[str, str]] = {}
+    for name, group in sorted(groups.items()):
+        group.sort(key=lambda g: g[0])
+        online = [summary["online"] for _, summary in group]
+        last = [o["landing_at_fixations"][-1] for o in online]  # the curve's own x counts adaptations
+
+        def over_learn(values: list[float], at: list[int]) -> str:
+            ratios = [v / learn_px if (learn_px := landing_at(learn[seed], n)) else None
+                      for (seed, _), v, n in zip(group, values, at) if seed in learn]
+            return fmt(ratios) if ratios else "– (no learn run)"
+
+        room = [summary["landing_error_px"] for _, summary in group]
+        joint_range = [summary["landing_joint_range_px"] for _, summary in group]
+        at_300 = [next((px for at, px in zip(o["landing_at_fixations"], [c[1] for c in s["landing_curve_px"]])
+                        if at == 300), None) for o, (_, s) in zip(online, group)]
+        row = {
+            "seeds": ", ".join(str(seed) for seed, _ in group),
+            "taught_percent": fmt([o["taught"] / o["fixations"] for o in online], scale=100.0, digits=1, unit=" %"),
+            "landing_room_px": fmt(room, unit=" px"),
+            "landing_room_over_learn": over_learn(room, last),
+            "landing_joint_range_px": fmt(joint_range, digits=1, unit=" px"),
+            "landing_joint_range_over_learn": over_learn(joint_range, last),
+            "landing_room_at_300_px": fmt(at_300, unit=" px"),
+            "fixations_to_90pct": fmt([s.get("fixations_to_90pct") or _to_90pct(o, s) for o, (_, s) in zip(online, group)],
+                                      digits=0),
+            # A stricter reading of the same curve: until the room's landing error stays within
+            # twice its last value.
+            "fixations_to_within_2x_last": fmt([_to_within(o, s, 2.0) for o, (_, s) in zip(online, group)], digits=0),
+        }
+        outcomes = sorted({k for o in online for k in o["outcomes"] if k != "taught"})
+        for outcome in outcomes:
+            row[f"refused: {outcome}"] = f"{np.median([o['outcomes'].get(outcome, 0) for o in online]):.0f}"
+        rows[name] = row
+    return rows
+
+
+def _to_within(online: dict[str, Any], summary: dict[str, Any], factor: float) -> float | None:
+    """Fixations from which every landing check is within `factor` times the last one."""
+    curve = [px for _, px in summary["landing_curve_px"]]
+    if not curve:
+        return None
+    at = online["landing_at_fixations"]
+    outside = [n for n, px in enumerate(curve) if px > factor * curve[-1]]
+    return float(at[outside[-1] + 1]) if outside and outside[-1] + 1 < len(at) else float(at[0]) if not outside else None
+
+
+def _to_90pct(online: dict[str, Any], summary: dict[str, Any]) -> float | None:
+    """Fixations until the room's landing error has made 90 % of its improvement, from the
+    random map's to the last check's (on the checks: their spacing is the resolution)."""
+    start = online.get("landing_start_px")
+    curve = [px for _, px in summary["landing_curve_px"]]
+    if start is None or not curve:
+        return None
+    goal = start - 0.9 * (start - curve[-1])
+    return next((float(at) for at, px in zip(online["landing_at_fixations"], curve) if px <= goal), None)
+
+
 def band(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     q25, median, q75 = np.percentile(values, [25, 50, 75], axis=0)
     return median, q25, q75
@@ -219,6 +297,9 @@ def main() -> int:
     parser.add_argument("--plots", default=None,
                         help="which plots, NAME-PROFILE comma-separated (default: every experiment and profile)")
     parser.add_argument("--json", type=Path, default=None, help="also write every figure printed as JSON")
+    parser.add_argument("--exploration", type=Path, default=None, help="an exploration sweep's folder")
+    parser.add_argument("--learn", type=Path, default=Path("runs/sweep-learn-exploration"),
+                        help="a learn sweep of as many fixations, for the exploration sweep's ratios")
     args = parser.parse_args()
     wanted = set(args.plots.split(",")) if args.plots else None
     report: dict[str, Any] = {}
@@ -247,6 +328,15 @@ def main() -> int:
                     path = args.figures / f"{name}-{profile}.png"
                     plot(name, profile, group, path)
                     print(f"  wrote {path}")
+    if args.exploration:
+        rows = exploration_rows(args.exploration, args.learn)
+        report["exploration"] = rows
+        print(f"\nexploration ({args.exploration}; learn: {args.learn}): median [interquartile range] across seeds")
+        for name, row in rows.items():
+            print(f"  {name}")
+            for key, value in row.items():
+                print(f"    {key:<34} {value}")
+            print()
     if args.json:
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0

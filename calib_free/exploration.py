@@ -297,9 +297,11 @@ class TeachingExplorer:
         aim = self.random.choose(view).command[:2] + view.pose[:2]
         # Each candidate's d (cheap: along one strip of rows), so that the pose its saccade
         # reaches, vergence included, is known when ranking.
-        ranked: list[tuple[np.ndarray, np.ndarray, float]] = []
+        # The checks for repeats (along the row, then anywhere in either image) wait until the
+        # candidates are ranked, and run best first: most candidates are never checked.
+        ranked: list[tuple[np.ndarray, np.ndarray, float, float]] = []
         for xy in candidates:
-            target, problem = self.stereo_target(view, xy, search)
+            target, ncc, problem = self.stereo_target(view, xy, search)
             plan = None if target is None else self._plan(view, target)
             if target is None or plan is None:
                 self.stats.rejected[problem or "outside the map"] += 1
@@ -315,20 +317,25 @@ class TeachingExplorer:
             vergence = float(np.clip(reached[2], self._limits[0][2], self._limits[1][2]))
             plan = plan + np.array([0.0, 0.0, vergence - reached[2]])
             reached = view.pose + plan
-            ranked.append((target, plan, self._rank(target, reached, aim)))
+            ranked.append((target, plan, self._rank(target, reached, aim), ncc))
         if not ranked:
             return None
         # Rank by the aim, novelty in the image, the teach rate at that eccentricity and the
         # map's uncertainty; check the best first.
-        weights = np.array([w for _, _, w in ranked])
+        weights = np.array([w for _, _, w, _ in ranked])
         if view.uncertainty is not None and p.uncertainty_weight > 0:
-            variances = np.array([view.uncertainty(target) for target, _, _ in ranked])
+            variances = np.array([view.uncertainty(target) for target, _, _, _ in ranked])
             if np.all(np.isfinite(variances)) and np.max(variances) > 0:
                 weights = weights * (variances / np.max(variances)) ** p.uncertainty_weight
-        order = np.argsort(-weights, kind="stable")
-        for index in order[:p.max_checks]:
-            target, plan, _ = ranked[index]
-            problem = self.repeat_problem(view, target)
+        checks = 0  # of repeats anywhere (the costly one)
+        for index in np.argsort(-weights, kind="stable"):
+            target, plan, _, ncc = ranked[index]
+            problem = self.row_rival_problem(view, target, ncc, search)
+            if not problem:
+                if checks == p.max_checks:
+                    break
+                checks += 1
+                problem = self.repeat_problem(view, target)
             if problem:
                 self.stats.rejected[problem] += 1
                 continue
@@ -362,29 +369,28 @@ class TeachingExplorer:
                     found.append((xs[i] + u, ys[j] + v))
         return np.array(found, dtype=float).reshape(-1, 2)
 
-    def check_target(self, view: ExplorationView, xy: np.ndarray, search: float) -> tuple[np.ndarray | None, str]:
-        """The target (x, y, d) at `xy` if a fixation on it can teach, else (None, why not)."""
-        target, problem = self.stereo_target(view, xy, search)
-        if target is not None:
-            problem = self.repeat_problem(view, target)
-        return (None, problem) if problem else (target, "")
-
-    def stereo_target(self, view: ExplorationView, xy: np.ndarray, search: float) -> tuple[np.ndarray | None, str]:
+    def stereo_target(self, view: ExplorationView, xy: np.ndarray,
+                      search: float) -> tuple[np.ndarray | None, float, str]:
         """(x, y, d) with d where the patch at `xy` lies along the same rows of the right image,
-        if it lies there unambiguously and within the map's disparity range; else (None, why not)."""
+        and its NCC there, if it matches well within the map's disparity range; else (None,
+        NCC, why not). Whether it lies there unambiguously: `row_rival_problem`."""
         p, cp = self.params, self.correspondence
-        left, right = view.pre_left, view.pre_right
         x, y = float(xy[0]), float(xy[1])
-        d, ncc = horizontal_offset(left, right, (x, y), cp.patch_size, (-search, search))
+        d, ncc = horizontal_offset(view.pre_left, view.pre_right, (x, y), cp.patch_size, (-search, search))
         if ncc < p.min_stereo_ncc:
-            return None, "no match in the right image"
-        if row_rival_ncc(left, right, (x, y), cp.patch_size, d, search) > ncc - p.stereo_rival_margin:
-            return None, "a rival along the row"
+            return None, ncc, "no match in the right image"
         target = np.array([x, y, d])
         for margin in (-p.disparity_margin_px, p.disparity_margin_px):
             if view.check_position(target + np.array([0.0, 0.0, margin])):
-                return None, "disparity outside the map"
-        return target, ""
+                return None, ncc, "disparity outside the map"
+        return target, ncc, ""
+
+    def row_rival_problem(self, view: ExplorationView, target: np.ndarray, ncc: float, search: float) -> str:
+        """Why the target's d is ambiguous ('' if not): its patch matches nearly as well (NCC
+        within `stereo_rival_margin` of `ncc`) elsewhere along the same rows of the right image."""
+        x, y, d = (float(v) for v in target)
+        rival = row_rival_ncc(view.pre_left, view.pre_right, (x, y), self.correspondence.patch_size, d, search)
+        return "a rival along the row" if rival > ncc - self.params.stereo_rival_margin else ""
 
     def repeat_problem(self, view: ExplorationView, target: np.ndarray) -> str:
         """Why the patch at `target` repeats elsewhere in either pre-fixation image ('' if not)."""
