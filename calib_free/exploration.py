@@ -294,11 +294,10 @@ class TeachingExplorer:
         if not len(candidates):
             self.stats.rejected["no structure"] += 1
             return None
-        aim = self.random.choose(view).command[:2] + view.pose[:2]
-        # Each candidate's d (cheap: along one strip of rows), so that the pose its saccade
-        # reaches, vergence included, is known when ranking.
-        # The checks for repeats (along the row, then anywhere in either image) wait until the
-        # candidates are ranked, and run best first: most candidates are never checked.
+        aim = self.random.choose(view).command[:2] + view.pose[:2]  # where the paper's command would go
+        # Each candidate's d (one strip of rows), so that the pose its saccade reaches is known
+        # when ranking; the checks for repeats (along the row, then anywhere in either image)
+        # wait until the candidates are ranked and run best first: most are never checked.
         ranked: list[tuple[np.ndarray, np.ndarray, float, float]] = []
         for xy in candidates:
             target, ncc, problem = self.stereo_target(view, xy, search)
