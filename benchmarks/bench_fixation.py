@@ -4,7 +4,9 @@ simulated fixation cycle.
 1. `match_fixation` (both eyes) on rendered fish-eye pairs of the photo room at 320 x 240
    and 640 x 480: the default profile (context search, distinctiveness, backward check),
    the paper's eqs. 1-7, and eqs. 1-7 with the exhaustive full-resolution search, measured
-   in the same run.
+   in the same run, in `--rounds` interleaved rounds: the median and lower quartile of the
+   wall time a pair, and the median CPU time of one eye's `match_eye` on its thread (which
+   other work on the machine barely changes).
 2. Accuracy (`--accuracy N`: N random saccades of up to +-15 deg per room and size, sensor
    noise of 2 grey levels; a scene seed and saccades other than the tests'): of the textured
    foveal patches, the share matched within 1 px; of the matches accepted (per-eye confidence
@@ -13,30 +15,54 @@ simulated fixation cycle.
 3. Fixations per second of the simulated head (servo motion model on a manual clock,
    rendering, fine vergence, correspondence, the adapter thread), from a random map.
 
-    .venv/bin/python benchmarks/bench_fixation.py [--pairs 30] [--fixations 200] [--accuracy 0]
+`--baseline REV` also loads `calib_free/correspondence.py` as it is at the git revision REV
+and measures it beside the working tree's in items 1 and 2, on the same pairs in the same run
+(so that a change is judged on one machine state). 0 for `--pairs`, `--fixations` or
+`--accuracy` skips that item.
+
+    .venv/bin/python benchmarks/bench_fixation.py [--pairs 30] [--rounds 3] [--fixations 200]
+        [--accuracy 0] [--baseline HEAD]
 """
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import time
+import types
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support, from a checkout
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # tests.support, from a checkout
 
 from calib_free import GazeMap  # noqa: E402
+from calib_free import correspondence  # noqa: E402
 from calib_free.adapter import MapAdapter, Sample  # noqa: E402
-from calib_free.correspondence import CorrespondenceParams, match_fixation  # noqa: E402
 from calib_free.fixation import FixationController  # noqa: E402
 from calib_free.kinematics import joints_of  # noqa: E402
 from calib_free.sim import HeadModel, JointLimits  # noqa: E402
 from drivers.sim_scene import StereoRenderer, shared_scene  # noqa: E402
 from headctl.online import SimulatedHeadRig  # noqa: E402
-from tests.support.saccade_pairs import accuracy as accuracy_of, saccade_cases, scored  # noqa: E402
+from tests.support.saccade_pairs import SaccadeCase, Scored, saccade_cases  # noqa: E402
+from tests.support.saccade_pairs import accuracy as accuracy_of  # noqa: E402
 
-PAPER = CorrespondenceParams.profile_values("paper")
+
+def load_baseline(rev: str) -> types.ModuleType:
+    """`calib_free/correspondence.py` at git revision `rev`, as a module of its own (it imports
+    the working tree's `calib_free.disparity`)."""
+    source = subprocess.run(["git", "show", f"{rev}:calib_free/correspondence.py"], cwd=ROOT, check=True,
+                            capture_output=True, text=True).stdout
+    name = "calib_free._correspondence_baseline"
+    module = types.ModuleType(name)
+    module.__file__ = f"{rev}:calib_free/correspondence.py"
+    sys.modules[name] = module  # dataclasses look their module up
+    exec(compile(source, module.__file__, "exec"), module.__dict__)
+    return module
 
 
 def rendered_pairs(width: int, height: int, count: int, seed: int = 0,
@@ -52,25 +78,68 @@ def rendered_pairs(width: int, height: int, count: int, seed: int = 0,
     return pairs
 
 
-def ms_per_pair(pairs, params: CorrespondenceParams) -> float:
-    match_fixation(*pairs[0], params=params)  # warm up OpenCV
-    times = []
-    for pre_l, pre_r, post_l, post_r in pairs:
-        started = time.perf_counter()
-        match_fixation(pre_l, pre_r, post_l, post_r, params)
-        times.append(time.perf_counter() - started)
-    return 1e3 * float(np.median(times))
+def variants(baseline: types.ModuleType | None, rev: str) -> dict[str, tuple[types.ModuleType, Any]]:
+    """name -> (the correspondence module, its parameters) of every variant timed."""
+    params = correspondence.CorrespondenceParams
+    out: dict[str, tuple[types.ModuleType, Any]] = {
+        "default": (correspondence, params()),
+        "paper": (correspondence, params.profile_values("paper")),
+        "paper, exhaustive": (correspondence, params.profile_values("paper", pyramid_levels=0)),
+    }
+    if baseline is not None:
+        out[f"default@{rev}"] = (baseline, baseline.CorrespondenceParams())
+        out[f"paper@{rev}"] = (baseline, baseline.CorrespondenceParams.profile_values("paper"))
+    return out
 
 
-def accuracy(saccades: int) -> None:
+def timings(pairs: list[tuple[np.ndarray, ...]], timed: dict[str, tuple[types.ModuleType, Any]],
+            rounds: int) -> dict[str, tuple[float, float, float]]:
+    """Per variant: the median and lower quartile of `match_fixation`'s wall time a pair, and
+    the median CPU time of one eye's `match_eye` (its thread's: what the eye costs, whatever
+    else runs on the machine), ms. The variants are interleaved round by round, so that the
+    machine's load changes touch them alike."""
+    wall: dict[str, list[float]] = {name: [] for name in timed}
+    cpu: dict[str, list[float]] = {name: [] for name in timed}
+    for module, params in timed.values():
+        module.match_fixation(*pairs[0], params=params)  # warm up OpenCV and the thread pool
+    for _ in range(rounds):
+        for name, (module, params) in timed.items():
+            for pre_l, pre_r, post_l, post_r in pairs:
+                started = time.perf_counter()
+                module.match_fixation(pre_l, pre_r, post_l, post_r, params)
+                wall[name].append(time.perf_counter() - started)
+            for pre_l, pre_r, post_l, post_r in pairs:
+                for pre, post in ((pre_l, post_l), (pre_r, post_r)):
+                    started = time.thread_time()
+                    module.match_eye(pre, post, params)
+                    cpu[name].append(time.thread_time() - started)
+    return {name: (1e3 * float(np.median(wall[name])), 1e3 * float(np.percentile(wall[name], 25)),
+                   1e3 * float(np.median(cpu[name]))) for name in timed}
+
+
+def scored(cases: list[SaccadeCase], match_eye: Callable[..., Any], params: Any) -> Iterator[Scored]:
+    for case in cases:
+        m = match_eye(case.pre, case.post, params)
+        yield Scored(case, m, float(np.hypot(m.x - case.truth[0], m.y - case.truth[1])))
+
+
+def accuracy(saccades: int, baseline: types.ModuleType | None, rev: str) -> None:
     """The figures of item 2 of the module doc, one line per room, size and profile."""
     print(f"correspondence accuracy, {saccades} saccades per room and size (textured foveal patches)")
+    profiles: list[tuple[str, Callable[..., Any], Any]] = [
+        ("default", correspondence.match_eye, correspondence.CorrespondenceParams()),
+        ("paper", correspondence.match_eye, correspondence.CorrespondenceParams.profile_values("paper"))]
+    if baseline is not None:
+        profiles += [(f"default@{rev}", baseline.match_eye, baseline.CorrespondenceParams()),
+                     (f"paper@{rev}", baseline.match_eye, baseline.CorrespondenceParams.profile_values("paper"))]
+    width_of_name = max(len(name) for name, _, _ in profiles)
     for room in ("photos", "generated"):
         for width, height in ((320, 240), (640, 480)):
             model = HeadModel.default(width, height, limits=JointLimits(vergence=(1.0, 20.0)))
             cases = saccade_cases(shared_scene(5, False, room), model, saccades, seed=71)
-            for name, params in (("default", CorrespondenceParams()), ("paper", PAPER)):
-                print(f"  {room:<9} {width}x{height} {name:<8} {accuracy_of(list(scored(cases, params))).line()}")
+            for name, match_eye, params in profiles:
+                line = accuracy_of(list(scored(cases, match_eye, params))).line()
+                print(f"  {room:<9} {width}x{height} {name:<{width_of_name}} {line}")
     print("goal (photo room, default): >= 97 % within 1 px, <= 1 % of the accepted wrong by > 3 px, "
           ">= 85 % of the right ones accepted")
 
@@ -94,25 +163,40 @@ def fixations_per_s(count: int) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--pairs", type=int, default=30)
-    parser.add_argument("--fixations", type=int, default=200)
+    parser.add_argument("--pairs", type=int, default=30, help="stereo pairs timed per size (0: skip)")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds over the pairs")
+    parser.add_argument("--fixations", type=int, default=200, help="simulated fixations (0: skip)")
     parser.add_argument("--accuracy", type=int, default=0, help="saccades per room and size (0: skip)")
+    parser.add_argument("--baseline", metavar="REV", default=None,
+                        help="also measure calib_free/correspondence.py as at this git revision")
     args = parser.parse_args()
+    baseline = load_baseline(args.baseline) if args.baseline else None
+    rev = args.baseline or ""
 
-    print("correspondence + confidence, one stereo pair (both eyes) of the photo room, median ms")
-    print(f"{'size':<10}{'default':>10}{'paper':>10}{'paper, exhaustive':>19}")
-    for width, height in ((320, 240), (640, 480)):
-        pairs = rendered_pairs(width, height, args.pairs)
-        default = ms_per_pair(pairs, CorrespondenceParams())
-        paper = ms_per_pair(pairs, PAPER)
-        exhaustive = ms_per_pair(pairs, CorrespondenceParams.profile_values("paper", pyramid_levels=0))
-        print(f"{width}x{height:<6}{default:>10.2f}{paper:>10.2f}{exhaustive:>19.2f}")
-    print("goal at 640x480: <= 3 ms (default)")
-    if args.accuracy:
-        accuracy(args.accuracy)
-    rate, taught_rate = fixations_per_s(args.fixations)
-    print(f"simulated fixation cycle, 320x240: {rate:.1f} fixations/s ({taught_rate:.1f} taught/s); "
-          f"goal >= 20 -> {'met' if rate >= 20 else 'NOT met'}")
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    if args.pairs > 0:
+        timed = variants(baseline, rev)
+        header = f"{'size':<10}" + "".join(f"{name:>{max(10, len(name) + 2)}}" for name in timed)
+        tables: list[list[str]] = [[], [], []]
+        for width, height in ((320, 240), (640, 480)):
+            ms = timings(rendered_pairs(width, height, args.pairs), timed, max(1, args.rounds))
+            for k, table in enumerate(tables):
+                table.append(f"{width}x{height:<6}" + "".join(f"{ms[name][k]:>{max(10, len(name) + 2)}.2f}"
+                                                            for name in timed))
+        titles = ["correspondence + confidence, one stereo pair (both eyes, `match_fixation`) of the photo room, "
+                  f"median ms ({args.pairs} pairs x {args.rounds} rounds)",
+                  "the same, lower quartile (less touched by other work on the machine)",
+                  "one eye (`match_eye`), median CPU time of its thread, ms"]
+        for title, table in zip(titles, tables):
+            print("\n".join([title, header, *table]))
+        print("goal at 640x480: <= 3 ms a pair (default, median)")
+    if args.accuracy > 0:
+        accuracy(args.accuracy, baseline, rev)
+    if args.fixations > 0:
+        rate, taught_rate = fixations_per_s(args.fixations)
+        print(f"simulated fixation cycle, 320x240: {rate:.1f} fixations/s ({taught_rate:.1f} taught/s); "
+              f"goal >= 20 -> {'met' if rate >= 20 else 'NOT met'}")
+    print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ periphery):
   the search is repeated one level coarser: a wider context). The best context peak is refined at full
   resolution (eq. 1) with the fovea's patch of `refine_patch_factor` times the size (more
   structure, a sharper peak; 40 x 40 at 320 x 240, 60 x 60 at 640 x 480), relocated with centre-weighted NCC, then aligned by an affine
-  map (ECC), which follows the lens's local compression;
+  map (ECC), which follows the lens's local compression (both in `calib_free.patch_alignment`);
 - distinctiveness: the best other peak of the context map, wherever it is (eq. 5 weighs a
   competitor by its squared distance, which hides the near repeats): the margin between
   them, d = 1 - exp(-(margin / distinct_margin)^2);
@@ -47,12 +47,14 @@ periphery):
 
 The fixation's confidence is the product over both eyes in either profile (eq. 7).
 
-Everything runs on OpenCV (matchTemplate, box filters, dilation); no Python loop touches a
-pixel.
+Everything runs on OpenCV (matchTemplate, box filters, dilation) and compiled kernels that
+release the interpreter lock (`_correspondence_kernels`, numba), so the two eyes' threads
+run side by side; no Python loop touches a pixel.
 """
 from __future__ import annotations
 
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -60,8 +62,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from calib_free._correspondence_kernels import block_means, competing_mass, correspondence_factors, second_peak
 from calib_free.disparity import as_grey_float, horizontal_offset, subpixel_peak
 from calib_free.errors import CorrespondenceError
+from calib_free.patch_alignment import affine_aligned, centre_weighted_peak
 
 
 PROFILES = ("default", "paper")
@@ -86,7 +90,7 @@ class CorrespondenceParams:
     # Consistency of the two eyes' matches (`stereo_inconsistency`): beyond the paper.
     max_vertical_disparity_px: float = 4.0
     # Relocate each match with centre-weighted NCC (Gaussian of this fraction of the patch
-    # width; 0: off): see `_centre_weighted_peak`. Beyond the paper: default profile only.
+    # width; 0: off): see `patch_alignment.centre_weighted_peak`. Beyond the paper: default profile only.
     refine_sigma_fraction: float = 0.25
     stereo_tolerance_px: float = 2.0
     # A repeat of the left patch along the same rows of the right pre-fixation image scoring
@@ -107,8 +111,9 @@ class CorrespondenceParams:
     # 2 for images up to 400 px wide, 3 above (measured on the photo room; a larger patch
     # also holds more of the lens's distortion).
     refine_patch_factor: float | None = None
-    # Default profile: Gauss-Newton iterations of an affine alignment of that patch at the
-    # match (OpenCV's ECC), which follows the lens's local compression (0: off).
+    # Default profile: at most this many Gauss-Newton iterations of an affine alignment of
+    # that patch at the match (ECC, `patch_alignment.affine_aligned`: fewer once a step moves
+    # the match less than 0.01 px), which follows the lens's local compression (0: off).
     affine_iterations: int = 5
     # Default profile: eq. 4's tau for the context peak (its c1). Lower than Table I's: the
     # periphery's distortion lowers the context's correlation, and a wrong match is told by
@@ -229,20 +234,17 @@ def correspondence_map(pre: np.ndarray, patch: np.ndarray, params: Correspondenc
     if pw > pre.shape[1] or ph > pre.shape[0]:
         raise CorrespondenceError(f"patch {pw} x {ph} is larger than the image {pre.shape[1]} x {pre.shape[0]}")
     ncc = cv2.matchTemplate(pre, patch, cv2.TM_CCOEFF_NORMED)
+    cv2.patchNaNs(ncc, 0.0)  # OpenCV scores a flat window 0; NaN would be no evidence too
     if not params.use_factors:
         return ncc
-    # Mean and variance of every pre-fixation patch, by box filters over the valid placements.
-    mean = cv2.boxFilter(pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True,
-                         borderType=cv2.BORDER_CONSTANT)[: ncc.shape[0], : ncc.shape[1]]
-    mean_sq = cv2.boxFilter(pre * pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True,
-                            borderType=cv2.BORDER_CONSTANT)[: ncc.shape[0], : ncc.shape[1]]
-    var = np.maximum(mean_sq - mean * mean, 0.0)
-    patch_mean = float(patch.mean())
-    patch_var = float(patch.var())
-    f1 = 1.0 / (1.0 + np.abs(mean - patch_mean) / params.mean_scale)
-    f2 = 2.0 * np.minimum(var, patch_var) / (var + patch_var + 1e-6)
-    # A flat region gives NCC = 0 or NaN-like noise in OpenCV; where both are flat, no evidence.
-    cmap: np.ndarray = np.nan_to_num(ncc) * f1 * f2
+    # Mean and mean square of every pre-fixation patch, by box filters (valid placements:
+    # their top-left part), then f1 and f2 in one compiled pass.
+    mean = cv2.boxFilter(pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True, borderType=cv2.BORDER_CONSTANT)
+    mean_sq = cv2.sqrBoxFilter(pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True,
+                               borderType=cv2.BORDER_CONSTANT)
+    patch_mean, patch_std = (float(v[0, 0]) for v in cv2.meanStdDev(patch))
+    cmap: np.ndarray = correspondence_factors(ncc, mean, mean_sq, patch_mean, patch_std * patch_std,
+                                              params.mean_scale)
     return cmap
 
 
@@ -250,8 +252,8 @@ def match_eye(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams) -
     """Find one eye's post-fixation foveal patch in its pre-fixation image, and how sure we are:
     eqs. 1-6 in the paper's profile, the context search and its confidence in the default
     (module doc)."""
-    pre = as_grey_float(pre)
-    post = as_grey_float(post)
+    pre = _grey(pre)
+    post = _grey(post)
     if pre.shape != post.shape:
         raise CorrespondenceError(f"pre-fixation image {pre.shape} and post-fixation image {post.shape} differ")
     levels = params.pyramid_levels
@@ -262,9 +264,58 @@ def match_eye(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams) -
     return _match_in_context(pre, post, params, levels + params.context_levels)
 
 
+def _grey(image: np.ndarray) -> np.ndarray:
+    """The 2-D grey image of `image`: a uint8 one as it is (the matching converts the windows
+    it reads to float, and `_Pyramid` averages the rest exactly), any other `as_grey_float`."""
+    img = np.asarray(image)
+    if img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype == np.uint8 and img.ndim == 2:
+        return img
+    return as_grey_float(img)
+
+
 def _pyramid(image: np.ndarray, levels: int) -> np.ndarray:
+    """The grey float image at 1/2**levels of each side (INTER_AREA)."""
     scale = 2 ** levels
+    image = as_grey_float(image)
     return cv2.resize(image, (image.shape[1] // scale, image.shape[0] // scale), interpolation=cv2.INTER_AREA)
+
+
+class _Pyramid:
+    """An image (`_grey`'s) and its levels `_pyramid(image, n)`, each made once. Where the
+    image's sides are whole multiples of 2**n, INTER_AREA averages whole blocks, so a level is
+    made from the finest one already made, or a uint8 image's by its exact block means (no
+    float copy of the image): a fraction of the work for the same pixels (a float image's to
+    float32 rounding)."""
+
+    def __init__(self, image: np.ndarray) -> None:
+        self._levels = {0: image}
+
+    def level(self, levels: int) -> np.ndarray:
+        if levels not in self._levels:
+            image = self._levels[0]
+            scale = 2 ** levels
+            whole = image.shape[0] % scale == 0 and image.shape[1] % scale == 0
+            finer = max(k for k in self._levels if k < levels) if whole else 0
+            if whole and finer == 0 and image.dtype == np.uint8:
+                self._levels[levels] = block_means(np.ascontiguousarray(image), scale)
+            else:
+                self._levels[levels] = _pyramid(self._levels[finer], levels - finer)
+        return self._levels[levels]
+
+
+def _coarse_fovea(post: np.ndarray, levels: int, size: tuple[int, int]) -> np.ndarray:
+    """`foveal_patch(_pyramid(post, levels), size)`, made from the fovea's blocks alone where
+    the image's sides are whole multiples of 2**levels (the same pixels: INTER_AREA averages
+    whole blocks)."""
+    scale = 2 ** levels
+    h, w = post.shape
+    pw, ph = size
+    if w % scale or h % scale or pw > w // scale or ph > h // scale:
+        return foveal_patch(_pyramid(post, levels), size)
+    x0, y0 = (w // scale - pw) // 2 * scale, (h // scale - ph) // 2 * scale
+    return _pyramid(post[y0:y0 + ph * scale, x0:x0 + pw * scale], levels)
 
 
 def _eqs_4_6(c_max: float, competitors: float, params: CorrespondenceParams,
@@ -279,8 +330,8 @@ def _refine(pre: np.ndarray, patch: np.ndarray, centre: tuple[float, float], mar
             params: CorrespondenceParams) -> tuple[float, float, float]:
     """Eq. 1 at full resolution within `margin` px of a coarse peak's `centre`: (x, y, c_max)."""
     ph, pw = patch.shape
-    u0 = int(np.clip(round(centre[0] - (pw - 1) / 2.0) - margin, 0, pre.shape[1] - pw))
-    v0 = int(np.clip(round(centre[1] - (ph - 1) / 2.0) - margin, 0, pre.shape[0] - ph))
+    u0 = min(max(int(round(centre[0] - (pw - 1) / 2.0)) - margin, 0), pre.shape[1] - pw)
+    v0 = min(max(int(round(centre[1] - (ph - 1) / 2.0)) - margin, 0), pre.shape[0] - ph)
     u1 = min(pre.shape[1], u0 + pw + 2 * margin)
     v1 = min(pre.shape[0], v0 + ph + 2 * margin)
     fine = correspondence_map(pre[v0:v1, u0:u1], patch, params)
@@ -301,10 +352,10 @@ def _match_plain(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams
     resolution), c1 of its peak, c2 of the competing mass."""
     scale = 2 ** levels
     pw, ph = params.patch_size
-    patch = foveal_patch(post, params.patch_size)
+    patch = as_grey_float(foveal_patch(post, params.patch_size))
     if levels:
-        coarse_pre = _pyramid(pre, levels)
-        coarse_patch = foveal_patch(_pyramid(post, levels), (max(3, pw // scale), max(3, ph // scale)))
+        coarse_pre = _Pyramid(pre).level(levels)
+        coarse_patch = _coarse_fovea(post, levels, (max(3, pw // scale), max(3, ph // scale)))
     else:
         coarse_pre, coarse_patch = pre, patch
     cmap = correspondence_map(coarse_pre, coarse_patch, params)
@@ -317,7 +368,7 @@ def _match_plain(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams
         u, v = subpixel_peak(cmap, iy, ix)
         x, y, c_max = u + (pw - 1) / 2.0, v + (ph - 1) / 2.0, float(coarse_max)
     if not params.paper and params.refine_sigma_fraction > 0:
-        x, y = _centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * pw)
+        x, y = centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * pw)
     c1, c2 = _eqs_4_6(c_max, competitors, params)
     return EyeMatch(x=float(x), y=float(y), c_max=c_max, c1=c1, c2=c2, competitors=competitors)
 
@@ -339,15 +390,16 @@ class _ContextPeak:
         return self.c_max - self.second
 
 
-def _context_peak(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams, levels: int) -> _ContextPeak | None:
+def _context_peak(pre: _Pyramid, post: np.ndarray, params: CorrespondenceParams, levels: int) -> _ContextPeak | None:
     """Eq. 1 with the fovea's context at 1/2**levels (a patch of `patch_size` there); None when
     the image is too small at that level."""
     pw, ph = params.patch_size
-    coarse_pre, coarse_post = _pyramid(pre, levels), _pyramid(post, levels)
-    size = (min(pw, coarse_post.shape[1] - 2), min(ph, coarse_post.shape[0] - 2))
+    scale = 2 ** levels
+    size = (min(pw, post.shape[1] // scale - 2), min(ph, post.shape[0] // scale - 2))
     if min(size) < 3:
         return None
-    cmap = correspondence_map(coarse_pre, foveal_patch(coarse_post, size), params)
+    coarse_pre = pre.level(levels)
+    cmap = correspondence_map(coarse_pre, _coarse_fovea(post, levels, size), params)
     _, c_max, _, (ix, iy) = cv2.minMaxLoc(cmap)
     competitors = _competing_mass(cmap, c_max, ix, iy, params.tolerance_radius * coarse_pre.shape[1], params)
     return _ContextPeak(levels, size, ix, iy, float(c_max), _second_peak(cmap, ix, iy), competitors)
@@ -357,13 +409,14 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     """The default profile (module doc): the context search at 1/2**levels with a patch of
     `patch_size` there (wider while its peak is not distinct), refined, relocated and aligned
     at full resolution; confidence c1(context) d b."""
-    peak = _context_peak(pre, post, params, levels)
+    pyramid = _Pyramid(pre)
+    peak = _context_peak(pyramid, post, params, levels)
     if peak is None:
         return _match_plain(pre, post, params, 0)  # too small an image for a context
     for wider in range(levels + 1, levels + 1 + params.wider_context_levels):
         if peak.margin >= params.distinct_margin:
             break
-        candidate = _context_peak(pre, post, params, wider)
+        candidate = _context_peak(pyramid, post, params, wider)
         if candidate is None:
             break
         if candidate.margin > peak.margin:
@@ -372,12 +425,12 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     pw, ph = params.patch_size
     f = params.refine_patch_factor or (2.0 if pre.shape[1] <= 400 else 3.0)
     refine_size = (min(int(round(f * pw)), pre.shape[1] - 2), min(int(round(f * ph)), pre.shape[0] - 2))
-    patch = foveal_patch(post, refine_size)
+    patch = as_grey_float(foveal_patch(post, refine_size))
     x, y, c_max = _refine(pre, patch, _coarse_centre(peak.ix, peak.iy, peak.size, scale), 2 * scale, params)
     if params.refine_sigma_fraction > 0:
-        x, y = _centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * refine_size[0])
+        x, y = centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * refine_size[0])
     if params.affine_iterations > 0:
-        x, y = _affine_aligned(pre, patch, x, y, params.affine_iterations)
+        x, y = affine_aligned(pre, patch, x, y, params.affine_iterations)
     c1, c2 = _eqs_4_6(c_max, peak.competitors, params)
     backward = _backward_distance(pre, post, x, y, params)
     c1_context, _ = _eqs_4_6(peak.c_max, 0.0, params, params.context_min_correlation)
@@ -388,49 +441,13 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
                     second_peak=peak.second, backward_px=backward)
 
 
-_AFFINE_PAD_PX = 6  # the pre-fixation window the affine alignment works in: the patch and this much around
-_AFFINE_MAX_SHIFT_PX = 3.0  # an alignment that moves the match farther has not converged: kept out
-
-
-def _affine_aligned(pre: np.ndarray, patch: np.ndarray, x: float, y: float, iterations: int) -> tuple[float, float]:
-    """Where the centre of `patch` (the fovea's) lies in `pre` once the patch is aligned by an
-    affine map starting at the translation to (x, y) (ECC, `cv2.findTransformECC`).
-
-    Away from the fovea the fish-eye compresses the view, more radially than tangentially, so
-    the pre-fixation patch is the fovea's under a local affine map; a translation-only match
-    (NCC) leaves a bias of a pixel or so there, which the affine alignment removes (on the
-    photo room at 640 x 480: 96-98 % -> 98.6-99.2 % of matches within 1 px). No alignment
-    (the patch leaves the image, ECC fails or moves the match more than 3 px): (x, y)."""
-    ph, pw = patch.shape
-    cx, cy = (pw - 1) / 2.0, (ph - 1) / 2.0
-    pad = _AFFINE_PAD_PX
-    a0, b0 = int(round(x - cx)) - pad, int(round(y - cy)) - pad
-    if a0 < 0 or b0 < 0 or a0 + pw + 2 * pad > pre.shape[1] or b0 + ph + 2 * pad > pre.shape[0]:
-        return x, y
-    window = pre[b0:b0 + ph + 2 * pad, a0:a0 + pw + 2 * pad]
-    warp = np.array([[1.0, 0.0, x - cx - a0], [0.0, 1.0, y - cy - b0]], np.float32)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, 1e-4)
-    try:
-        _, aligned = cv2.findTransformECC(np.ascontiguousarray(patch), np.ascontiguousarray(window), warp,
-                                          cv2.MOTION_AFFINE, criteria, np.ones(window.shape, np.uint8), 1)
-    except cv2.error:  # no convergence (a flat patch): keep the match
-        return x, y
-    ax, ay = np.asarray(aligned, np.float64) @ np.array([cx, cy, 1.0])
-    if not np.isfinite(ax + ay) or np.hypot(a0 + ax - x, b0 + ay - y) > _AFFINE_MAX_SHIFT_PX:
-        return x, y
-    return float(a0 + ax), float(b0 + ay)
-
-
 _PEAK_RADIUS = 3  # coarse pixels: a peak is the maximum of its 7 x 7 neighbourhood
+_PEAK_KERNEL = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * _PEAK_RADIUS + 1, 2 * _PEAK_RADIUS + 1))
 
 
 def _second_peak(cmap: np.ndarray, ix: int, iy: int) -> float:
     """The best local maximum of `cmap` other than the peak at (ix, iy), however far (-1: none)."""
-    r = _PEAK_RADIUS
-    kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1))
-    peaks = cmap >= cv2.dilate(cmap, kernel)
-    peaks[max(0, iy - r):iy + r + 1, max(0, ix - r):ix + r + 1] = False
-    return float(cmap[peaks].max()) if peaks.any() else -1.0
+    return float(second_peak(cmap, cv2.dilate(cmap, _PEAK_KERNEL), ix, iy, _PEAK_RADIUS))
 
 
 def _backward_distance(pre: np.ndarray, post: np.ndarray, x: float, y: float,
@@ -442,13 +459,14 @@ def _backward_distance(pre: np.ndarray, post: np.ndarray, x: float, y: float,
     a0, b0 = int(round(x - (pw - 1) / 2.0)), int(round(y - (ph - 1) / 2.0))
     if a0 < 0 or b0 < 0 or a0 + pw > pre.shape[1] or b0 + ph > pre.shape[0]:
         return -1.0
-    template = pre[b0:b0 + ph, a0:a0 + pw]
+    template = as_grey_float(pre[b0:b0 + ph, a0:a0 + pw])
     h, w = post.shape
     fx, fy = (w - pw) // 2, (h - ph) // 2  # the foveal patch's top-left
     r = params.backward_radius_px
     u0, v0 = max(0, fx - r), max(0, fy - r)
-    window = post[v0:min(h, fy + ph + r), u0:min(w, fx + pw + r)]
-    scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED))
+    window = as_grey_float(post[v0:min(h, fy + ph + r), u0:min(w, fx + pw + r)])
+    scores = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+    cv2.patchNaNs(scores, 0.0)
     _, _, _, (lx, ly) = cv2.minMaxLoc(scores)
     u, v = subpixel_peak(scores, ly, lx)
     # The template was cut at whole pixels: (x, y)'s fraction shifts where it should land.
@@ -457,52 +475,37 @@ def _backward_distance(pre: np.ndarray, post: np.ndarray, x: float, y: float,
     return float(np.hypot(dx, dy))
 
 
-def _centre_weighted_peak(pre: np.ndarray, patch: np.ndarray, x: float, y: float, sigma_px: float,
-                          radius_px: int = 4) -> tuple[float, float]:
-    """Relocate a match with NCC weighted towards the patch centre, within `radius_px`.
-
-    Away from the fovea the lens compresses the view more at the patch's outer edge than at
-    its inner one, so the rim of the foveal patch fits worse than its centre and pulls the
-    plain peak by a pixel or so; a Gaussian weight on the template removes most of that
-    (on rendered rich texture: 93.5 % -> 98 % of matches within 1 px).
-    """
-    ph, pw = patch.shape
-    a0 = int(round(x - (pw - 1) / 2.0)) - radius_px
-    b0 = int(round(y - (ph - 1) / 2.0)) - radius_px
-    if a0 < 0 or b0 < 0 or a0 + pw + 2 * radius_px > pre.shape[1] or b0 + ph + 2 * radius_px > pre.shape[0]:
-        return x, y  # too near the border to search around: keep the plain peak
-    weight = cv2.getGaussianKernel(ph, sigma_px, cv2.CV_32F) @ cv2.getGaussianKernel(pw, sigma_px, cv2.CV_32F).T
-    window = pre[b0:b0 + ph + 2 * radius_px, a0:a0 + pw + 2 * radius_px]
-    scores = cv2.matchTemplate(window, patch, cv2.TM_CCOEFF_NORMED, mask=weight)
-    # A flat window makes the masked normalisation 0/0 or x/0: no evidence there.
-    scores = np.nan_to_num(scores, nan=0.0, posinf=0.0, neginf=0.0)
-    _, _, _, (lx, ly) = cv2.minMaxLoc(scores)
-    u, v = subpixel_peak(scores, ly, lx)
-    return a0 + u + (pw - 1) / 2.0, b0 + v + (ph - 1) / 2.0
-
-
 def _competing_mass(cmap: np.ndarray, c_max: float, ix: int, iy: int, sigma_c: float,
                     params: CorrespondenceParams) -> float:
     """Eq. 5 summed over the map: T(C - delta) times the squared distance from the peak / sigma_c."""
     if c_max <= 0:
         return 0.0
     delta = params.min_ratio_to_compete * c_max  # eq. 5's threshold, delta = R * c_max
-    above = np.argwhere(cmap >= delta)
-    excess = cmap[above[:, 0], above[:, 1]] - delta  # T(C - delta)
-    dist2 = ((above[:, 1] - ix) / sigma_c) ** 2 + ((above[:, 0] - iy) / sigma_c) ** 2
-    return float(np.sum(excess * dist2))
+    return float(competing_mass(cmap, ix, iy, delta, sigma_c))
 
 
 def match_fixation(pre_left: np.ndarray, pre_right: np.ndarray, post_left: np.ndarray, post_right: np.ndarray,
                    params: CorrespondenceParams | None = None) -> FixationMatch:
     """r* = (x*, y*, d*) of a fixation and its confidence, from the pre- and post-fixation pairs."""
     params = params or CorrespondenceParams()
-    # The two eyes are independent and OpenCV releases the GIL: the right eye is matched on a
-    # second thread while this one does the left (at 640 x 480 on this 2-core machine, over
-    # repeated runs: 5.2-6.4 ms a pair sequentially, 3.5-4.9 ms this way).
+    # The two eyes are independent, and OpenCV and the compiled kernels release the GIL: the
+    # right eye is matched on a second thread while this one does the left (at 640 x 480 on
+    # this 2-core machine, quiet: 1.3 ms of CPU an eye, 1.9 ms a pair this way).
     right = _eye_pool().submit(match_eye, pre_right, post_right, params)
     left = match_eye(pre_left, post_left, params)
     return FixationMatch(left, right.result())
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's cache) the matching's kernels now, on a made-up stereo
+    pair; returns the seconds it took. numba compiles on first call: about 10 s on the first
+    run after an install, a fraction of a second from the cache beside
+    `_correspondence_kernels.py`. Paid at startup, it is not paid inside the first fixation."""
+    start_s = time.perf_counter()
+    rng = np.random.default_rng(0)
+    image = cv2.GaussianBlur((rng.random((240, 320)) * 255).astype(np.uint8), (0, 0), 2.0)
+    match_fixation(image, image, image, image)
+    return time.perf_counter() - start_s
 
 
 _POOL: ThreadPoolExecutor | None = None

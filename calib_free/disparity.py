@@ -26,7 +26,10 @@ def subpixel_peak(values: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
     def offset(a: float, b: float, c: float) -> float:
         denom = a - 2 * b + c
-        return 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
+        if denom >= 0:
+            return 0.0
+        shift = float(0.5 * (a - c) / denom)
+        return 0.5 if shift > 0.5 else -0.5 if shift < -0.5 else shift  # (NaN stays NaN)
 
     dx = offset(values[iy, ix - 1], values[iy, ix], values[iy, ix + 1]) if 0 < ix < values.shape[1] - 1 else 0.0
     dy = offset(values[iy - 1, ix], values[iy, ix], values[iy + 1, ix]) if 0 < iy < values.shape[0] - 1 else 0.0

@@ -26,6 +26,7 @@ import threading
 import time
 from typing import Any
 
+from calib_free import correspondence
 from calib_free.adapter import MapAdapter, Sample
 from calib_free.fixation import FixationController
 from calib_free.gaze_map import AdaptResult
@@ -130,8 +131,9 @@ class Daemon:
         gm, source, problems = restore_map(cfg)
         parts.map_origin = MapOrigin(source, problems, gm.adaptations, list(gm.recent_errors))
         self.notifier.notify(status="starting: compiling the gaze map's inner loops")
-        compile_s = gm.warm_up()
-        (log.info if compile_s > 1.0 else log.debug)("gaze map inner loops ready in %.1f s", compile_s)
+        compile_s = gm.warm_up() + correspondence.warm_up()
+        (log.info if compile_s > 1.0 else log.debug)("gaze map and correspondence inner loops ready in %.1f s",
+                                                     compile_s)
 
         loop: ServoIO
         if self._servo_process:
