@@ -236,8 +236,7 @@ class GazeMap:
         self._coarse_stride = (4, 4, 2)
 
     def derive_pose_polynomial(self) -> None:
-        """(Re)build the pose-aware P from the pose-free one, as it is now: what a new map, or
-        one that learned without poses (an older file), starts its pose-aware fit from."""
+        """(Re)build the pose-aware P from the pose-free one: where a new map, or an older file's, starts it."""
         p = self.params
         if self.polynomial is None or not p.uses_pose:
             self.pose_polynomial = None
