@@ -217,8 +217,8 @@ def _to_within(online: dict[str, Any], summary: dict[str, Any], factor: float) -
     if not curve:
         return None
     at = online["landing_at_fixations"]
-    outside = [n for n, px in enumerate(curve) if px > factor * curve[-1]]
-    return float(at[outside[-1] + 1]) if outside and outside[-1] + 1 < len(at) else float(at[0]) if not outside else None
+    outside = [n for n, px in enumerate(curve) if px > factor * curve[-1]]  # never the last (factor > 1)
+    return float(at[outside[-1] + 1 if outside else 0])
 
 
 def _to_90pct(online: dict[str, Any], summary: dict[str, Any]) -> float | None:
