@@ -15,8 +15,8 @@ simulated fixation cycle.
 3. Fixations per second of the simulated head (servo motion model on a manual clock,
    rendering, fine vergence, correspondence, the adapter thread), from a random map.
 
-`--baseline REV` also loads `calib_free/correspondence.py` as it is at the git revision REV
-and measures it beside the working tree's in items 1 and 2, on the same pairs in the same run
+`--baseline REV` also loads the correspondence (with the rest of `calib_free`) as it is at
+the git revision REV and measures it beside the working tree's in items 1 and 2, on the same pairs in the same run
 (so that a change is judged on one machine state). 0 for `--pairs`, `--fixations` or
 `--accuracy` skips that item.
 
@@ -26,9 +26,14 @@ and measures it beside the working tree's in items 1 and 2, on the same pairs in
 from __future__ import annotations
 
 import argparse
+import importlib
+import io
 import os
+import re
 import subprocess
 import sys
+import tarfile
+import tempfile
 import time
 import types
 from collections.abc import Callable, Iterator
@@ -53,16 +58,20 @@ from tests.support.saccade_pairs import accuracy as accuracy_of  # noqa: E402
 
 
 def load_baseline(rev: str) -> types.ModuleType:
-    """`calib_free/correspondence.py` at git revision `rev`, as a module of its own (it imports
-    the working tree's `calib_free.disparity`)."""
-    source = subprocess.run(["git", "show", f"{rev}:calib_free/correspondence.py"], cwd=ROOT, check=True,
-                            capture_output=True, text=True).stdout
-    name = "calib_free._correspondence_baseline"
-    module = types.ModuleType(name)
-    module.__file__ = f"{rev}:calib_free/correspondence.py"
-    sys.modules[name] = module  # dataclasses look their module up
-    exec(compile(source, module.__file__, "exec"), module.__dict__)
-    return module
+    """`calib_free.correspondence` as it is at git revision `rev`: the revision's whole
+    `calib_free` package, extracted to a temporary folder and imported as
+    `calib_free_baseline` (its own imports renamed to match), so that the baseline runs with
+    its own alignment, kernels and helpers beside the working tree's."""
+    archive = subprocess.run(["git", "archive", rev, "calib_free"], cwd=ROOT, check=True, capture_output=True).stdout
+    folder = Path(tempfile.mkdtemp(prefix="bench-fixation-baseline-"))
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(folder, filter="data")
+    package = folder / "calib_free_baseline"
+    (folder / "calib_free").rename(package)
+    for source in package.rglob("*.py"):
+        source.write_text(re.sub(r"\bcalib_free\b", "calib_free_baseline", source.read_text()))
+    sys.path.insert(0, str(folder))
+    return importlib.import_module("calib_free_baseline.correspondence")
 
 
 def rendered_pairs(width: int, height: int, count: int, seed: int = 0,

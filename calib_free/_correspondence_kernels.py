@@ -16,10 +16,10 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _inverse_6x6(a: np.ndarray) -> np.ndarray:
-    """The inverse of a 6 x 6 matrix by Gauss-Jordan elimination with partial pivoting; all
+def _inverse(a: np.ndarray) -> np.ndarray:
+    """The inverse of a square matrix by Gauss-Jordan elimination with partial pivoting; all
     NaN when a pivot is below 1e-12 of the largest entry (singular)."""
-    n = 6
+    n = a.shape[0]
     m = np.zeros((n, 2 * n))
     m[:, :n] = a
     for i in range(n):
@@ -47,101 +47,110 @@ def _inverse_6x6(a: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _warp(window: np.ndarray, p: float, q: float, s: float, r: float, t: float, w: float, rows: int,
-          cols: int, out: np.ndarray) -> None:
-    """`out` (rows x cols, flat) := `window` at (p u + q v + s, r u + t v + w) for each (u, v),
-    bilinear; 0 beyond the window (OpenCV's constant border)."""
+def _warp(window: np.ndarray, coefficients: np.ndarray, monomials: np.ndarray, out: np.ndarray) -> None:
+    """`out[k]` := `window` at (x, y) = `coefficients` @ `monomials[:, k]` for each template
+    pixel k, bilinear; 0 beyond the window (OpenCV's constant border)."""
     h, wd = window.shape
-    k = 0
-    for v in range(rows):
-        for u in range(cols):
-            x = p * u + q * v + s
-            y = r * u + t * v + w
-            x0 = int(np.floor(x))
-            y0 = int(np.floor(y))
-            fx = x - x0
-            fy = y - y0
-            if 0 <= x0 and x0 + 1 < wd and 0 <= y0 and y0 + 1 < h:
-                v00, v01 = window[y0, x0], window[y0, x0 + 1]
-                v10, v11 = window[y0 + 1, x0], window[y0 + 1, x0 + 1]
-            else:
-                v00 = window[y0, x0] if 0 <= y0 < h and 0 <= x0 < wd else 0.0
-                v01 = window[y0, x0 + 1] if 0 <= y0 < h and 0 <= x0 + 1 < wd else 0.0
-                v10 = window[y0 + 1, x0] if 0 <= y0 + 1 < h and 0 <= x0 < wd else 0.0
-                v11 = window[y0 + 1, x0 + 1] if 0 <= y0 + 1 < h and 0 <= x0 + 1 < wd else 0.0
-            out[k] = (v00 * (1.0 - fx) + v01 * fx) * (1.0 - fy) + (v10 * (1.0 - fx) + v11 * fx) * fy
-            k += 1
+    terms = monomials.shape[0]
+    for k in range(monomials.shape[1]):
+        x = 0.0
+        y = 0.0
+        for j in range(terms):
+            x += coefficients[0, j] * monomials[j, k]
+            y += coefficients[1, j] * monomials[j, k]
+        x0 = int(np.floor(x))
+        y0 = int(np.floor(y))
+        fx = x - x0
+        fy = y - y0
+        if 0 <= x0 and x0 + 1 < wd and 0 <= y0 and y0 + 1 < h:
+            v00, v01 = window[y0, x0], window[y0, x0 + 1]
+            v10, v11 = window[y0 + 1, x0], window[y0 + 1, x0 + 1]
+        else:
+            v00 = window[y0, x0] if 0 <= y0 < h and 0 <= x0 < wd else 0.0
+            v01 = window[y0, x0 + 1] if 0 <= y0 < h and 0 <= x0 + 1 < wd else 0.0
+            v10 = window[y0 + 1, x0] if 0 <= y0 + 1 < h and 0 <= x0 < wd else 0.0
+            v11 = window[y0 + 1, x0 + 1] if 0 <= y0 + 1 < h and 0 <= x0 + 1 < wd else 0.0
+        out[k] = (v00 * (1.0 - fx) + v01 * fx) * (1.0 - fy) + (v10 * (1.0 - fx) + v11 * fx) * fy
 
 
 @njit(cache=True, nogil=True)
-def ecc_affine(window: np.ndarray, template: np.ndarray, s0: float, w0: float, iterations: int,
-               tolerance: float) -> tuple[float, float, bool]:
-    """ECC alignment of `template` in `window` by an affine map (inverse-compositional form),
-    from the translation putting the template's top-left at (s0, w0): where the template's
-    centre lies in `window` (x, y), and whether the alignment held (False: a flat template, a
-    singular system, or a step that would minimise the correlation).
+def ecc_polynomial(window: np.ndarray, template: np.ndarray, s0: float, w0: float, degree: int, iterations: int,
+                   tolerance: float) -> tuple[float, float, bool]:
+    """ECC alignment of `template` in `window` by a polynomial warp of `degree` 1 (affine) or
+    2 (quadratic), inverse-compositional, from the translation putting the template's top-left
+    at (s0, w0): where the template's centre lies in `window` (x, y), and whether the alignment
+    held (False: a flat template, a singular system, or a step that would minimise the
+    correlation).
 
-    The warp takes template (u, v) to window (p u + q v + s, r u + t v + w). The template's
-    Jacobian rows (gradients times u, v and 1, in the parameters' order p, r, q, t, s, w)
-    and the template itself, each zero-mean, give the Gram matrix once; each step warps the
-    window (bilinear), projects it on those rows, solves for the step and composes the warp
-    with its inverse; the steps stop after `iterations` or once one moves the centre less
-    than `tolerance` px.
+    The warp takes the template pixel u = (u, v) to window (x, y) = C m(u), m the monomials
+    1, u', v' (and u'^2, u'v', v'^2) of u' = (u - centre) / half its width: the constant
+    column of C is the template centre's place. The template's Jacobian rows (the gradients
+    times each monomial, x rows then y rows) and the template itself, each zero-mean, give the
+    Gram matrix once; each step warps the window (bilinear), projects it on those rows and
+    solves for the step D (a displacement D m(u) of the template). Composing the warp with the
+    step's inverse, W(u - D m(u)), is taken to first order, C -= A D with A the warp's linear
+    part: quadratic warps are not closed under composition, and the first-order composition
+    changes only the path to the maximum, where D = 0, not the maximum. The steps stop after
+    `iterations` or once one moves the centre less than `tolerance` px.
     """
     ph, pw = template.shape
     n = ph * pw
-    rows = np.empty((7, n))
+    terms = 3 if degree == 1 else 6
+    params = 2 * terms
+    cx, cy = (pw - 1) / 2.0, (ph - 1) / 2.0
+    half = max(cx, cy, 1.0)
+    monomials = np.empty((terms, n))
+    rows = np.empty((params + 1, n))
     k = 0
     for v in range(ph):
         for u in range(pw):
+            a, b = (u - cx) / half, (v - cy) / half
+            monomials[0, k], monomials[1, k], monomials[2, k] = 1.0, a, b
+            if terms == 6:
+                monomials[3, k], monomials[4, k], monomials[5, k] = a * a, a * b, b * b
             # Central differences; 0 on the border (OpenCV's Sobel of aperture 1, reflected border).
             gx = 0.5 * (template[v, u + 1] - template[v, u - 1]) if 0 < u < pw - 1 else 0.0
             gy = 0.5 * (template[v + 1, u] - template[v - 1, u]) if 0 < v < ph - 1 else 0.0
-            rows[0, k] = gx * u
-            rows[1, k] = gy * u
-            rows[2, k] = gx * v
-            rows[3, k] = gy * v
-            rows[4, k] = gx
-            rows[5, k] = gy
-            rows[6, k] = template[v, u]
+            for j in range(terms):
+                rows[j, k] = gx * monomials[j, k]
+                rows[terms + j, k] = gy * monomials[j, k]
+            rows[params, k] = template[v, u]
             k += 1
-    for i in range(7):
+    for i in range(params + 1):
         rows[i] -= rows[i].mean()
     gram = rows @ rows.T
-    cx, cy = (pw - 1) / 2.0, (ph - 1) / 2.0
-    if not gram[6, 6] > 1e-6 * n:
+    if not gram[params, params] > 1e-6 * n:
         return cx + s0, cy + w0, False  # a flat template: nothing to align
-    hessian_inv = _inverse_6x6(gram[:6, :6])
+    hessian_inv = _inverse(gram[:params, :params].copy())
     if np.isnan(hessian_inv[0, 0]):
         return cx + s0, cy + w0, False
-    template_projection = gram[:6, 6].copy()
+    template_projection = gram[:params, params].copy()
     template_hessian = hessian_inv @ template_projection
-    lambda_numerator = gram[6, 6] - np.dot(template_projection, template_hessian)
-    p, q, s, r, t, w = 1.0, 0.0, s0, 0.0, 1.0, w0
+    lambda_numerator = gram[params, params] - np.dot(template_projection, template_hessian)
+    coefficients = np.zeros((2, terms))
+    coefficients[0, 0], coefficients[1, 0] = cx + s0, cy + w0
+    coefficients[0, 1], coefficients[1, 2] = half, half  # the identity: x = u, y = v
     warped = np.empty(n)
     for _ in range(iterations):
-        _warp(window, p, q, s, r, t, w, ph, pw, warped)
+        _warp(window, coefficients, monomials, warped)
         projection = rows @ warped  # the rows are zero-mean: the warped window's mean drops out
-        image_projection = projection[:6].copy()
-        lambda_denominator = projection[6] - np.dot(image_projection, template_hessian)
+        image_projection = projection[:params].copy()
+        lambda_denominator = projection[params] - np.dot(image_projection, template_hessian)
         if not lambda_denominator > 0.0:
             return cx + s0, cy + w0, False  # the correlation would be minimised
         step = hessian_inv @ ((lambda_numerator / lambda_denominator) * image_projection - template_projection)
-        d0, d1, d2, d3, d4, d5 = step[0], step[1], step[2], step[3], step[4], step[5]
-        # Compose the warp with the inverse of the step [[1 + d0, d2, d4], [d1, 1 + d3, d5]].
-        det = (1.0 + d0) * (1.0 + d3) - d2 * d1
-        if not abs(det) > 1e-6:
-            return cx + s0, cy + w0, False
-        i00, i01, i10, i11 = (1.0 + d3) / det, -d2 / det, -d1 / det, (1.0 + d0) / det
-        i02, i12 = -(i00 * d4 + i01 * d5), -(i10 * d4 + i11 * d5)
-        p2, q2, s2 = p * i00 + q * i10, p * i01 + q * i11, p * i02 + q * i12 + s
-        r2, t2, w2 = r * i00 + t * i10, r * i01 + t * i11, r * i02 + t * i12 + w
-        dx = (p2 - p) * cx + (q2 - q) * cy + s2 - s
-        dy = (r2 - r) * cx + (t2 - t) * cy + w2 - w
-        p, q, s, r, t, w = p2, q2, s2, r2, t2, w2
-        if dx * dx + dy * dy < tolerance * tolerance:
+        # A, the warp's derivative in template pixels, times the step's coefficients.
+        a00, a01 = coefficients[0, 1] / half, coefficients[0, 2] / half
+        a10, a11 = coefficients[1, 1] / half, coefficients[1, 2] / half
+        for j in range(terms):
+            dx, dy = step[j], step[terms + j]
+            coefficients[0, j] -= a00 * dx + a01 * dy
+            coefficients[1, j] -= a10 * dx + a11 * dy
+        moved_x = a00 * step[0] + a01 * step[terms]
+        moved_y = a10 * step[0] + a11 * step[terms]
+        if moved_x * moved_x + moved_y * moved_y < tolerance * tolerance:
             break
-    return p * cx + q * cy + s, r * cx + t * cy + w, True
+    return coefficients[0, 0], coefficients[1, 0], True
 
 
 @njit(cache=True, nogil=True)

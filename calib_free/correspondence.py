@@ -34,8 +34,9 @@ periphery):
   content rarely repeats its surroundings too (and where the context peak is not distinct,
   the search is repeated one level coarser: a wider context). The best context peak is refined at full
   resolution (eq. 1) with the fovea's patch of `refine_patch_factor` times the size (more
-  structure, a sharper peak; 40 x 40 at 320 x 240, 60 x 60 at 640 x 480), relocated with centre-weighted NCC, then aligned by an affine
-  map (ECC), which follows the lens's local compression (both in `calib_free.patch_alignment`);
+  structure, a sharper peak; 40 x 40 at 320 x 240, 60 x 60 at 640 x 480), relocated with
+  centre-weighted NCC, then aligned by a quadratic map (ECC), which follows the lens's local
+  compression and its change across the patch (both in `calib_free.patch_alignment`);
 - distinctiveness: the best other peak of the context map, wherever it is (eq. 5 weighs a
   competitor by its squared distance, which hides the near repeats): the margin between
   them, d = 1 - exp(-(margin / distinct_margin)^2);
@@ -65,7 +66,7 @@ import numpy as np
 from calib_free._correspondence_kernels import block_means, competing_mass, correspondence_factors, second_peak
 from calib_free.disparity import as_grey_float, horizontal_offset, subpixel_peak
 from calib_free.errors import CorrespondenceError
-from calib_free.patch_alignment import affine_aligned, centre_weighted_peak
+from calib_free.patch_alignment import ALIGNMENT_WARPS, centre_weighted_peak, warp_aligned
 
 
 PROFILES = ("default", "paper")
@@ -111,10 +112,13 @@ class CorrespondenceParams:
     # 2 for images up to 400 px wide, 3 above (measured on the photo room; a larger patch
     # also holds more of the lens's distortion).
     refine_patch_factor: float | None = None
-    # Default profile: at most this many Gauss-Newton iterations of an affine alignment of
-    # that patch at the match (ECC, `patch_alignment.affine_aligned`: fewer once a step moves
-    # the match less than 0.01 px), which follows the lens's local compression (0: off).
-    affine_iterations: int = 5
+    # Default profile: at most this many Gauss-Newton iterations of an alignment of that patch
+    # at the match by the map `alignment_warp` names (ECC, `patch_alignment.warp_aligned`:
+    # fewer once a step moves the match less than 0.01 px), which follows the lens's local
+    # compression (0: off). "affine" leaves the match biased towards the image centre by the
+    # compression's change across the patch; "quadratic" follows that change too.
+    alignment_iterations: int = 5
+    alignment_warp: str = "quadratic"
     # Default profile: eq. 4's tau for the context peak (its c1). Lower than Table I's: the
     # periphery's distortion lowers the context's correlation, and a wrong match is told by
     # distinctiveness and the backward check rather than by a low peak.
@@ -143,8 +147,10 @@ class CorrespondenceParams:
             raise ValueError(f"context_min_correlation must be in (-1, 1), got {self.context_min_correlation}")
         if not 0 <= self.wider_context_levels <= 4:
             raise ValueError(f"wider_context_levels must be 0 to 4, got {self.wider_context_levels}")
-        if not 0 <= self.affine_iterations <= 100:
-            raise ValueError(f"affine_iterations must be 0 to 100, got {self.affine_iterations}")
+        if not 0 <= self.alignment_iterations <= 100:
+            raise ValueError(f"alignment_iterations must be 0 to 100, got {self.alignment_iterations}")
+        if self.alignment_warp not in ALIGNMENT_WARPS:
+            raise ValueError(f"alignment_warp must be one of {', '.join(ALIGNMENT_WARPS)}, got {self.alignment_warp!r}")
         if self.refine_patch_factor is not None and not 1.0 <= self.refine_patch_factor <= 8.0:
             raise ValueError(f"refine_patch_factor must be 1 to 8, got {self.refine_patch_factor}")
         if self.distinct_margin <= 0 or self.backward_tolerance_px <= 0:
@@ -429,8 +435,8 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     x, y, c_max = _refine(pre, patch, _coarse_centre(peak.ix, peak.iy, peak.size, scale), 2 * scale, params)
     if params.refine_sigma_fraction > 0:
         x, y = centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * refine_size[0])
-    if params.affine_iterations > 0:
-        x, y = affine_aligned(pre, patch, x, y, params.affine_iterations)
+    if params.alignment_iterations > 0:
+        x, y = warp_aligned(pre, patch, x, y, params.alignment_iterations, params.alignment_warp)
     c1, c2 = _eqs_4_6(c_max, peak.competitors, params)
     backward = _backward_distance(pre, post, x, y, params)
     c1_context, _ = _eqs_4_6(peak.c_max, 0.0, params, params.context_min_correlation)

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from calib_free.correspondence import CorrespondenceParams
+from calib_free.patch_alignment import ALIGNMENT_WARPS
 from calib_free.exploration import EXPLORATION_KINDS
 from calib_free.fixation import FixationParams
 from calib_free.gaze_map import PROFILES, GazeMapParams
@@ -116,6 +117,7 @@ declare_settings(
     max_vertical_disparity_px=config_meta(lo=0.0, hi=float(MAX_IMAGE_SIDE)),
     stereo_tolerance_px=config_meta(lo=0.0, hi=float(MAX_IMAGE_SIDE)),
     refine_sigma_fraction=config_meta(lo=0.0, hi=10.0),
+    alignment_warp=config_meta(choices=tuple(ALIGNMENT_WARPS), expected=" or ".join(ALIGNMENT_WARPS)),
 )
 
 

@@ -259,6 +259,6 @@ def test_photo_room_correspondence_meets_the_goal_and_beats_eqs_4_7(photo_room_c
     assert default.wrong_accepted <= 0.01, default.line()
     assert default.right_accepted >= 0.85, default.line()
     assert paper.within_1px < default.within_1px, paper.line()
-    # The affine alignment is what takes the fish-eye periphery's last pixel of bias away.
-    translation_only = accuracy(list(scored(photo_room_cases, CorrespondenceParams(affine_iterations=0))))
+    # The alignment is what takes the fish-eye periphery's last pixel of bias away.
+    translation_only = accuracy(list(scored(photo_room_cases, CorrespondenceParams(alignment_iterations=0))))
     assert translation_only.within_1px < default.within_1px, translation_only.line()

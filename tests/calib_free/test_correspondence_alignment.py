@@ -1,13 +1,14 @@
 """The default profile's last steps against their references: the centre-weighted NCC against
 OpenCV's masked definition evaluated directly, the affine alignment against known warps and
-`cv2.findTransformECC`."""
+`cv2.findTransformECC`, the quadratic alignment against a compression that changes across the
+patch."""
 from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
 
-from calib_free.patch_alignment import affine_aligned, centre_weighted_ncc, centre_weighted_peak
+from calib_free.patch_alignment import centre_weighted_ncc, centre_weighted_peak, warp_aligned
 
 
 def texture(seed: int, shape: tuple[int, int], blur: float = 1.5) -> np.ndarray:
@@ -83,15 +84,16 @@ def affine_case(seed: int, matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 @pytest.mark.parametrize("matrix", [np.eye(2), np.array([[0.93, 0.02], [-0.03, 1.0]]),
                                     np.array([[1.0, 0.05], [0.0, 0.9]])])
-def test_affine_alignment_lands_on_the_centre_under_a_local_compression(matrix):
+@pytest.mark.parametrize("warp", ["affine", "quadratic"])
+def test_alignment_lands_on_the_centre_under_a_local_compression(matrix, warp):
     image, patch, (tx, ty) = affine_case(7, matrix)
-    x, y = affine_aligned(image, patch, tx + 1.0, ty - 0.8, 5)  # a guess off by a pixel or so
+    x, y = warp_aligned(image, patch, tx + 1.0, ty - 0.8, 5, warp)  # a guess off by a pixel or so
     assert (x, y) == pytest.approx((tx, ty), abs=0.05)
 
 
 def test_affine_alignment_agrees_with_opencvs_ecc():
     image, patch, (tx, ty) = affine_case(8, np.array([[0.95, 0.03], [0.01, 0.97]]))
-    x, y = affine_aligned(image, patch, tx + 0.7, ty + 0.6, 5)
+    x, y = warp_aligned(image, patch, tx + 0.7, ty + 0.6, 5, "affine")
     a0, b0 = int(round(tx + 0.7 - 29.5)) - 6, int(round(ty + 0.6 - 29.5)) - 6
     warp = np.float32([[1, 0, tx + 0.7 - 29.5 - a0], [0, 1, ty + 0.6 - 29.5 - b0]])
     _, warp = cv2.findTransformECC(patch, np.ascontiguousarray(image[b0:b0 + 72, a0:a0 + 72]), warp,
@@ -100,10 +102,42 @@ def test_affine_alignment_agrees_with_opencvs_ecc():
     assert (x, y) == pytest.approx(tuple(reference), abs=0.05)
 
 
-def test_affine_alignment_keeps_the_guess_without_evidence():
+@pytest.mark.parametrize("warp", ["affine", "quadratic"])
+def test_alignment_keeps_the_guess_without_evidence(warp):
     image, patch, (tx, ty) = affine_case(9, np.eye(2))
-    assert affine_aligned(image, np.full_like(patch, 90.0), tx, ty, 5) == (tx, ty)  # a flat patch
-    assert affine_aligned(image, patch, 33.0, ty, 5) == (33.0, ty)  # the window leaves the image
+    assert warp_aligned(image, np.full_like(patch, 90.0), tx, ty, 5, warp) == (tx, ty)  # a flat patch
+    assert warp_aligned(image, patch, 33.0, ty, 5, warp) == (33.0, ty)  # the window leaves the image
     far = texture(10, (60, 60))  # another surface: no alignment within 3 px, or a diverging one
-    x, y = affine_aligned(image, far, tx, ty, 5)
+    x, y = warp_aligned(image, far, tx, ty, 5, warp)
     assert np.hypot(x - tx, y - ty) <= 3.0
+
+
+def graded_compression_case(seed: int, scale: float, gradient: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 60 x 60 patch centred at (119.5, 119.5) of a texture, and an image that holds it
+    compressed along x by a factor that changes across the patch, as the fish-eye's periphery
+    does: image column X shows the texture at 119.5 + scale X' + gradient X'^2 (X' = X - 119.5),
+    so the patch centre stays at (119.5, 119.5)."""
+    tex = texture(seed, (240, 240), blur=2.0)
+    patch = tex[90:150, 90:150].copy()
+    offset = np.arange(240, dtype=np.float32) - 119.5
+    map_x = np.tile(119.5 + scale * offset + gradient * offset ** 2, (240, 1)).astype(np.float32)
+    map_y = np.tile(np.arange(240, dtype=np.float32)[:, None], (1, 240))
+    return cv2.remap(tex, map_x, map_y, cv2.INTER_LINEAR), patch
+
+
+@pytest.mark.parametrize("gradient", [1.5e-3, -1.5e-3])
+def test_quadratic_alignment_follows_a_compression_that_changes_across_the_patch(gradient):
+    image, patch = graded_compression_case(11, 1.1, gradient)
+    quadratic = warp_aligned(image, patch, 120.3, 119.0, 10, "quadratic")
+    affine = warp_aligned(image, patch, 120.3, 119.0, 10, "affine")
+    assert quadratic == pytest.approx((119.5, 119.5), abs=0.05)
+    # The best affine fit averages the compression over the patch and misplaces its centre
+    # towards the less compressed side (-x for a positive gradient), as the periphery's matches
+    # lie nearer the image centre than the truth.
+    assert np.sign(affine[0] - 119.5) == np.sign(-gradient) and abs(affine[0] - 119.5) > 0.1
+
+
+def test_an_unknown_warp_is_refused_by_name():
+    image, patch, (tx, ty) = affine_case(9, np.eye(2))
+    with pytest.raises(ValueError, match="projective"):
+        warp_aligned(image, patch, tx, ty, 5, "projective")

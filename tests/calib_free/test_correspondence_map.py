@@ -105,10 +105,10 @@ def test_warm_up_runs_every_kernel_of_the_matching(monkeypatch):
 
     called = set()
     for module, names in ((correspondence, ("block_means", "correspondence_factors", "second_peak", "competing_mass")),
-                          (patch_alignment, ("centre_weighted_terms", "centre_weighted_scores", "ecc_affine"))):
+                          (patch_alignment, ("centre_weighted_terms", "centre_weighted_scores", "ecc_polynomial"))):
         for name in names:
             kernel = getattr(module, name)
             monkeypatch.setattr(module, name, lambda *a, _k=kernel, _n=name: called.add(_n) or _k(*a))
     assert correspondence.warm_up() >= 0.0
     assert called == {"block_means", "correspondence_factors", "second_peak", "competing_mass",
-                      "centre_weighted_terms", "centre_weighted_scores", "ecc_affine"}
+                      "centre_weighted_terms", "centre_weighted_scores", "ecc_polynomial"}

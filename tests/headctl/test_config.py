@@ -335,6 +335,8 @@ def _both(key, value):
      "fixation.vergence_patch_size: got (400, 20), expected a patch within the 320 x 240 image"),
     (lambda d: d["fixation"].update(correspondence={"pyramid_levels": 64}),
      "fixation.correspondence.pyramid_levels: got 64, expected an integer in [0, 8]"),
+    (lambda d: d["fixation"].update(correspondence={"alignment_warp": "projective"}),
+     "fixation.correspondence.alignment_warp: got 'projective', expected affine or quadratic"),
     (lambda d: d["fixation"].update(rate_hz=1e9), "fixation.rate_hz: got 1000000000.0, expected a rate >= 0"),
     (lambda d: d["service"].update(input_timeout_s=1e300), "service.input_timeout_s: got 1e+300, expected a positive "
                                                            "time, at most 60 s"),
