@@ -23,10 +23,9 @@ pair that will teach, and lets the map's command take the head there:
   taught before (strongly: `teach_rate_power`); and by how uncertain the map is there (when
   the map says: `UncertainMap`, the predictive variance of its polynomial part; weakly, as it
   points to where fixations teach least);
-- checked in that order until one has no rival near its place (a repeat within the
-  backward check's radius, which makes that check refuse the fixation) nor elsewhere in
-  either pre-fixation image (`correspondence.correspondence_map`: a repeat is what makes the
-  two eyes' matches disagree).
+- checked in that order until one has no rival elsewhere in either pre-fixation image
+  (`correspondence.correspondence_map`: a repeat is what makes the two eyes' matches
+  disagree).
 
 While the map is young its commands land anywhere, so a chosen target would be missed: until
 `warmup_taught` fixations have taught, and with probability `doubt_random` while the recent
@@ -170,9 +169,6 @@ class TeachingParams:
     min_stereo_ncc: float = 0.75  # the patch's match in the right image, along its rows
     stereo_rival_margin: float = 0.15  # a rival along the row must score this much less
     max_rival_ncc: float = 0.8  # C (eq. 1) of the patch's best rival elsewhere in its own image
-    # NCC of the patch's best rival near its own place (within the correspondence's backward
-    # radius, beyond a quarter patch): a repeat there defeats the backward check.
-    max_near_rival_ncc: float = 0.8
     disparity_margin_px: float = 4.0  # d this far inside the map's range
     pose_margin_deg: float = 0.5  # pan and tilt reached this far inside the joint limits
     max_checks: int = 20  # candidates checked in full per fixation
@@ -333,7 +329,7 @@ class TeachingExplorer:
         checks = 0  # of repeats anywhere (the costly one)
         for index in np.argsort(-weights, kind="stable"):
             target, plan, _, ncc = ranked[index]
-            problem = self.row_rival_problem(view, target, ncc, search) or self.near_repeat_problem(view, target)
+            problem = self.row_rival_problem(view, target, ncc, search)
             if not problem:
                 if checks == p.max_checks:
                     break
@@ -403,58 +399,17 @@ class TeachingExplorer:
                 return "a repeat elsewhere in the image"
         return ""
 
-    def near_repeat_problem(self, view: ExplorationView, target: np.ndarray) -> str:
-        """Why the patch at `target` repeats near its own place in either pre-fixation image
-        ('' if not). After the saccade, correspondence's backward check searches the matched
-        patch within `backward_radius_px` of the fovea; on a periodic texture (a
-        checkerboard) it lands on a repeat and refuses the fixation, right or wrong: on the
-        generated room's rendered saccades, two thirds of the matches of targets with such a
-        repeat (NCC above `max_near_rival_ncc`) had too low a confidence to teach (below 0.55,
-        the root of the floor), 3 % of the others."""
-        x, y, d = (float(v) for v in target)
-        for image, cx in ((view.pre_left, x), (view.pre_right, x + d)):
-            if self._rival_near(image, cx, y) > self.params.max_near_rival_ncc:
-                return "a repeat near its place"
-        return ""
-
     def _rival_in_image(self, image: np.ndarray, x: float, y: float) -> float:
         """C (eq. 1) of the best placement of the patch at (x, y) away from its own place."""
-        place = self._patch_place(image, x, y)
-        if place is None:
-            return 1.0
-        u0, v0 = place
-        pw, ph = self.correspondence.patch_size
-        cmap = correspondence_map(image, image[v0:v0 + ph, u0:u0 + pw], self.correspondence)
-        r = max(pw, ph) // 2  # within this of its own place, a placement is the patch itself
-        cmap[max(0, v0 - r):v0 + r + 1, max(0, u0 - r):u0 + r + 1] = -1.0
-        return float(cmap.max())
-
-    def _rival_near(self, image: np.ndarray, x: float, y: float) -> float:
-        """NCC of the best placement of the patch at (x, y) within the backward radius of its
-        own place and more than a quarter patch from it."""
-        place = self._patch_place(image, x, y)
-        if place is None:
-            return 1.0
-        u0, v0 = place
-        pw, ph = self.correspondence.patch_size
-        radius = self.correspondence.backward_radius_px
-        height, width = image.shape
-        a0, b0 = max(0, u0 - radius), max(0, v0 - radius)
-        window = image[b0:min(height, v0 + ph + radius), a0:min(width, u0 + pw + radius)]
-        scores = cv2.matchTemplate(window, image[v0:v0 + ph, u0:u0 + pw], cv2.TM_CCOEFF_NORMED)
-        cv2.patchNaNs(scores, 0.0)
-        rx, ry = pw // 4, ph // 4  # within this of its own place, a placement is the patch itself
-        scores[max(0, v0 - b0 - ry):v0 - b0 + ry + 1, max(0, u0 - a0 - rx):u0 - a0 + rx + 1] = -1.0
-        return float(scores.max())
-
-    def _patch_place(self, image: np.ndarray, x: float, y: float) -> tuple[int, int] | None:
-        """The top-left pixel of the patch centred at (x, y), None if it leaves the image."""
         pw, ph = self.correspondence.patch_size
         u0, v0 = int(round(x - (pw - 1) / 2.0)), int(round(y - (ph - 1) / 2.0))
         height, width = image.shape
         if u0 < 0 or v0 < 0 or u0 + pw > width or v0 + ph > height:
-            return None
-        return u0, v0
+            return 1.0
+        cmap = correspondence_map(image, image[v0:v0 + ph, u0:u0 + pw], self.correspondence)
+        r = max(pw, ph) // 2  # within this of its own place, a placement is the patch itself
+        cmap[max(0, v0 - r):v0 + r + 1, max(0, u0 - r):u0 + r + 1] = -1.0
+        return float(cmap.max())
 
     # -- bookkeeping ------------------------------------------------------------------------
     def _plan(self, view: ExplorationView, target: np.ndarray) -> np.ndarray | None:

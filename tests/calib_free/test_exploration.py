@@ -173,27 +173,6 @@ def test_without_a_target_that_could_teach_the_command_is_random(pattern):
         assert {"a rival along the row", "a repeat elsewhere in the image"} & set(explorer.stats.rejected)
 
 
-def test_a_target_whose_patch_repeats_near_its_place_is_not_chosen():
-    """A texture that repeats every 12 px down the image (and nowhere along a row) teaches
-    poorly: the backward check lands on a repeat. Its targets are refused before the costly
-    search of the whole image."""
-    left, right = textured_pair(4)
-    tile_left, tile_right = left[:12, :WIDTH // 2].copy(), right[:12, :WIDTH // 2].copy()
-    left[:, :WIDTH // 2] = np.tile(tile_left, (HEIGHT // 12, 1))
-    right[:, :WIDTH // 2] = np.tile(tile_right, (HEIGHT // 12, 1))
-    explorer = TeachingExplorer(np.random.default_rng(0), params=TeachingParams(warmup_taught=0))
-    pair = view(left, right, (0.0, 0.0, 10.0))
-    assert explorer.near_repeat_problem(pair, np.array([60.0, 100.0, DISPARITY_PX])) == "a repeat near its place"
-    assert explorer.near_repeat_problem(pair, np.array([240.0, 100.0, DISPARITY_PX])) == ""
-    chosen = []
-    for _ in range(20):
-        choice = explorer.choose(pair)
-        assert choice.kind is ChoiceKind.TARGET
-        chosen.append(choice.target[0])
-    assert min(chosen) > WIDTH // 2 - 12  # the patch wholly in the unrepeated half, or nearly
-    assert explorer.stats.rejected["a repeat near its place"] > 0
-
-
 def test_a_young_map_explores_at_random_until_fixations_have_taught():
     left, right = textured_pair()
     explorer = TeachingExplorer(np.random.default_rng(0), params=TeachingParams(warmup_taught=3))
