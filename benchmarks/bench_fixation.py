@@ -12,16 +12,20 @@ simulated fixation cycle.
    foveal patches, the share matched within 1 px; of the matches accepted (per-eye confidence
    >= 0.3), the share wrong by more than 3 px; of the right ones, the share accepted. For
    both profiles on the same pairs, in the photo room and the generated room.
-3. Fixations per second of the simulated head (servo motion model on a manual clock,
+3. The match's bias (`--bias N`: N saccades per room as in item 2, at 320 x 240): its error
+   along the radius from the image centre, by the truth's eccentricity, with the affine and
+   the quadratic alignment (`alignment_warp`); a bias the same way every time is learned by
+   the map as if it were the head's.
+4. Fixations per second of the simulated head (servo motion model on a manual clock,
    rendering, fine vergence, correspondence, the adapter thread), from a random map.
 
 `--baseline REV` also loads the correspondence (with the rest of `calib_free`) as it is at
-the git revision REV and measures it beside the working tree's in items 1 and 2, on the same pairs in the same run
-(so that a change is judged on one machine state). 0 for `--pairs`, `--fixations` or
-`--accuracy` skips that item.
+the git revision REV and measures it beside the working tree's in items 1 and 2, on the same
+pairs in the same run (so that a change is judged on one machine state). 0 for `--pairs`, `--fixations`,
+`--accuracy` or `--bias` skips that item.
 
     .venv/bin/python benchmarks/bench_fixation.py [--pairs 30] [--rounds 3] [--fixations 200]
-        [--accuracy 0] [--baseline HEAD]
+        [--accuracy 0] [--bias 0] [--baseline HEAD]
 """
 from __future__ import annotations
 
@@ -153,6 +157,39 @@ def accuracy(saccades: int, baseline: types.ModuleType | None, rev: str) -> None
           ">= 85 % of the right ones accepted")
 
 
+ECCENTRICITY_BANDS_PX = ((0, 30), (30, 60), (60, 90), (90, 1000))
+
+
+def radial_bias(saccades: int) -> None:
+    """Item 3 of the module doc: the match's error along the radius from the image centre, by
+    eccentricity, for each alignment warp, at 320 x 240 (the online experiments' size)."""
+    print(f"match error along the radius (positive: outwards) by the truth's eccentricity, {saccades} saccades "
+          "per room, 320x240, textured foveal patches matched within 1.5 px: mean +- standard error [median |error|]")
+    model = HeadModel.default(320, 240, limits=JointLimits(vergence=(1.0, 20.0)))
+    centre = np.array([(320 - 1) / 2.0, (240 - 1) / 2.0])
+    for room in ("photos", "generated"):
+        cases = [c for c in saccade_cases(shared_scene(5, False, room), model, saccades, seed=71) if c.textured]
+        for warp in ("affine", "quadratic"):
+            params = correspondence.CorrespondenceParams(alignment_warp=warp)
+            rows = []
+            for r in scored(cases, correspondence.match_eye, params):
+                outwards = r.case.truth - centre
+                eccentricity = float(np.hypot(*outwards))
+                error = np.array([r.match.x, r.match.y]) - r.case.truth
+                radial = float(error @ outwards) / eccentricity if eccentricity > 0 else 0.0
+                rows.append((eccentricity, radial, r.error_px))
+            table = np.array(rows)
+            near = table[:, 2] <= 1.5
+            cells = []
+            for low, high in ECCENTRICITY_BANDS_PX:
+                band = table[near & (table[:, 0] >= low) & (table[:, 0] < high)]
+                if len(band):
+                    cells.append(f"{low}-{high if high < 1000 else ''} px: {band[:, 1].mean():+.3f} +- "
+                                 f"{band[:, 1].std() / np.sqrt(len(band)):.3f} [{np.median(band[:, 2]):.3f}] (n={len(band)})")
+            print(f"  {room:<9} {warp:<9} within 1 px {np.mean(table[:, 2] <= 1.0):.1%}, median error "
+                  f"{np.median(table[:, 2]):.3f} px; " + "; ".join(cells))
+
+
 def fixations_per_s(count: int) -> tuple[float, float]:
     gm = GazeMap.for_image(320, 240, seed=0)
     taught = 0
@@ -176,6 +213,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds over the pairs")
     parser.add_argument("--fixations", type=int, default=200, help="simulated fixations (0: skip)")
     parser.add_argument("--accuracy", type=int, default=0, help="saccades per room and size (0: skip)")
+    parser.add_argument("--bias", type=int, default=0, help="saccades per room for the radial bias (0: skip)")
     parser.add_argument("--baseline", metavar="REV", default=None,
                         help="also measure calib_free/correspondence.py as at this git revision")
     args = parser.parse_args()
@@ -201,6 +239,8 @@ def main() -> None:
         print("goal at 640x480: <= 3 ms a pair (default, median)")
     if args.accuracy > 0:
         accuracy(args.accuracy, baseline, rev)
+    if args.bias > 0:
+        radial_bias(args.bias)
     if args.fixations > 0:
         rate, taught_rate = fixations_per_s(args.fixations)
         print(f"simulated fixation cycle, 320x240: {rate:.1f} fixations/s ({taught_rate:.1f} taught/s); "

@@ -40,8 +40,9 @@ periphery):
 - distinctiveness: the best other peak of the context map, wherever it is (eq. 5 weighs a
   competitor by its squared distance, which hides the near repeats): the margin between
   them, d = 1 - exp(-(margin / distinct_margin)^2);
-- forward-backward: the pre-fixation patch at the match, searched in the post-fixation
-  image within +-backward_radius_px of the fovea, must land on the fovea:
+- forward-backward: the pre-fixation patch at the match (1.5 times the foveal patch's
+  side, `backward_patch_factor`: more than one period of a checkerboard), searched in the
+  post-fixation image within +-backward_radius_px of the fovea, must land on the fovea:
   b = 1 / (1 + (distance / backward_tolerance_px)^4);
 - the per-eye confidence c1(context) d b, c1 being eq. 4 on the context peak with its own
   tau (`context_min_correlation`).
@@ -126,6 +127,12 @@ class CorrespondenceParams:
     distinct_margin: float = 0.1  # context-peak margin at which d = 1 - 1/e
     backward_radius_px: int = 24  # how far around the fovea the backward search looks
     backward_tolerance_px: float = 2.0  # backward landing distance at which b = 1/2
+    # Default profile: the backward search's patch is `patch_size` times this. A larger patch
+    # holds more than one period of a periodic texture (a checkerboard), whose repeats a
+    # 20 x 20 patch lands on: measured on rendered saccades of the generated room at
+    # 320 x 240, 1.5 accepts 94.9 % of the right matches against 91.5 % with 1, and 1 of
+    # the 28 wrong by more than 3 px (0.2 % of the accepted) against none; 2: 97.2 %, 5 of 28.
+    backward_patch_factor: float = 1.5
 
     @classmethod
     def profile_values(cls, profile: str, **overrides: Any) -> "CorrespondenceParams":
@@ -155,6 +162,8 @@ class CorrespondenceParams:
             raise ValueError(f"refine_patch_factor must be 1 to 8, got {self.refine_patch_factor}")
         if self.distinct_margin <= 0 or self.backward_tolerance_px <= 0:
             raise ValueError("distinct_margin and backward_tolerance_px must be positive")
+        if not 1.0 <= self.backward_patch_factor <= 8.0:
+            raise ValueError(f"backward_patch_factor must be 1 to 8, got {self.backward_patch_factor}")
         if not 0 <= self.backward_radius_px <= 1024:
             raise ValueError(f"backward_radius_px must be 0 to 1024, got {self.backward_radius_px}")
         if min(self.patch_size) < 3:
@@ -458,10 +467,12 @@ def _second_peak(cmap: np.ndarray, ix: int, iy: int) -> float:
 
 def _backward_distance(pre: np.ndarray, post: np.ndarray, x: float, y: float,
                        params: CorrespondenceParams) -> float:
-    """Forward-backward check: the pre-fixation patch at (x, y), searched in the post-fixation
-    image within `backward_radius_px` of the fovea; how far from the fovea it lands (px, -1
-    if the patch at (x, y) leaves the image)."""
-    pw, ph = params.patch_size
+    """Forward-backward check: the pre-fixation patch at (x, y) (`patch_size` times
+    `backward_patch_factor`), searched in the post-fixation image within `backward_radius_px`
+    of the fovea; how far from the fovea it lands (px, -1 if the patch at (x, y) leaves the
+    image)."""
+    pw, ph = (min(int(round(params.backward_patch_factor * side)), limit - 2)
+              for side, limit in zip(params.patch_size, (pre.shape[1], pre.shape[0])))
     a0, b0 = int(round(x - (pw - 1) / 2.0)), int(round(y - (ph - 1) / 2.0))
     if a0 < 0 or b0 < 0 or a0 + pw > pre.shape[1] or b0 + ph > pre.shape[0]:
         return -1.0

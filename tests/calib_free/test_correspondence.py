@@ -203,14 +203,15 @@ def test_centre_weighting_is_what_brings_the_matches_within_a_pixel(rendered_cas
 
 
 # --- repeated structure: where eqs. 4-7 are sure of a wrong match --------------------------
-def test_a_repeat_fools_eqs_4_7_and_the_default_refuses_it():
-    """A row of alike books: the fovea's book is one of five, and in the pre-fixation image the
-    true one is a little blurred (the periphery of a fish-eye) while its neighbours are not.
-    Eq. 1 prefers a crisp neighbour 24 px away; eq. 5 weighs that near competitor by its
-    squared distance, so eqs. 4-7 accept it. The default sees the equal context peaks and the
-    backward check landing off the fovea, and refuses."""
+def row_of_books(true_book_seen: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """A row of five alike books, the fovea's one of them: the pre- and post-fixation images
+    and where the fovea's patch centre was in the pre-fixation image (x). In the pre-fixation
+    image the true book is a little blurred (the periphery of a fish-eye) while its
+    neighbours are not; or, with `true_book_seen` False, hidden (the wall behind it): then
+    every place a match can find is wrong."""
     rng = np.random.default_rng(7)
     pre = cv2.GaussianBlur((rng.random((H, W)) * 80 + 90).astype(np.float32), (0, 0), 3.0)
+    wall = pre.copy()
     book = cv2.GaussianBlur(rng.random((22, 18), dtype=np.float32) * 220, (0, 0), 1.2) + 10
     truth = (150, 100)  # top-left of the true book
     for k in range(-2, 3):
@@ -221,12 +222,28 @@ def test_a_repeat_fools_eqs_4_7_and_the_default_refuses_it():
     post = np.roll(np.roll(pre, dy, axis=0), dx, axis=1)
     post[(H - 22) // 2:(H - 22) // 2 + 22, (W - 18) // 2:(W - 18) // 2 + 18] = book
     post = np.clip(post + rng.normal(0, 2.0, post.shape), 0, 255).astype(np.float32)
-    true_x = truth[0] + 8.5  # the centre of the fovea's 20 x 20 patch, in pre (x)
+    if not true_book_seen:
+        pre[truth[1]:truth[1] + 22, truth[0]:truth[0] + 18] = wall[truth[1]:truth[1] + 22, truth[0]:truth[0] + 18]
+    return pre, post, truth[0] + 8.5
+
+
+@pytest.mark.parametrize("true_book_seen", [True, False])
+def test_a_repeat_fools_eqs_4_7_and_the_default_accepts_no_wrong_match(true_book_seen):
+    """Eq. 1 prefers a crisp neighbour 24 px away; eq. 5 weighs that near competitor by its
+    squared distance, so eqs. 4-7 accept it. The default finds the true book by its context
+    and its larger refinement patch, or refuses (nearly equal context peaks, the backward
+    check landing off the fovea); with the true book hidden, every match is wrong, and it
+    refuses."""
+    pre, post, true_x = row_of_books(true_book_seen)
     paper = match_eye(pre, post, PAPER)
     assert abs(paper.x - true_x) > 20, "eqs. 1-6 must pick a neighbouring book for this test to mean anything"
     assert paper.confidence >= 0.3, f"eqs. 4-7 accept it (c1 c2 = {paper.confidence:.2f})"
     default = match_eye(pre, post, CorrespondenceParams())
-    assert default.confidence < 0.3, (default.x, default.confidence, default.second_peak, default.backward_px)
+    right = true_book_seen and abs(default.x - true_x) <= 1.0
+    assert right or default.confidence < 0.3, (default.x, default.confidence, default.second_peak,
+                                               default.backward_px)
+    if not true_book_seen:
+        assert default.confidence < 0.3
 
 
 def test_the_default_confidence_is_high_on_a_plain_shift():
