@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from calib_free.correspondence import (CorrespondenceError, CorrespondenceParams, EyeMatch, FixationMatch,
-                                       correspondence_map, foveal_patch, match_eye, stereo_inconsistency)
+                                       _backward_distance, correspondence_map, foveal_patch, match_eye,
+                                       stereo_inconsistency)
 from calib_free.disparity import foveal_disparity
 from calib_free.sim import HeadModel, JointLimits
 from drivers.sim_scene import StereoRenderer, shared_scene
@@ -244,6 +245,23 @@ def test_a_repeat_fools_eqs_4_7_and_the_default_accepts_no_wrong_match(true_book
                                                default.backward_px)
     if not true_book_seen:
         assert default.confidence < 0.3
+
+
+def test_a_larger_backward_patch_sees_past_a_checkerboards_period():
+    """A checkerboard of 14 px period with one mark 12 px beside the fovea: the foveal patch's
+    size (20 x 20) holds only the board and lands on a repeat when searched back; 1.5 times
+    it (30 x 30) holds the mark and lands on the fovea."""
+    ys, xs = np.mgrid[0:600, 0:800]
+    board = cv2.GaussianBlur((((xs // 7) + (ys // 7)) % 2 * 160 + 40).astype(np.float32), (0, 0), 1.0)
+    board[150 + 117:150 + 123, 200 + 172:200 + 176] = 255.0
+    rng = np.random.default_rng(3)
+    post = view(board, 200, 150) + rng.normal(0, 2, (H, W)).astype(np.float32)
+    pre = view(board, 150, 180) + rng.normal(0, 2, (H, W)).astype(np.float32)
+    truth = ((W - 1) / 2 + 50, (H - 1) / 2 - 30)  # where the post-fixation fovea was in pre
+    assert _backward_distance(pre, post, *truth, CorrespondenceParams()) > 5.0
+    assert _backward_distance(pre, post, *truth, CorrespondenceParams(backward_patch_factor=1.5)) < 0.5
+    with pytest.raises(ValueError, match="backward_patch_factor"):
+        CorrespondenceParams(backward_patch_factor=0.5)
 
 
 def test_the_default_confidence_is_high_on_a_plain_shift():
