@@ -1,4 +1,4 @@
-"""Compiled inner loops of correspondence (numba): the affine alignment (ECC), the
+"""Compiled inner loops of correspondence (numba): the alignment (ECC, affine or quadratic), the
 centre-weighted NCC's terms and scores, the correspondence map's factors, its best other
 peak and competing mass, and the pyramid's block means.
 

@@ -23,6 +23,7 @@ from calib_free.disparity import subpixel_peak
 ALIGNMENT_PAD_PX = 6  # the window the alignment works in: the patch and this much around
 ALIGNMENT_MAX_SHIFT_PX = 3.0  # an alignment that moves the match farther has not converged: kept out
 ALIGNMENT_TOLERANCE_PX = 0.01  # the alignment stops once an iteration moves the centre less
+ALIGNMENT_WARPS = {"affine": 1, "quadratic": 2}  # the maps an alignment fits, by name: their polynomial degree
 
 
 @functools.lru_cache(maxsize=32)
@@ -92,9 +93,6 @@ def centre_weighted_peak(image: np.ndarray, patch: np.ndarray, x: float, y: floa
     _, _, _, (lx, ly) = cv2.minMaxLoc(scores)
     u, v = subpixel_peak(scores, ly, lx)
     return a0 + u + (pw - 1) / 2.0, b0 + v + (ph - 1) / 2.0
-
-
-ALIGNMENT_WARPS = {"affine": 1, "quadratic": 2}  # a warp's name and its polynomial degree
 
 
 def warp_aligned(image: np.ndarray, patch: np.ndarray, x: float, y: float, iterations: int,
