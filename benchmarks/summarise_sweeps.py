@@ -14,7 +14,9 @@ and prints per experiment and profile, as median [interquartile range] across th
   landing check is back within 1.25 times the last one before the change.
 
 The online sweeps, the same way: `online-prism` and `online-pan-defect` as the re-adaptation
-experiments, and the exploration sweep (`--exploration FOLDER`: `online` over
+experiments (in fixations: their curves and changes count adaptations, each seed its own, and
+the retinal error's recovery is scaled by the run's fixations per adaptation after the change;
+goal 700 fixations), and the exploration sweep (`--exploration FOLDER`: `online` over
 `--set exploration=random,teaching --set room=generated,photos`, with `landing_every` 50),
 per setting: the share of fixations that taught, the landing error on the room's targets and
 on the joint range's, each over `learn`'s at the same number of fixations seed by seed
@@ -125,43 +127,76 @@ def learn_rows(runs: Sequence[Run]) -> dict[str, dict[str, str]]:
     return rows
 
 
+ONLINE_GOAL_FIXATIONS = 700  # the online re-adaptation goal (their runs carry none of their own)
+
+
+def in_fixations(run: Run, at: int) -> tuple[list[tuple[int, float]], int, float]:
+    """The run's landing checks as (fixation, px), the change's fixation, and fixations per
+    adaptation after it. The geometric experiments count both in fixations; the online ones
+    count their curves and the change in adaptations (taught fixations), and say at which
+    fixation each landing check was."""
+    curve = [(int(x), float(px)) for x, px in run.summary["landing_curve_px"]]
+    online = run.summary.get("online")
+    if not online:
+        return curve, at, 1.0
+    fixations = [int(f) for f in online["landing_at_fixations"]]
+    nearest = min(range(len(curve)), key=lambda k: abs(curve[k][0] - at))
+    change = fixations[nearest]
+    per_adaptation = (online["fixations"] - change) / max(1, run.summary["fixations"] - at)
+    return [(f, px) for f, (_, px) in zip(fixations, curve)], change, per_adaptation
+
+
 def landing_back(run: Run, at: int, tolerance: float = RECOVERY_TOLERANCE) -> int | None:
     """Fixations after the change at `at` until a landing check is within `tolerance` times the
     last check before it (None if none is); the checks' spacing is the resolution."""
-    before = [px for x, px in run.summary["landing_curve_px"] if x <= at]
-    after = [(x, px) for x, px in run.summary["landing_curve_px"] if x > at]
+    curve, change, _ = in_fixations(run, at)
+    before = [px for x, px in curve if x <= change]
+    after = [(x, px) for x, px in curve if x > change]
     if not before:
         return None
-    return next((int(x) - at for x, px in after if px <= tolerance * before[-1]), None)
+    return next((x - change for x, px in after if px <= tolerance * before[-1]), None)
 
 
 def worst_check(run: Run, at: int) -> int | None:
     """Fixations after the change at `at` of the worst landing check within 700 after it."""
-    after = [(px, int(x)) for x, px in run.summary["landing_curve_px"] if at < x <= at + 700]
-    return max(after)[1] - at if after else None
+    curve, change, _ = in_fixations(run, at)
+    after = [(px, x) for x, px in curve if change < x <= change + 700]
+    return max(after)[1] - change if after else None
+
+
+def recovery(run: Run, at: int) -> float | None:
+    """Fixations until the retinal error is back after the change at `at` (None: not back)."""
+    adaptations = run.figures[f"recovery_at_{at}"]
+    return None if adaptations is None else adaptations * in_fixations(run, at)[2]
 
 
 def readaptation_rows(runs: Sequence[Run]) -> dict[str, list[dict[str, str]]]:
     rows: dict[str, list[dict[str, str]]] = {}
     for profile, group in by_profile(runs).items():
         changes = []
-        for change in group[0].summary["changes"]:
-            at = change["at"]
-            recovery = [r.figures[f"recovery_at_{at}"] for r in group]
-            back = sum(v is not None for v in recovery)
+        for k, change in enumerate(group[0].summary["changes"]):
+            # Each run's own change: the online experiments count in adaptations, which differ by seed.
+            ats = [r.summary["changes"][k]["at"] for r in group]
+            recovered = [recovery(r, at) for r, at in zip(group, ats)]
+            back = sum(v is not None for v in recovered)
+            goal = change.get("goal_fixations") or ONLINE_GOAL_FIXATIONS
+
+            def each(name: str) -> list[Any]:
+                return [r.figures[name.format(at=at)] for r, at in zip(group, ats)]
+
             changes.append({
-                "at": str(at),
-                "recovery_fixations": fmt(recovery, digits=0),
-                "recovery_each_seed": ", ".join("not back" if v is None else f"{v:.0f}" for v in recovery),
+                "at": ", ".join(sorted({str(at) for at in ats})),
+                "recovery_fixations": fmt(recovered, digits=0),
+                "recovery_each_seed": ", ".join("not back" if v is None else f"{v:.0f}" for v in recovered),
                 "back": f"{back} of {len(group)}",
-                "goal": str(change.get("goal_fixations")),
-                "within_goal": f"{sum(v is not None and v <= change['goal_fixations'] for v in recovery)} of {len(group)}",
-                "landing_before_px": fmt([r.figures[f"landing_before_{at}_px"] for r in group], digits=1),
-                "landing_worst_after_px": fmt([r.figures[f"landing_worst_after_{at}_px"] for r in group], digits=1),
-                "landing_700_after_px": fmt([r.figures[f"landing_700_after_{at}_px"] for r in group], digits=1),
-                "landing_worst_at": ", ".join(str(worst_check(r, at)) for r in group),
-                "landing_back_fixations": fmt([landing_back(r, at) for r in group], digits=0),
-                "landing_back_each_seed": ", ".join(str(landing_back(r, at)) for r in group),
+                "goal": str(goal),
+                "within_goal": f"{sum(v is not None and v <= goal for v in recovered)} of {len(group)}",
+                "landing_before_px": fmt(each("landing_before_{at}_px"), digits=1),
+                "landing_worst_after_px": fmt(each("landing_worst_after_{at}_px"), digits=1),
+                "landing_700_after_px": fmt(each("landing_700_after_{at}_px"), digits=1),
+                "landing_worst_at": ", ".join(str(worst_check(r, at)) for r, at in zip(group, ats)),
+                "landing_back_fixations": fmt([landing_back(r, at) for r, at in zip(group, ats)], digits=0),
+                "landing_back_each_seed": ", ".join(str(landing_back(r, at)) for r, at in zip(group, ats)),
             })
         rows[profile] = changes
     return rows
