@@ -33,10 +33,10 @@ from pathlib import Path
 from typing import Any
 
 from calib_free.correspondence import CorrespondenceParams
-from calib_free.patch_alignment import ALIGNMENT_WARPS
 from calib_free.exploration import EXPLORATION_KINDS
 from calib_free.fixation import FixationParams
 from calib_free.gaze_map import PROFILES, GazeMapParams
+from calib_free.patch_alignment import ALIGNMENT_WARPS
 from drivers.camera_config import CameraConfig, MAX_IMAGE_SIDE, StereoCamerasConfig
 from drivers.config import check_settings, config_error_from, config_meta, declare_settings, read_config, setting
 from drivers.config_file import read_yaml_file
