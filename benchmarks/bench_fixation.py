@@ -59,6 +59,7 @@ from drivers.sim_scene import StereoRenderer, shared_scene  # noqa: E402
 from headctl.online import SimulatedHeadRig  # noqa: E402
 from tests.support.saccade_pairs import SaccadeCase, Scored, saccade_cases  # noqa: E402
 from tests.support.saccade_pairs import accuracy as accuracy_of  # noqa: E402
+from tests.support.sim_truth import radial_tangential_error  # noqa: E402
 
 
 def load_baseline(rev: str) -> types.ModuleType:
@@ -171,14 +172,10 @@ def radial_bias(saccades: int) -> None:
         cases = [c for c in saccade_cases(shared_scene(5, False, room), model, saccades, seed=71) if c.textured]
         for warp in ("affine", "quadratic"):
             params = correspondence.CorrespondenceParams(alignment_warp=warp)
-            rows = []
-            for r in scored(cases, correspondence.match_eye, params):
-                outwards = r.case.truth - centre
-                eccentricity = float(np.hypot(*outwards))
-                error = np.array([r.match.x, r.match.y]) - r.case.truth
-                radial = float(error @ outwards) / eccentricity if eccentricity > 0 else 0.0
-                rows.append((eccentricity, radial, r.error_px))
-            table = np.array(rows)
+            results = list(scored(cases, correspondence.match_eye, params))
+            eccentricity, radial, _ = radial_tangential_error(np.array([(r.match.x, r.match.y) for r in results]),
+                                                              np.array([r.case.truth for r in results]), centre)
+            table = np.column_stack([eccentricity, radial, [r.error_px for r in results]])
             near = table[:, 2] <= 1.5
             cells = []
             for low, high in ECCENTRICITY_BANDS_PX:

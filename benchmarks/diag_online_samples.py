@@ -41,7 +41,7 @@ from calib_free.fixation import FixationController, FixationParams  # noqa: E402
 from calib_free.kinematics import JOINTS, pose_of  # noqa: E402
 from calib_free.sim import FixationSampler, HeadModel  # noqa: E402
 from headctl.online import SimulatedHeadRig, exploration_for  # noqa: E402
-from tests.support.sim_truth import first_surface  # noqa: E402
+from tests.support.sim_truth import first_surface, radial_tangential_error  # noqa: E402
 
 DRANGE = (-60.0, 60.0)
 
@@ -89,12 +89,7 @@ def xy_bias_by_eccentricity(measured: np.ndarray, true_r: np.ndarray, model: Hea
     """The correspondence's (x, y) error, radial (outwards from the image centre, positive) and
     tangential, mean and standard deviation per ring of the true position's eccentricity."""
     centre = np.array([(model.width - 1) / 2.0, (model.height - 1) / 2.0])
-    offset = true_r[:, :2] - centre
-    radius = np.hypot(*offset.T)
-    unit = offset / np.maximum(radius, 1e-9)[:, None]
-    error = measured[:, :2] - true_r[:, :2]
-    radial = np.sum(error * unit, axis=1)
-    tangential = error[:, 1] * unit[:, 0] - error[:, 0] * unit[:, 1]
+    radius, radial, tangential = radial_tangential_error(measured[:, :2], true_r[:, :2], centre)
     out = []
     for lo, hi in zip(rings_px[:-1], rings_px[1:]):
         m = (radius >= lo) & (radius < hi)
