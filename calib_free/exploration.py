@@ -20,7 +20,10 @@ pair that will teach, and lets the map's command take the head there:
   poses fixations start from spread over the joint range as random commands do (the map
   takes the pose as an input, and where the head looks the room has texture or not); by how
   little has been taught near them in the image; by how often targets as far from the fovea
-  taught before (strongly: `teach_rate_power`); and by how uncertain the map is there (when
+  taught before (strongly: `teach_rate_power`); by how often the recent target fixations near
+  them in the image taught (as strongly: a place that taught nothing is rarely tried again,
+  where otherwise it stays as untaught and uncertain, and so as wanted, as before); and by
+  how uncertain the map is there (when
   the map says: `UncertainMap`, the predictive variance of its polynomial part; weakly, as it
   points to where fixations teach least);
 - checked in that order until one has no rival elsewhere in either pre-fixation image
@@ -184,6 +187,13 @@ class TeachingParams:
     uncertainty_weight: float = 0.3  # exponent of the map's relative uncertainty in the rank
     ring_width_fraction: float = 1.0 / 16  # rings of eccentricity whose teach rates are kept, of the width
     teach_rate_power: float = 4.0  # exponent of a ring's teach rate in the rank
+    # Recent target fixations near a candidate in the image (within `nearby_px` in x and y and
+    # `nearby_disparity_px` in d; the last `nearby_window` of them): their teach rate, to the
+    # power `teach_rate_power`, weighs the candidate. What failed to teach from a place
+    # usually fails again from there.
+    nearby_px: float = 6.0
+    nearby_disparity_px: float = 3.0
+    nearby_window: int = 200
 
     def __post_init__(self) -> None:
         if min(self.cells) < 1 or min(self.position_bins) < 1:
@@ -192,6 +202,9 @@ class TeachingParams:
             raise ValueError(f"aim_spread_deg must be positive, got {self.aim_spread_deg}")
         if self.max_checks < 1:
             raise ValueError(f"max_checks must be at least 1, got {self.max_checks}")
+        if self.nearby_px < 0 or self.nearby_disparity_px < 0 or self.nearby_window < 0:
+            raise ValueError(f"nearby_px, nearby_disparity_px and nearby_window must be >= 0, got "
+                             f"{self.nearby_px}, {self.nearby_disparity_px}, {self.nearby_window}")
         if not 0.0 <= self.doubt_random <= 1.0:
             raise ValueError(f"doubt_random must be in [0, 1], got {self.doubt_random}")
 
@@ -233,6 +246,9 @@ class TeachingExplorer:
         self._ring_attempts = np.zeros(rings)  # target fixations by eccentricity
         self._ring_taught = np.zeros(rings)
         self._position_counts = np.zeros(self.params.position_bins)
+        # (x, y, d, taught) of the recent target fixations
+        self._recent_targets: collections.deque[tuple[float, float, float, bool]] = collections.deque(
+            maxlen=self.params.nearby_window)
         self._limits: tuple[np.ndarray, np.ndarray] | None = None
         self._image: tuple[int, int, float] | None = None  # width, height, disparity search
         self._pending: _Pending | None = None
@@ -269,6 +285,8 @@ class TeachingExplorer:
             ring = self._ring(pending.target)
             self._ring_attempts[ring] += 1
             self._ring_taught[ring] += bool(record.taught)
+            x, y, d = (float(v) for v in pending.target[:3])
+            self._recent_targets.append((x, y, d, bool(record.taught)))
             # Where the fixated content was, taught or not: a refused match is mostly right,
             # and the median of the window ignores the rest.
             miss = float("inf") if position is None else float(np.hypot(*(position[:2] - pending.target[:2])))
@@ -442,6 +460,18 @@ class TeachingExplorer:
         rate = (self._ring_taught[ring] + 1.0) / (self._ring_attempts[ring] + 1.0)
         return float(rate ** self.params.teach_rate_power)
 
+    def _nearby_teach_rate(self, target: np.ndarray) -> float:
+        """How often the recent target fixations near `target` in the image taught (a prior
+        of one taught attempt), to the power `teach_rate_power`."""
+        p = self.params
+        if not self._recent_targets:
+            return 1.0
+        recent = np.array(self._recent_targets)
+        near = (np.abs(recent[:, 0] - target[0]) <= p.nearby_px) & (np.abs(recent[:, 1] - target[1]) <= p.nearby_px) \
+            & (np.abs(recent[:, 2] - target[2]) <= p.nearby_disparity_px)
+        rate = (float(recent[near, 3].sum()) + 1.0) / (float(near.sum()) + 1.0)
+        return float(rate ** p.teach_rate_power)
+
     def _position_bin(self, position: np.ndarray) -> tuple[int, ...]:
         assert self._image is not None
         width, height, search = self._image
@@ -452,10 +482,11 @@ class TeachingExplorer:
     def _rank(self, target: np.ndarray, reached: np.ndarray, aim: np.ndarray) -> float:
         """How much a fixation on `target`, reaching the pose `reached`, is wanted: near the
         aim, where little has been taught in the image (x, y; all d), at an eccentricity
-        that teaches."""
+        and a place that teach."""
         off = (reached[:2] - aim) / self.params.aim_spread_deg
         taught_here = float(self._position_counts[self._position_bin(target)[:2]].sum())
-        return float(np.exp(max(-0.5 * off @ off, -30.0)) / np.sqrt(1.0 + taught_here) * self._teach_rate(target))
+        return float(np.exp(max(-0.5 * off @ off, -30.0)) / np.sqrt(1.0 + taught_here) * self._teach_rate(target)
+                     * self._nearby_teach_rate(target))
 
 
 def _bin(value: np.ndarray, low: np.ndarray, high: np.ndarray, bins: Sequence[int]) -> tuple[int, ...]:

@@ -14,7 +14,7 @@ from calib_free.disparity import foveal_disparity
 from calib_free.sim import HeadModel, JointLimits
 from drivers.sim_scene import StereoRenderer, shared_scene
 from tests.support.saccade_pairs import accuracy, saccade_cases, scored
-from tests.support.sim_truth import first_surface, foveal_point, joints
+from tests.support.sim_truth import first_surface, foveal_point, joints, texture_at
 
 W, H = 320, 240
 PAPER = CorrespondenceParams.profile_values("paper")
@@ -160,8 +160,7 @@ def rendered_cases():
             hidden = np.linalg.norm(first_surface(scene, eye, (target - eye) / np.linalg.norm(target - eye)) - eye)
             if not seen[0] or hidden < np.linalg.norm(target - eye) - 0.01:
                 continue  # out of view or occluded before the saccade: no right answer
-            kind = next(b.texture for i, b in reversed(list(enumerate(scene.boxes)))
-                        if np.all(target >= scene.lo[i] - 1e-6) and np.all(target <= scene.hi[i] + 1e-6))
+            kind = texture_at(scene, target)
             images = [renderer.render(joints(p))[0] for p in (pre, post)]
             noisy = [np.clip(im + rng.normal(0, 2.0, im.shape), 0, 255).astype(np.uint8) for im in images]
             cases.append((noisy[0], noisy[1], r[0, :2], kind))
@@ -262,6 +261,47 @@ def test_a_larger_backward_patch_sees_past_a_checkerboards_period():
     assert _backward_distance(pre, post, *truth, CorrespondenceParams(backward_patch_factor=1.5)) < 0.5
     with pytest.raises(ValueError, match="backward_patch_factor"):
         CorrespondenceParams(backward_patch_factor=0.5)
+
+
+def beside_a_depth_edge(edge_px: int) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """A near surface left of an edge `edge_px` right of the fovea, a far one beyond it. The
+    saccade moved the near surface's content by (30, 18) px and the far one's by (20, 15): the
+    fovea's own patch moved with the near surface, most of its context did not."""
+    near, far = texture(21, (300, 400)), texture(22, (300, 400))
+
+    def image(near_shift: tuple[int, int], far_shift: tuple[int, int], edge_x: int) -> np.ndarray:
+        out = far[30 - far_shift[1]:30 - far_shift[1] + H, 40 - far_shift[0]:40 - far_shift[0] + W].copy()
+        out[:, :edge_x] = near[30 - near_shift[1]:30 - near_shift[1] + H, 40 - near_shift[0]:40 - near_shift[0] + W][:, :edge_x]
+        return out
+
+    post = image((0, 0), (0, 0), W // 2 + edge_px)
+    pre = image((30, 18), (20, 15), W // 2 + edge_px + 30)
+    return pre, post, ((W - 1) / 2 + 30, (H - 1) / 2 + 18)
+
+
+@pytest.mark.parametrize("edge_px", [6, 8, 10])
+def test_a_right_match_beside_a_depth_edge_teaches(edge_px):
+    """The fovea's context moved otherwise than the fovea (parallax at a depth edge): the
+    context peak correlates at only about 0.45. The match is right, distinct and passes the
+    backward check, and both eyes alike would teach (c >= 0.3); with the context's tau of
+    Table I's kind (0: c1 = 1/2 at a correlation of 0.5) the same fixation would be refused."""
+    pre, post, truth = beside_a_depth_edge(edge_px)
+    m = match_eye(pre, post, CorrespondenceParams())
+    assert np.hypot(m.x - truth[0], m.y - truth[1]) <= 1.0
+    assert m.context_c_max < 0.6 and m.backward_px < 1.5
+    assert FixationMatch(m, m).confidence >= 0.3
+    strict = match_eye(pre, post, CorrespondenceParams(context_min_correlation=0.0))
+    assert FixationMatch(strict, strict).confidence < 0.3
+
+
+@pytest.mark.parametrize("edge_px", [0, 2, 4])
+def test_a_wrong_match_at_a_depth_edge_through_the_fovea_is_refused(edge_px):
+    """The edge runs through the fovea's patch: half of it moved one way, half another, and
+    no placement in the pre-fixation image is right; the backward check refuses what is found."""
+    pre, post, truth = beside_a_depth_edge(edge_px)
+    m = match_eye(pre, post, CorrespondenceParams())
+    assert np.hypot(m.x - truth[0], m.y - truth[1]) > 3.0
+    assert m.backward_px > 3.0 and m.confidence < 0.1
 
 
 def test_the_default_confidence_is_high_on_a_plain_shift():

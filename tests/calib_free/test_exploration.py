@@ -173,6 +173,32 @@ def test_without_a_target_that_could_teach_the_command_is_random(pattern):
         assert {"a rival along the row", "a repeat elsewhere in the image"} & set(explorer.stats.rejected)
 
 
+@pytest.mark.parametrize("window", [0, 200])
+def test_a_place_whose_fixations_did_not_teach_is_not_chosen_again(window):
+    """A target fixation that taught nothing weighs the places near it down: the next choices
+    go elsewhere. Without the memory (a window of 0) the same place wins again, as nothing
+    else about the ranking changed: one ring of eccentricity, an aim too wide to matter, and a
+    map most uncertain at the image's right edge."""
+    left, right = textured_pair()
+    params = TeachingParams(warmup_taught=0, aim_spread_deg=1e6, ring_width_fraction=2.0, nearby_window=window)
+    explorer = TeachingExplorer(np.random.default_rng(0), params=params)
+    pose = np.array([0.0, 0.0, 10.0])
+    gaze_map = LinearMap()
+    uncertain_right = ExplorationView(pose, LOW, HIGH, left, right, lambda r: gaze_map.command(r, pose),
+                                      gaze_map.check_position, lambda r: 1.0 + float(r[0]))
+    refused = []
+    for _ in range(4):
+        choice = explorer.choose(uncertain_right)
+        assert choice.kind is ChoiceKind.TARGET
+        refused.append(choice.target)
+        explorer.observe(SimpleNamespace(taught=False, position=choice.target, pose_after=pose + choice.command))
+    repeats = sum(np.all(np.abs(b[:2] - a[:2]) <= params.nearby_px) for i, b in enumerate(refused) for a in refused[:i])
+    if window:
+        assert repeats == 0, refused
+    else:
+        assert repeats == 6  # all four the same place
+
+
 def test_a_young_map_explores_at_random_until_fixations_have_taught():
     left, right = textured_pair()
     explorer = TeachingExplorer(np.random.default_rng(0), params=TeachingParams(warmup_taught=3))

@@ -16,7 +16,7 @@ import numpy as np
 from calib_free.correspondence import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
 from calib_free.sim import HeadModel
 from drivers.sim_scene import Scene, StereoRenderer
-from tests.support.sim_truth import first_surface, joints
+from tests.support.sim_truth import first_surface, joints, texture_at
 
 
 @dataclass(frozen=True)
@@ -32,14 +32,6 @@ class SaccadeCase:
     def textured(self) -> bool:
         """A foveal patch with structure to match (not a nearly uniform surface)."""
         return self.texture != "uniform" and self.patch_std >= 8.0
-
-
-def _texture_at(scene: Scene, point: np.ndarray) -> str:
-    """The texture kind of the (innermost) box whose surface holds `point`."""
-    for i in range(len(scene.boxes) - 1, -1, -1):
-        if np.all(point >= scene.lo[i] - 1e-6) and np.all(point <= scene.hi[i] + 1e-6):
-            return scene.boxes[i].texture
-    return scene.boxes[0].texture
 
 
 def saccade_cases(scene: Scene, model: HeadModel, count: int, seed: int = 11, noise_std: float = 2.0,
@@ -66,7 +58,7 @@ def saccade_cases(scene: Scene, model: HeadModel, count: int, seed: int = 11, no
                 clean_post = images[1][eye]
                 noisy = [np.clip(images[k][eye] + noise[2 * k + eye], 0, 255).astype(np.uint8) for k in (0, 1)]
                 std = float(foveal_patch(clean_post.astype(np.float32), (20, 20)).std())
-                cases.append(SaccadeCase(noisy[0], noisy[1], uv[0], eye, _texture_at(scene, target), std))
+                cases.append(SaccadeCase(noisy[0], noisy[1], uv[0], eye, texture_at(scene, target), std))
     return cases
 
 

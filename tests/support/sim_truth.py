@@ -26,12 +26,18 @@ def first_surface(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> np
     return origin + best * direction
 
 
+def texture_at(scene: Scene, point: np.ndarray) -> str:
+    """The texture kind of the (innermost) box whose surface holds `point`."""
+    for i in range(len(scene.boxes) - 1, -1, -1):
+        if np.all(point >= scene.lo[i] - 1e-6) and np.all(point <= scene.hi[i] + 1e-6):
+            return scene.boxes[i].texture
+    return scene.boxes[0].texture
+
+
 def foveal_point(model: HeadModel, scene: Scene, pose: np.ndarray) -> np.ndarray:
     """The world point on the left fovea (the left optical axis' first surface) at `pose`."""
     (rotation, centre), _ = model.eye_frames(pose)
     return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
-
-
 
 
 def radial_tangential_error(measured_xy: np.ndarray, true_xy: np.ndarray,
