@@ -49,7 +49,7 @@ from drivers.sim_scene import shared_scene  # noqa: E402
 from headctl.errors import ControlError  # noqa: E402
 from headctl.online import SimulatedHeadRig  # noqa: E402
 from headctl.service.control import DISPARITY_BAND_PX, disparity_at, target_disparity  # noqa: E402
-from tests.support.sim_truth import first_surface  # noqa: E402
+from tests.support.sim_truth import first_surface, hidden_from  # noqa: E402
 
 JOINT_ORDER = ("pan", "tilt", "left_eye", "right_eye")
 
@@ -64,9 +64,7 @@ def true_error_px(rig: SimulatedHeadRig, before: dict[str, float], after: dict[s
     point = first_surface(scene, centre, rotation.T @ ray)
     (rotation, centre), _ = model.eye_frames_from_joints(*(after[j] for j in JOINT_ORDER))
     uv, _ = model.lens_left.project(((point - centre) @ rotation.T)[None])
-    towards = point - centre
-    distance = float(np.linalg.norm(towards))
-    hidden = float(np.linalg.norm(first_surface(scene, centre, towards / distance) - centre)) < distance - 1e-3
+    hidden = hidden_from(scene, centre, point, 1e-3)
     cx, cy = model.lens_left.principal_point
     return float(np.hypot(uv[0, 0] - cx, uv[0, 1] - cy)), hidden
 
@@ -79,9 +77,7 @@ def right_eye_truth(rig, xy: tuple[float, float]) -> tuple[bool, bool, float, fl
     (rot_l, centre_l), (rot_r, centre_r) = model.eye_frames_from_joints(*(joints[j] for j in JOINT_ORDER))
     point = first_surface(scene, centre_l, rot_l.T @ model.lens_left.unproject(np.array([xy]))[0])
     uv, seen = model.lens_right.project(((point - centre_r) @ rot_r.T)[None])
-    towards = point - centre_r
-    distance = float(np.linalg.norm(towards))
-    hidden = float(np.linalg.norm(first_surface(scene, centre_r, towards / distance) - centre_r)) < distance - 1e-3
+    hidden = hidden_from(scene, centre_r, point, 1e-3)
     return hidden, bool(seen[0]), float(uv[0, 0] - xy[0]), float(uv[0, 1] - xy[1])
 
 

@@ -44,7 +44,7 @@ from calib_free.kinematics import JOINTS  # noqa: E402
 from calib_free.sim import HeadModel  # noqa: E402
 from drivers.sim_scene import Scene  # noqa: E402
 from headctl.online import SimulatedHeadRig, exploration_for  # noqa: E402
-from tests.support.sim_truth import first_surface, texture_at  # noqa: E402
+from tests.support.sim_truth import axis_point, hidden_from, texture_at  # noqa: E402
 
 RIGHT_PX, WRONG_PX = 1.0, 3.0
 
@@ -80,13 +80,10 @@ def eye_truths(model: HeadModel, scene: Scene, before: dict[str, float],
     frames_after = model.eye_frames_from_joints(*(after[j] for j in JOINTS))
     frames_before = model.eye_frames_from_joints(*(before[j] for j in JOINTS))
     truths, seen = [], True
-    points = [first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
-              for rotation, centre in frames_after]
+    points = [axis_point(scene, rotation, centre) for rotation, centre in frames_after]
     for point, (rotation, centre), lens in zip(points, frames_before, (model.lens_left, model.lens_right)):
         uv, visible = lens.project(((point - centre) @ rotation.T)[None])
-        distance = float(np.linalg.norm(point - centre))
-        hit = first_surface(scene, centre, (point - centre) / distance)
-        seen = seen and bool(visible[0]) and float(np.linalg.norm(hit - centre)) >= distance - 1e-3
+        seen = seen and bool(visible[0]) and not hidden_from(scene, centre, point, 1e-3)
         truths.append(uv[0])
     return truths, seen, texture_at(scene, points[0])
 
@@ -195,12 +192,11 @@ def main() -> int:
             values = np.array([c.factors[f"{name}_{side}"] for c in refused_right for side in ("left", "right")])
             q1, q2, q3 = np.percentile(values, [25, 50, 75])
             print(f"  {name:14s} {q2:.2f} [{q1:.2f}, {q3:.2f}]")
-    compared = {}
-    for text, (overrides, floor) in zip(args.compare, settings):
-        for label, (o, f) in (("as run", ({}, FixationParams().confidence_floor)), (text, (overrides, floor))):
-            if label in compared:
-                continue
-            counts = reevaluate(judged, o, f)
+    compared: dict[str, dict[str, int]] = {}
+    if settings:
+        runs = [("as run", ({}, FixationParams().confidence_floor)), *zip(args.compare, settings)]
+        for label, (overrides, floor) in runs:
+            counts = reevaluate(judged, overrides, floor)
             compared[label] = dict(counts)
             print(f"\n{label}: taught {counts['taught right']} right, {counts['taught within 3 px']} within 3 px, "
                   f"{counts['taught wrong']} wrong; refused {counts['refused right']} right, "

@@ -41,7 +41,7 @@ from calib_free.fixation import FixationController, FixationParams  # noqa: E402
 from calib_free.kinematics import JOINTS, pose_of  # noqa: E402
 from calib_free.sim import FixationSampler, HeadModel  # noqa: E402
 from headctl.online import SimulatedHeadRig, exploration_for  # noqa: E402
-from tests.support.sim_truth import first_surface, radial_tangential_error  # noqa: E402
+from tests.support.sim_truth import axis_point, hidden_from, radial_tangential_error  # noqa: E402
 
 DRANGE = (-60.0, 60.0)
 
@@ -73,14 +73,11 @@ def explore(fixations: int, exploration: str, seed: int) -> tuple[list[dict[str,
 def truth(model: HeadModel, scene: Any, sample: dict[str, Any]) -> tuple[np.ndarray, bool]:
     """The true (x, y, d) of what the fixation put on the left fovea, and whether it was in view."""
     (rotation, centre), _ = model.eye_frames_from_joints(*(sample["true_after"][j] for j in JOINTS))
-    point = first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
+    point = axis_point(scene, rotation, centre)
     frames = model.eye_frames_from_joints(*(sample["true_before"][j] for j in JOINTS))
     (uv_l, seen_l), (uv_r, seen_r) = (lens.project(((point - c) @ r.T)[None])
                                       for (r, c), lens in zip(frames, (model.lens_left, model.lens_right)))
-    c_left = frames[0][1]
-    towards = point - c_left
-    hidden = float(np.linalg.norm(first_surface(scene, c_left, towards / np.linalg.norm(towards)) - c_left)) \
-        < float(np.linalg.norm(towards)) - 1e-3
+    hidden = hidden_from(scene, frames[0][1], point, 1e-3)
     return np.array([uv_l[0, 0], uv_l[0, 1], uv_r[0, 0] - uv_l[0, 0]]), bool(seen_l[0] and seen_r[0] and not hidden)
 
 

@@ -457,8 +457,7 @@ class TeachingExplorer:
         after the saccade look like its place before it (on the foveated lens, measured: 99 %
         of targets within an eighth of the width taught, 50 % at a third, 12 % beyond)."""
         ring = self._ring(xy)
-        rate = (self._ring_taught[ring] + 1.0) / (self._ring_attempts[ring] + 1.0)
-        return float(rate ** self.params.teach_rate_power)
+        return self._weighed_rate(float(self._ring_taught[ring]), float(self._ring_attempts[ring]))
 
     def _nearby_teach_rate(self, target: np.ndarray) -> float:
         """How often the recent target fixations near `target` in the image taught (a prior
@@ -469,8 +468,11 @@ class TeachingExplorer:
         recent = np.array(self._recent_targets)
         near = (np.abs(recent[:, 0] - target[0]) <= p.nearby_px) & (np.abs(recent[:, 1] - target[1]) <= p.nearby_px) \
             & (np.abs(recent[:, 2] - target[2]) <= p.nearby_disparity_px)
-        rate = (float(recent[near, 3].sum()) + 1.0) / (float(near.sum()) + 1.0)
-        return float(rate ** p.teach_rate_power)
+        return self._weighed_rate(float(recent[near, 3].sum()), float(near.sum()))
+
+    def _weighed_rate(self, taught: float, attempts: float) -> float:
+        """A teach rate with a prior of one taught attempt, to the power `teach_rate_power`."""
+        return float(((taught + 1.0) / (attempts + 1.0)) ** self.params.teach_rate_power)
 
     def _position_bin(self, position: np.ndarray) -> tuple[int, ...]:
         assert self._image is not None

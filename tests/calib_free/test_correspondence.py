@@ -14,7 +14,7 @@ from calib_free.disparity import foveal_disparity
 from calib_free.sim import HeadModel, JointLimits
 from drivers.sim_scene import StereoRenderer, shared_scene
 from tests.support.saccade_pairs import accuracy, saccade_cases, scored
-from tests.support.sim_truth import first_surface, foveal_point, joints, texture_at
+from tests.support.sim_truth import foveal_point, hidden_from, joints, texture_at
 
 W, H = 320, 240
 PAPER = CorrespondenceParams.profile_values("paper")
@@ -157,8 +157,7 @@ def rendered_cases():
             target = foveal_point(model, scene, post)
             r, seen = model.image_position(target[None, :], pre)
             (_, eye), _ = model.eye_frames(pre)
-            hidden = np.linalg.norm(first_surface(scene, eye, (target - eye) / np.linalg.norm(target - eye)) - eye)
-            if not seen[0] or hidden < np.linalg.norm(target - eye) - 0.01:
+            if not seen[0] or hidden_from(scene, eye, target, 0.01):
                 continue  # out of view or occluded before the saccade: no right answer
             kind = texture_at(scene, target)
             images = [renderer.render(joints(p))[0] for p in (pre, post)]

@@ -16,7 +16,7 @@ import numpy as np
 from calib_free.correspondence import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
 from calib_free.sim import HeadModel
 from drivers.sim_scene import Scene, StereoRenderer
-from tests.support.sim_truth import first_surface, joints, texture_at
+from tests.support.sim_truth import axis_point, hidden_from, joints, texture_at
 
 
 @dataclass(frozen=True)
@@ -47,13 +47,10 @@ def saccade_cases(scene: Scene, model: HeadModel, count: int, seed: int = 11, no
             images = [renderer.render(joints(p)) for p in (pre, post)]
             noise = [noise_std * rng.standard_normal(images[0][0].shape, dtype=np.float32) for _ in range(4)]
             for eye in (0, 1):
-                (r_post, c_post) = model.eye_frames(post)[eye]
-                target = first_surface(scene, c_post, r_post.T @ np.array([0.0, 0.0, 1.0]))
+                target = axis_point(scene, *model.eye_frames(post)[eye])
                 r_pre, c_pre = model.eye_frames(pre)[eye]
                 uv, seen = lenses[eye].project((target[None, :] - c_pre) @ r_pre.T)
-                ray = (target - c_pre) / np.linalg.norm(target - c_pre)
-                hidden = np.linalg.norm(first_surface(scene, c_pre, ray) - c_pre)
-                if not seen[0] or hidden < np.linalg.norm(target - c_pre) - 0.01:
+                if not seen[0] or hidden_from(scene, c_pre, target, 0.01):
                     continue  # out of view or occluded before the saccade: no right answer
                 clean_post = images[1][eye]
                 noisy = [np.clip(images[k][eye] + noise[2 * k + eye], 0, 255).astype(np.uint8) for k in (0, 1)]

@@ -34,10 +34,23 @@ def texture_at(scene: Scene, point: np.ndarray) -> str:
     return scene.boxes[0].texture
 
 
+def axis_point(scene: Scene, rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """The world point on an eye's fovea: its optical axis' first surface (an eye frame of
+    `HeadModel.eye_frames`: world-to-camera rotation and centre)."""
+    return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
+
+
 def foveal_point(model: HeadModel, scene: Scene, pose: np.ndarray) -> np.ndarray:
     """The world point on the left fovea (the left optical axis' first surface) at `pose`."""
     (rotation, centre), _ = model.eye_frames(pose)
-    return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
+    return axis_point(scene, rotation, centre)
+
+
+def hidden_from(scene: Scene, centre: np.ndarray, point: np.ndarray, tolerance_m: float) -> bool:
+    """Whether a surface more than `tolerance_m` nearer than `point` lies between `centre` and it."""
+    distance = float(np.linalg.norm(point - centre))
+    hit = first_surface(scene, centre, (point - centre) / distance)
+    return float(np.linalg.norm(hit - centre)) < distance - tolerance_m
 
 
 def radial_tangential_error(measured_xy: np.ndarray, true_xy: np.ndarray,
