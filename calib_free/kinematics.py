@@ -3,7 +3,7 @@
 A pose is (pan, tilt, vergence) in degrees: pan + turns the head to its left, tilt + up,
 vergence v = theta_l - theta_r + when the eyes converge. The eyes move symmetrically:
 theta_l = +v/2, theta_r = -v/2. Joint angles are {pan, tilt, left_eye, right_eye} in degrees.
-Real heads (`headctl.head`) and the geometric model (`calib_free.sim`) both use these.
+Real heads (`headctl.service.head`) and the geometric model (`calib_free.sim.head_model`) both use these.
 """
 from __future__ import annotations
 

@@ -4,6 +4,3 @@ This package knows nothing above it (no `calib_free`, no `headctl`). Each device
 one abstract interface; each backend lives in its own module and is chosen by name
 (see `drivers.backends`).
 """
-from drivers.errors import DriverError
-
-__all__ = ["DriverError"]

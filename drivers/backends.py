@@ -24,22 +24,22 @@ Kind = Literal["servo_bus", "camera", "servo_probe"]
 
 # name -> (module, class, what to install when the import fails)
 SERVO_BUS_BACKENDS: dict[str, tuple[str, str, str]] = {
-    "dynamixel": ("drivers.dynamixel", "DynamixelBus", "pip install dynamixel-sdk pyserial"),
-    "sim": ("drivers.sim_servo", "SimulatedServoBus", ""),
+    "dynamixel": ("drivers.dynamixel.bus_v2", "DynamixelBus", "pip install dynamixel-sdk pyserial"),
+    "sim": ("drivers.sim.servos", "SimulatedServoBus", ""),
 }
-# Servos by id for `headctl setup` (`drivers.servo_probe`), by the same names as the buses.
+# Servos by id for `headctl setup` (`drivers.servo.probe`), by the same names as the buses.
 SERVO_PROBE_BACKENDS: dict[str, tuple[str, str, str]] = {
-    "dynamixel": ("drivers.dxl_probe", "DynamixelProbe", "pip install dynamixel-sdk pyserial"),
-    "sim": ("drivers.sim_servo", "SimulatedServoProbe", ""),
+    "dynamixel": ("drivers.dynamixel.probe", "DynamixelProbe", "pip install dynamixel-sdk pyserial"),
+    "sim": ("drivers.sim.servos", "SimulatedServoProbe", ""),
 }
 CAMERA_BACKENDS: dict[str, tuple[str, str, str]] = {
     "aravis": (
-        "drivers.aravis_camera",
+        "drivers.cameras.aravis",
         "AravisCamera",
         "apt-get install gir1.2-aravis-0.8 && pip install 'PyGObject<3.51' (./setup.sh does both)",
     ),
-    "opencv": ("drivers.opencv_camera", "OpenCVCamera", "pip install opencv-python-headless"),
-    "sim": ("drivers.sim_camera", "SimulatedCamera", ""),
+    "opencv": ("drivers.cameras.opencv", "OpenCVCamera", "pip install opencv-python-headless"),
+    "sim": ("drivers.sim.camera", "SimulatedCamera", ""),
 }
 _TABLES = {"servo_bus": SERVO_BUS_BACKENDS, "camera": CAMERA_BACKENDS, "servo_probe": SERVO_PROBE_BACKENDS}
 _ENTRY_POINT_GROUPS = {"servo_bus": "headctl.servo_buses", "camera": "headctl.cameras",

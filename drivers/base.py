@@ -5,7 +5,7 @@
 
 The public methods are template methods: they check and move the state once, here; a
 backend implements only the `_open`, `_enable`, `_disable` and `_close` hooks. The
-device-kind interfaces (`drivers.servo_bus.ServoBus`, `drivers.camera.Camera`) build on it.
+device-kind interfaces (`drivers.servo.bus.ServoBus`, `drivers.cameras.camera.Camera`) build on it.
 """
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ class DriverError(Exception):
 class ConfigError(DriverError, ValueError):
     """A configuration is invalid: the one config error type of every layer.
 
-    Raised by the reader in `drivers/config.py` with `key_path` (`servo_bus.joints.pan.
+    Raised by the reader in `drivers/config/reader.py` with `key_path` (`servo_bus.joints.pan.
     min_angle`), the `value` found and what was `expected`; `missing` when the key was not
     given. `file` is set by whoever knows the file. The message reads
     `<file>: <key_path>: got <value!r>, expected <expected>`. Backends also raise the

@@ -1,6 +1,6 @@
 """`python -m headctl`: the same as the `headctl` command."""
 import sys
 
-from headctl.cli import main
+from headctl.cli.main import main
 
 sys.exit(main())

@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 # Config errors of every layer are this one type (servo-bus and camera config errors are
-# subclasses), raised by the reader in `drivers/config.py` with the key path, the value and
-# what was expected; `headctl.config` sets the file.
+# subclasses), raised by the reader in `drivers/config/reader.py` with the key path, the value and
+# what was expected; `headctl.config.head` sets the file.
 from drivers.errors import ConfigError as ConfigError  # re-exported
 
 

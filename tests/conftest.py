@@ -15,8 +15,8 @@ from typing import Any, TypeVar
 import pytest
 
 from drivers.clock import ManualClock
-from headctl.config import HeadConfig, load_config
-from headctl.service import Daemon
+from headctl.config.head import HeadConfig, load_config
+from headctl.service.daemon import Daemon
 from tests.support.daemon_proc import DaemonProcess
 
 T = TypeVar("T")

@@ -16,17 +16,17 @@ from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from calib_free.kinematics import JOINTS
-from calib_free.sim import HeadModel, JointLimits
-from drivers.camera import Camera, create_camera
-from drivers.camera_config import CameraConfig
+from calib_free.sim.head_model import HeadModel, JointLimits
+from drivers.cameras.camera import Camera, create_camera
+from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraError
-from drivers.servo_bus import ServoBus, create_servo_bus
-from drivers.sim_motion import moving_scene
-from drivers.sim_scene import Scene, shared_scene
-from drivers.sim_servo import SimulatedServoBus
-from headctl.config import HeadConfig
-from headctl.head import Head, HeadObserver, JointBus, PairSource
+from drivers.servo.bus import ServoBus, create_servo_bus
+from drivers.sim.motion import moving_scene
+from drivers.sim.scene import Scene, shared_scene
+from drivers.sim.servos import SimulatedServoBus
+from headctl.config.head import HeadConfig
+from headctl.service.head import Head, HeadObserver, JointBus, PairSource
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ SIM_VERGENCE_RANGE = (1.0, 20.0)
 
 class SimulatedServos(Protocol):
     """The simulated servos as the simulated world sees them: a `SimulatedServoBus`, or the
-    servo process that runs one (`headctl.service.servo_process.ServoLoopProcess`)."""
+    servo process that runs one (`headctl.service.servo_io.process.ServoLoopProcess`)."""
 
     def true_position(self, joint: str) -> float: ...
 
@@ -83,7 +83,7 @@ class SimulatedWorld:
 
 
 class EyePose:
-    """One simulated camera's pose source (`drivers.sim_camera.TimedPoseSource`): the world's
+    """One simulated camera's pose source (`drivers.sim.camera.TimedPoseSource`): the world's
     joints now, or at a frame's exposure; fails while the camera is stalled."""
 
     def __init__(self, world: SimulatedWorld, side: str) -> None:

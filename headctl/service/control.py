@@ -1,7 +1,7 @@
 """What clients may ask of a running service, and the interface the API and metrics use.
 
-`HeadService` is the small typed interface the HTTP layer (`headctl.api`) and the metrics
-(`headctl.metrics`) depend on: one status snapshot, the event hub, the looks, the switches,
+`HeadService` is the small typed interface the HTTP layer (`headctl.api.app`) and the metrics
+(`headctl.api.metrics`) depend on: one status snapshot, the event hub, the looks, the switches,
 the map actions and fault injection on the simulated head. `ServiceControl` implements it
 over the service's parts. Every refusal is a `headctl.errors.ControlError` naming the field
 at fault; what HTTP answer each kind becomes is the API's business.
@@ -18,13 +18,13 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from calib_free import GazeMap
-from calib_free.closed_loop import target_patch_problem
-from calib_free.disparity import as_grey_float, horizontal_offset
+from calib_free.map.gaze_map import GazeMap
+from calib_free.gaze.closed_loop import target_patch_problem
+from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
 from calib_free.errors import MapFileError
-from calib_free.fixation import FixationRecord, LookParams
+from calib_free.gaze.fixation import FixationRecord, LookParams
 from calib_free.kinematics import JOINTS
-from drivers.camera import Frame
+from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
 from headctl.service.events import EventHub

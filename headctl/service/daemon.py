@@ -6,9 +6,9 @@
 - `servo-io` (`servo_loop.ServoLoop`): one read and one write of the bus per period;
 - `fixation` (`fixation_thread.FixationThread`): clients' looks, else exploratory fixations
   on the `Head` (whose bus is the servo loop and whose pairs come from the capture threads);
-- `gaze-adapter` (`calib_free.adapter.MapAdapter`): learns from the taught fixations, with
+- `gaze-adapter` (`calib_free.map.adapter.MapAdapter`): learns from the taught fixations, with
   atomic checkpoints (`persistence.Checkpointer`);
-- `api-server` (`headctl.api_server.ApiServer`): the HTTP control API and dashboard, over
+- `api-server` (`headctl.api.server.ApiServer`): the HTTP control API and dashboard, over
   `control.ServiceControl`;
 - `supervisor` (`supervisor.Supervisor`): systemd's status and watchdog, fault events,
   stalled cameras.
@@ -26,28 +26,28 @@ import threading
 import time
 from typing import Any
 
-from calib_free import correspondence
-from calib_free.adapter import MapAdapter, Sample
-from calib_free.fixation import FixationController
-from calib_free.gaze_map import AdaptResult
+from calib_free.correspondence import search as correspondence
+from calib_free.map.adapter import MapAdapter, Sample
+from calib_free.gaze.fixation import FixationController
+from calib_free.map.gaze_map import AdaptResult
 from calib_free.kinematics import JOINTS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
-from drivers.stereo import StereoPair
-from headctl.config import HeadConfig
-from headctl.config_api import is_loopback
+from drivers.cameras.stereo import StereoPair
+from headctl.config.head import HeadConfig
+from headctl.config.api import is_loopback
 from headctl.errors import HeadctlError
-from headctl.head import StereoPairSource
+from headctl.service.head import StereoPairSource
 from headctl.service.build import HeadDevices, build_head
 from headctl.service.control import ServiceControl
 from headctl.service.events import EventHub, EventLog
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
-from headctl.service.hardware_faults import HardwareFaults
+from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
 from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
-from headctl.service.servo_loop import ServoIO, ServoLoop
-from headctl.service.servo_process import ServoLoopProcess
+from headctl.service.servo_io.loop import ServoIO, ServoLoop
+from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.status import FaultWatcher
 from headctl.service.tracking import Tracking
 from headctl.service.supervisor import Supervisor, status_line
@@ -67,7 +67,7 @@ class Daemon:
                                   looks=LookQueue(config.api.max_queued_looks), learning=LearningLog(clock),
                                   started_s=clock.monotonic(), hardware=HardwareFaults(hub))
         self.notifier = SystemdNotifier()
-        self.api_server: Any = None  # headctl.api_server.ApiServer once listening
+        self.api_server: Any = None  # headctl.api.server.ApiServer once listening
         self.control = ServiceControl(self.parts, self._api_faults)
         self.faults = FaultWatcher(self.parts, self.parts.hub, self._api_faults)
         self.stop_requested = threading.Event()
@@ -188,7 +188,7 @@ class Daemon:
         self.notifier.notify(ready=1, status=status_line(parts, self.faults.check()))
 
     def _start_api(self) -> None:
-        from headctl.api_server import ApiServer  # FastAPI and uvicorn: only when the API is on
+        from headctl.api.server import ApiServer  # FastAPI and uvicorn: only when the API is on
 
         cfg, api = self.config, self.config.api
         self.api_server = self._stack.enter_context(ApiServer(

@@ -1,6 +1,6 @@
 """The fixation thread: clients' looks and tracks first, else exploratory fixations that teach the map.
 
-Each fixation is `calib_free.fixation.FixationController.fixate()` on the service's `Head`;
+Each fixation is `calib_free.gaze.fixation.FixationController.fixate()` on the service's `Head`;
 taught ones go to the map adapter (the controller submits them). The thread is paused while
 the servo bus is down or torque is off. `Interrupt` is what the head calls before every bus
 access and frame wait: it stops the fixation in progress when the service stops (for good)
@@ -17,16 +17,16 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from calib_free.closed_loop import LookController
-from calib_free.fixation import (FixationController, FixationInterrupted, FixationOutcome,
+from calib_free.gaze.closed_loop import LookController
+from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome,
                                  FixationRecord, HeadTimeoutError)
-from calib_free.pursuit import TrackOutcome
+from calib_free.gaze.pursuit import TrackOutcome
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
-from headctl.head import Head
+from headctl.service.head import Head
 from headctl.service.events import EventHub, plain
 from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
-from headctl.service.servo_loop import join_thread
+from headctl.service.servo_io.loop import join_thread
 from headctl.service.tracking import Tracking
 
 log = logging.getLogger(__name__)
@@ -60,7 +60,7 @@ class Interrupt:
 
 
 class HeadEvents:
-    """A `headctl.head.HeadObserver` publishing saccade onset and end, and keeping the phase and
+    """A `headctl.service.head.HeadObserver` publishing saccade onset and end, and keeping the phase and
     the vergence steps' frame-to-command latencies for the status."""
 
     def __init__(self, hub: EventHub) -> None:
@@ -189,7 +189,7 @@ class FixationThread(threading.Thread):
             self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
 
     def _look_at_target(self, job: LookJob) -> None:
-        """A closed-loop look (`calib_free.closed_loop`): `done` only with the target within the
+        """A closed-loop look (`calib_free.gaze.closed_loop`): `done` only with the target within the
         tolerance of the left fovea; every figure of the result from an accepted measurement."""
         target = np.asarray(job.request.values, dtype=float)
         reference = job.request.reference_pose

@@ -14,19 +14,19 @@ from typing import Any
 
 import numpy as np
 
-from calib_free.adapter import MapAdapter, Sample
-from calib_free.gaze_map import AdaptResult
+from calib_free.map.adapter import MapAdapter, Sample
+from calib_free.map.gaze_map import AdaptResult
 from drivers.clock import Clock
-from drivers.stereo import StereoPair
-from headctl.config import HeadConfig
+from drivers.cameras.stereo import StereoPair
+from headctl.config.head import HeadConfig
 from headctl.service.build import HeadDevices
 from headctl.service.events import EventHub, EventLog, plain
 from headctl.service.fixation_thread import FixationThread, HeadEvents
-from headctl.service.hardware_faults import HardwareFaults
+from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.persistence import Checkpointer
-from headctl.service.servo_loop import ServoIO
-from headctl.head import Head
+from headctl.service.servo_io.loop import ServoIO
+from headctl.service.head import Head
 
 
 class ServicePhase(enum.StrEnum):

@@ -15,12 +15,12 @@ import threading
 import time
 from pathlib import Path
 
-from calib_free import GazeMap
-from calib_free.adapter import MapAdapter
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.adapter import MapAdapter
 from calib_free.errors import MapFileError
-from calib_free.map_file import temporary_files
+from calib_free.map.file import temporary_files
 from drivers.clock import SYSTEM_CLOCK, Clock
-from headctl.config import HeadConfig
+from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError
 
 log = logging.getLogger(__name__)

@@ -16,8 +16,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from calib_free.fixation import FixationRecord
-from drivers.camera import StreamHealth
+from calib_free.gaze.fixation import FixationRecord
+from drivers.cameras.camera import StreamHealth
 from headctl.service.events import EventHub, plain
 from headctl.service.parts import ServiceParts, ServicePhase
 

@@ -13,10 +13,10 @@ import math
 import threading
 from typing import Any
 
-from drivers.camera import StreamHealth
+from drivers.cameras.camera import StreamHealth
 from drivers.errors import DriverError
 from headctl.service.parts import ServiceParts
-from headctl.service.servo_loop import join_thread
+from headctl.service.servo_io.loop import join_thread
 from headctl.service.status import FaultWatcher, service_state
 from headctl.service.systemd import SystemdNotifier
 

@@ -1,7 +1,7 @@
 """Tracking: smooth pursuit of a client's target, run on the fixation thread (one owner of motion).
 
 A track is a job of the look queue (`LookKind.TRACK`), taken by the fixation thread like a
-look; `Tracking.run` then follows the target's patch (`calib_free.pursuit`) one stereo pair
+look; `Tracking.run` then follows the target's patch (`calib_free.gaze.pursuit`) one stereo pair
 after another until a client stops it, the patch is lost (`lost_after_frames` pairs in a
 row), no new pair comes for `frame_timeout_s`, the head faults, or a look or another track is
 queued (preempted). Exploration waits meanwhile: the fixation thread is busy.
@@ -23,14 +23,14 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from calib_free.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError
+from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError
 from calib_free.kinematics import joints_of
-from calib_free.pursuit import MapReader, PoseHistory, Pursuit, PursuitParams, PursuitStep, TrackOutcome
+from calib_free.gaze.pursuit import MapReader, PoseHistory, Pursuit, PursuitParams, PursuitStep, TrackOutcome
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from headctl.errors import ServoLoopStoppedError
-from headctl.head import Head, JointBus
-from headctl.service.servo_loop import join_thread
+from headctl.service.head import Head, JointBus
+from headctl.service.servo_io.loop import join_thread
 
 log = logging.getLogger(__name__)
 

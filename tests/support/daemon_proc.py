@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-from headctl.client import ApiClient, ApiError
+from headctl.api.client import ApiClient, ApiError
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 SIM = ROOT / "configs" / "sim.yaml"
@@ -30,7 +30,7 @@ class DaemonProcess:
         self.token = token
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         env.pop("NOTIFY_SOCKET", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "run", "--config", str(config),
+        self.proc = subprocess.Popen([sys.executable, "-m", "headctl.cli.main", "run", "--config", str(config),
                                       "--state-dir", str(state_dir), "--api-port", "0", *extra], cwd=ROOT, env=env,
                                      stdout=self.log, stderr=subprocess.STDOUT)
         self._client: ApiClient | None = None

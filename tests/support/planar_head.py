@@ -1,6 +1,6 @@
 """A head that looks at a textured plane, and a linear gaze map for it: closed loops without a renderer.
 
-`PlanarHead` (a `calib_free.fixation.GazeHead`) shows, at pose (pan, tilt, vergence), the
+`PlanarHead` (a `calib_free.gaze.fixation.GazeHead`) shows, at pose (pan, tilt, vergence), the
 window of a large texture centred `PX_PER_DEG` pixels per degree away from its middle: pan +
 moves the view left, tilt + up. The right image is the left one shifted by the disparity
 `DISPARITY_PX_PER_DEG * (vergence - PLANE_VERGENCE_DEG)` (every point of the plane has it),

@@ -4,7 +4,7 @@ For each saccade (pan and tilt within +-`max_step_deg`, vergence kept) and each 
 pre- and post-fixation images of that eye with sensor noise, and where the world point on
 that eye's post-fixation fovea (its optical axis' first surface) was in the pre-fixation
 image. Saccades whose foveal point was out of view or hidden before are skipped: they have
-no right answer. Shared by the correspondence tests and `benchmarks/bench_fixation.py`.
+no right answer. Shared by the correspondence tests and `benchmarks/bench/fixation.py`.
 """
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_free.correspondence import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
-from calib_free.sim import HeadModel
-from drivers.sim_scene import Scene, StereoRenderer
+from calib_free.correspondence.search import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
+from calib_free.sim.head_model import HeadModel
+from drivers.sim.scene import Scene, StereoRenderer
 from tests.support.sim_truth import axis_point, hidden_from, joints, texture_at
 
 

@@ -23,13 +23,13 @@ except ImportError as err:  # no silent skips: name the install step
     raise ImportError(f"{err}: run ./setup.sh (pip install -e '.[test]' installs dynamixel-sdk and pyyaml)") from err
 
 from drivers.clock import ManualClock, MonotonicClock
-from drivers.dxl_control_table import DEG_PER_TICK, XAddr, ticks_to_deg
-from drivers.dxl_control_table1 import P1_MODELS, P1Addr
-from drivers.dxl_emulator import DEFAULT_MODELS, DxlEmulator
-from drivers.dynamixel import DynamixelBus
-from drivers.servo_bus import JOINTS
-from drivers.servo_config import ServoBusConfig
-from drivers.sim_servo import SimulatedServoBus
+from drivers.dynamixel.tables.x_series import DEG_PER_TICK, XAddr, ticks_to_deg
+from drivers.dynamixel.tables.v1 import P1_MODELS, P1Addr
+from drivers.dynamixel.emulator.server import DEFAULT_MODELS, DxlEmulator
+from drivers.dynamixel.bus_v2 import DynamixelBus
+from drivers.servo.bus import JOINTS
+from drivers.servo.config import ServoBusConfig
+from drivers.sim.servos import SimulatedServoBus
 
 IDS = {"pan": 1, "tilt": 2, "left_eye": 3, "right_eye": 4}
 

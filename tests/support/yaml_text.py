@@ -1,6 +1,6 @@
 """YAML text written node by node, so that a test can write what a YAML library would refuse to:
 a key twice in one mapping, a raw scalar such as `.nan` or `!!binary`. For the hostile configs
-(`tests/headctl/test_hostile_configs.py`, `benchmarks/hostile_configs.py`)."""
+(`tests/headctl/config/test_hostile.py`, `benchmarks/hostile/configs.py`)."""
 from __future__ import annotations
 
 import json

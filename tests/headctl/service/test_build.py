@@ -4,13 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.camera import StreamHealth
+from drivers.cameras.camera import StreamHealth
 from drivers.clock import ManualClock
 from drivers.errors import CameraError
-from drivers.sim_camera import SimulatedCamera
-from drivers.sim_servo import SimulatedServoBus
-from headctl.config import load_config
-from headctl.online import SimulatedHeadRig
+from drivers.sim.camera import SimulatedCamera
+from drivers.sim.servos import SimulatedServoBus
+from headctl.config.head import load_config
+from headctl.experiments.online import SimulatedHeadRig
 from headctl.service.build import SIM_START_JOINTS, HeadDevices, build_head
 from headctl.service.events import EventHub, EventLog
 from headctl.service.looks import LookQueue
@@ -44,8 +44,8 @@ def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_s
 def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path):
     import dataclasses
 
-    from drivers.camera_config import SceneConfig
-    from drivers.sim_scene import shared_scene
+    from drivers.cameras.config import SceneConfig
+    from drivers.sim.scene import shared_scene
 
     config = load_config()
     photos = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=SceneConfig(room="photos")))

@@ -12,7 +12,7 @@ import time
 import pytest
 import yaml
 
-from calib_free import GazeMap
+from calib_free.map.gaze_map import GazeMap
 from tests.support.daemon_proc import SIM
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.slow]
@@ -117,7 +117,7 @@ def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, service_proc
 
 
 def test_status_command_prints_the_state_and_fails_without_a_daemon(tmp_path, service_process, capsys):
-    from headctl.cli import main
+    from headctl.cli.main import main
 
     assert main(["status", "--state-dir", str(tmp_path / "none"), "--url", "http://127.0.0.1:9"]) == 1
     assert "cannot reach the daemon" in capsys.readouterr().err

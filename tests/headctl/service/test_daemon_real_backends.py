@@ -21,7 +21,7 @@ pytestmark = [pytest.mark.timeout(120), pytest.mark.slow]
 @pytest.fixture
 def emulator(tmp_path):
     link = tmp_path / "head-servos"
-    proc = subprocess.Popen([sys.executable, "-m", "headctl.cli", "emulate-servos", "--ids", "1,2,3,4",
+    proc = subprocess.Popen([sys.executable, "-m", "headctl.cli.main", "emulate-servos", "--ids", "1,2,3,4",
                              "--baud", "1000000", "--link", str(link)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     assert proc.stdout is not None
@@ -65,7 +65,7 @@ def emulated_config(tmp_path, emulator, video) -> pathlib.Path:
 
 def test_check_connects_and_reports_each_servo_and_camera(tmp_path, emulator, video):
     path = emulated_config(tmp_path, emulator, video)
-    out = subprocess.run([sys.executable, "-m", "headctl.cli", "check", "--config", str(path)], cwd=ROOT,
+    out = subprocess.run([sys.executable, "-m", "headctl.cli.main", "check", "--config", str(path)], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
     for joint, servo_id in (("pan", 1), ("tilt", 2), ("left_eye", 3), ("right_eye", 4)):

@@ -1,6 +1,6 @@
 """Looks and events apart from HTTP (headctl.service.looks, headctl.service.events): the queue the
 fixation thread serves and the hub the event stream reads; the answer each refusal becomes is the
-API's (headctl.api.control_status)."""
+API's (headctl.api.app.control_status)."""
 from __future__ import annotations
 
 import threading
@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from headctl.api import control_status
+from headctl.api.app import control_status
 from headctl.errors import ControlError, NotFoundError, QueueFullError
 from headctl.service.events import EventHub
 from headctl.service.looks import LookKind, LookQueue, LookRequest, LookState

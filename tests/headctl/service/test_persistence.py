@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_free import GazeMap
-from calib_free.adapter import MapAdapter, Sample
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.adapter import MapAdapter, Sample
 from drivers.clock import ManualClock
-from headctl.client import ApiClient, ApiError
-from headctl.config import load_config
+from headctl.api.client import ApiClient, ApiError
+from headctl.config.head import load_config
 from headctl.errors import ConfigError, ControlError
 from headctl.service.parts import MapOrigin
 from headctl.service.persistence import Checkpointer, restore_map

@@ -6,10 +6,10 @@ import pytest
 
 from drivers.clock import ManualClock
 from drivers.errors import CameraError
-from drivers.sim_camera import TimedPoseSource
-from headctl.config import load_config
+from drivers.sim.camera import TimedPoseSource
+from headctl.config.head import load_config
 from headctl.service.build import HeadDevices
-from headctl.service.servo_process import ServoLoopProcess
+from headctl.service.servo_io.process import ServoLoopProcess
 from tests.conftest import wait_until
 
 pytestmark = pytest.mark.timeout(60)

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib_free.fixation import LookParams
+from calib_free.gaze.fixation import LookParams
 from headctl.errors import InvalidRequestError
 from headctl.service.control import DISPARITY_BAND_PX, disparity_at, target_disparity
 

@@ -9,7 +9,7 @@ import threading
 import numpy as np
 import pytest
 
-from calib_free.fixation import FixationController, FixationParams
+from calib_free.gaze.fixation import FixationController, FixationParams
 from headctl.service.events import EventHub
 from headctl.service.fixation_thread import FixationThread, Interrupt
 from headctl.service.looks import LookKind, LookQueue, LookRequest, LookState

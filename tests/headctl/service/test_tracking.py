@@ -8,11 +8,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from calib_free.pursuit import DEFAULT_JACOBIAN
-from drivers.sim_motion import MovingObject
-from headctl.client import ApiClient
-from headctl.pursuit_experiment import run_speed
-from headctl.service import Daemon
+from calib_free.gaze.pursuit import DEFAULT_JACOBIAN
+from drivers.sim.motion import MovingObject
+from headctl.api.client import ApiClient
+from headctl.experiments.pursuit import run_speed
+from headctl.service.daemon import Daemon
 from tests.conftest import sim_head_config, wait_until
 
 pytestmark = pytest.mark.timeout(120)

@@ -1,0 +1,1 @@
+"""Diagnostics of the online experiments and summaries of sweeps."""

@@ -1,0 +1,1 @@
+"""What the benchmarks share: a daemon in a child process."""

@@ -1,0 +1,1 @@
+"""The Dynamixel wire formats, one module per protocol version."""

@@ -1,0 +1,1 @@
+"""Dynamixel control tables: addresses, models, units, one module per servo family."""

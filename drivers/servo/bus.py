@@ -1,0 +1,541 @@
+"""The servo-bus interface of the head: joint names, states, units, limits and recovery.
+
+This module owns everything a servo backend shares:
+
+* the four joint names (`JOINTS`); vergence (left_eye = +v/2, right_eye = -v/2) is
+  composed above this layer;
+* the config a bus is built from (`ServoBusConfig`), defined and checked in
+  `drivers.servo.config`;
+* joint states (`JointState`, `BusState`) and the meaning of a servo's hardware error bits;
+* the abstract `ServoBus`, whose public methods are template methods working in joint
+  units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
+  zero offset), limits (clamp or refuse), logging, the lifecycle, reboot recovery and
+  reopening a bus that went down live here, once. A backend implements the small hooks
+  `_connect`, `_disconnect`, `_configure`, `_read_servos`, `_write_servo_goals`,
+  `_set_torque` and `_reboot_servo`, all in the servo frame: degrees from the servo's
+  centre position, before direction and zero offset are applied.
+
+All methods are safe to call from several threads: one lock serialises bus traffic.
+"""
+from __future__ import annotations
+
+import abc
+import dataclasses
+import functools
+import logging
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, TypeVar
+
+from drivers.base import Device
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.servo.faults import (
+    BY_AUTOMATIC_REBOOT,
+    BY_HAND,
+    BY_ITSELF,
+    HELD_OFF,
+    LEFT_TO_A_PERSON,
+    REBOOT_FAILED,
+    REBOOTED,
+    REBOOTING,
+    REPORTED,
+    WAITING,
+    EpisodeRecorder,
+    FaultLog,
+    HardwareErrorEpisode,
+)
+from drivers.servo.config import JOINTS as JOINTS
+from drivers.servo.config import ServoBusConfig as ServoBusConfig
+from drivers.servo.recovery import Fault, FaultRecovery
+from drivers.errors import (
+    BusDownError,
+    DriverError,
+    JointLimitError,
+    ServoConfigError,
+    ServoHardwareError,
+)
+
+log = logging.getLogger(__name__)
+
+# Per-packet traffic is logged below DEBUG (docs/development.md, "Code conventions").
+TRACE = 5
+
+# Hardware Error Status (X-series address 70): bit -> meaning.
+HARDWARE_ERROR_BITS: dict[int, str] = {
+    0: "input voltage out of range",
+    2: "overheating",
+    3: "motor encoder error",
+    4: "electrical shock (motor circuit)",
+    5: "overload",
+}
+
+# Reopening a bus that went down: first retry after this, doubling up to the maximum.
+REOPEN_BACKOFF_FIRST_S = 0.1
+REOPEN_BACKOFF_MAX_S = 5.0
+
+T = TypeVar("T")
+
+
+def decode_hardware_error(bits: int) -> tuple[str, ...]:
+    """The meanings of the bits of a Hardware Error Status byte."""
+    meanings = [meaning for bit, meaning in HARDWARE_ERROR_BITS.items() if bits & (1 << bit)]
+    known_mask = sum(1 << bit for bit in HARDWARE_ERROR_BITS)
+    if bits & ~known_mask:
+        meanings.append(f"unknown bits 0x{bits & ~known_mask:02x}")
+    return tuple(meanings)
+
+
+# --- state -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class JointState:
+    """One servo's state. From `ServoBus.read_state()` in joint units (degrees, deg/s);
+    from a backend's `_read_servos()` hook in the servo frame."""
+
+    position: float
+    velocity: float
+    moving: bool
+    torque_on: bool
+    hardware_error_bits: int
+    temperature_c: float
+    input_voltage_v: float
+
+    @property
+    def hardware_errors(self) -> tuple[str, ...]:
+        return decode_hardware_error(self.hardware_error_bits)
+
+
+@dataclass(frozen=True)
+class BusState:
+    """All joints, read in one bus transaction; `time_s` is the monotonic clock at the
+    middle of that transaction."""
+
+    time_s: float
+    joints: Mapping[str, JointState]
+
+    def __getitem__(self, joint: str) -> JointState:
+        return self.joints[joint]
+
+    @property
+    def positions(self) -> dict[str, float]:
+        return {joint: s.position for joint, s in self.joints.items()}
+
+    @property
+    def moving(self) -> bool:
+        return any(s.moving for s in self.joints.values())
+
+    @property
+    def faults(self) -> dict[str, tuple[str, ...]]:
+        return {joint: s.hardware_errors for joint, s in self.joints.items() if s.hardware_error_bits}
+
+
+# --- the interface ---------------------------------------------------------------------
+class ServoBus(Device, abc.ABC):
+    """The four joints of the head on one bus, in joint units.
+
+    Lifecycle (`drivers.base`): `open()` connects and configures the servos (states become
+    readable), `enable()` turns torque on after setting each goal to the present position
+    (no jump), `disable()` turns torque off, `close()` leaves torque as configured.
+
+    If the bus goes down (adapter unplugged), calls raise `BusDownError` and the bus
+    reopens itself with a growing back-off on later calls; once back, torque is restored
+    (if the bus was enabled) only after positions have been read back.
+
+    Hardware errors: `fault_log` (`drivers.servo.faults.FaultLog`) records every episode,
+    even one rebooted away inside a single `read_state()`, with what recovery did and when
+    it cleared; `recovery.reboots` counts automatic reboots by (joint, reason) and
+    `recovery.given_up` names the joints left to a person. All three may be read from any
+    thread without the bus's lock.
+    """
+
+    # What a backend offers, declared rather than discovered by exceptions.
+    capabilities: ClassVar[frozenset[str]] = frozenset()
+    # Config keys this backend uses beyond the common ones (`drivers.servo.config.COMMON_KEYS`,
+    # `COMMON_JOINT_KEYS`); others set in a config are refused when it loads.
+    CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
+    JOINT_CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
+    # The servo models (`joints.<joint>.model`) this backend drives; None: it does not check models.
+    MODELS: ClassVar[frozenset[str] | None] = None
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
+        super().__init__(name or config.port)
+        self.config = config
+        self.clock = clock
+        self._connected = False
+        self._down_reason: str | None = None
+        self._reopen_backoff_s = REOPEN_BACKOFF_FIRST_S
+        self._next_reopen_s = 0.0
+        self._reopen_attempts = 0
+        self._faults: dict[str, int] = {}        # joint -> hardware error bits, last read
+        self._shut_down: set[str] = set()          # faulted joints whose torque is off
+        self.recovery = FaultRecovery()  # the one owner of automatic reboots
+        self.fault_log = FaultLog()
+        self._episodes = EpisodeRecorder(self.fault_log, self.name)
+        self._clamping: set[str] = set()
+        self._torque_off_pending = False  # disable() failed while the bus was down
+
+    # -- public API ----------------------------------------------------------------------
+    @property
+    def is_down(self) -> bool:
+        """True while the bus is down and being reopened."""
+        return self._down_reason is not None
+
+    def describe(self, joint: str) -> str:
+        """'joint pan (id 1) on /dev/head-servos': how messages name a joint."""
+        return f"joint {joint} (id {self.config.joints[joint].servo_id}) on {self.name}"
+
+    def read_state(self) -> BusState:
+        """Position, velocity, moving flag, hardware errors, temperature and input voltage
+        of every joint, read in one bus transaction.
+
+        A hardware error is logged with its meaning and recorded in `fault_log`; with
+        `reboot_on_hardware_error` the servo is rebooted as the recovery policy says and (if
+        enabled) re-torqued before the state is returned, so the state may read clear while
+        the log holds the episode.
+        """
+        with self._lifecycle_lock:
+            self.require_open()
+            state = self._io(self._read_state_once)
+            return self._after_read(state)
+
+    def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+        """Send goal positions (degrees) for some or all joints in one transaction.
+
+        Goals outside a joint's limits are clamped (and logged) or the whole command is
+        refused with `JointLimitError`, as configured; such a goal is never sent. Returns
+        the goals actually sent. Needs an enabled bus.
+        """
+        with self._lifecycle_lock:
+            self.require_enabled()
+            checked = self._check_goals(goals)
+            servo_goals = {j: self.config.joints[j].servo_angle(a) for j, a in checked.items()}
+            log.log(TRACE, "%s: goals %s", self.name, checked)
+            self._io(lambda: self._write_servo_goals(servo_goals))
+            return checked
+
+    def reboot(self, joint: str) -> None:
+        """Reboot one servo (clears its hardware error, restores RAM defaults), configure
+        it again, and if the bus is enabled restore its torque after reading it back."""
+        with self._lifecycle_lock:
+            self.require_open()
+            self._check_joint(joint)
+            self._io(lambda: self._reboot_and_restore(joint, "requested"))
+            self.recovery.rebooted_by_hand(joint)
+            self._episodes.rebooted_by_hand(joint)
+
+    # -- lifecycle hooks of Device, as templates over the servo hooks --------------------
+    def _open(self) -> None:
+        self._down_reason = None
+        self._faults.clear()
+        self._shut_down.clear()
+        self._connect()
+        self._connected = True
+        self._configure(JOINTS)
+        log.info("%s: servo bus open (%s)", self.name, ", ".join(self.describe(j) for j in JOINTS))
+
+    def _enable(self) -> None:
+        self._io(self._enable_now)
+
+    def _enable_now(self) -> None:
+        state = self._read_state_once()
+        now_s = self.clock.monotonic()
+        verdicts: dict[str, str] = {}
+        for joint, joint_state in state.joints.items():
+            if not joint_state.hardware_error_bits:
+                continue
+            if not self.config.reboot_on_hardware_error:
+                verdicts[joint] = REPORTED
+            elif joint in self.recovery.given_up:
+                verdicts[joint] = LEFT_TO_A_PERSON
+            else:
+                verdicts[joint] = REBOOTING
+                self.recovery.note_reboot(joint, "at enable: " + ", ".join(joint_state.hardware_errors), now_s)
+        self._record_episodes(state, now_s, verdicts)
+        for joint, verdict in verdicts.items():
+            if verdict == REBOOTING:
+                self._auto_reboot(joint, "hardware error at enable")
+        try:
+            # A servo whose error cut its torque refuses it: the backend raises
+            # ServoHardwareError naming it.
+            self._restore_torque(JOINTS)
+        except DriverError:
+            # All or nothing: do not leave some joints torqued on a bus that is not enabled.
+            try:
+                self._set_torque(JOINTS, False)
+            except DriverError as err:
+                log.warning("%s: could not undo a partial enable: %s", self.name, err)
+            raise
+        self._torque_off_pending = False
+        log.info("%s: torque on", self.name)
+
+    def _disable(self) -> None:
+        try:
+            self._io(lambda: self._set_torque(JOINTS, False))
+        except BusDownError:
+            # Torque goes off as soon as the bus is back (see _reopen_if_due).
+            self._torque_off_pending = True
+            raise
+        log.info("%s: torque off", self.name)
+
+    def _close(self) -> None:
+        try:
+            if self._connected and not self.is_down:
+                if not self.config.torque_on_close:
+                    self._set_torque(JOINTS, False)
+                elif self.is_enabled:
+                    log.info("%s: leaving torque on at close (torque_on_close: true)", self.name)
+        except (DriverError, OSError) as err:
+            log.warning("%s: could not set torque at close: %s", self.name, err)
+        finally:
+            self._connected = False
+            self._disconnect()
+
+    # -- internals -----------------------------------------------------------------------
+    def _io(self, action: Callable[[], T]) -> T:
+        """Run one bus action (the lock is held), reopening a downed bus first."""
+        self._reopen_if_due()
+        try:
+            return action()
+        except BusDownError as err:
+            self._mark_down(err)
+            raise
+
+    def _mark_down(self, err: BaseException) -> None:
+        if self._down_reason is None:
+            log.error("%s: bus down (%s); reopening with back-off", self.name, err)
+            self._reopen_backoff_s = REOPEN_BACKOFF_FIRST_S
+            self._reopen_attempts = 0
+            self._next_reopen_s = self.clock.monotonic() + self._reopen_backoff_s
+        self._down_reason = str(err)
+
+    def _reopen_if_due(self) -> None:
+        if self._down_reason is None:
+            return
+        now = self.clock.monotonic()
+        if now < self._next_reopen_s:
+            raise BusDownError(
+                f"{self.name}: bus down ({self._down_reason}); next reopen attempt in "
+                f"{self._next_reopen_s - now:.2f} s"
+            )
+        self._reopen_attempts += 1
+        try:
+            self._connected = False
+            self._disconnect()
+            self._connect()
+            self._connected = True
+            self._configure(JOINTS)
+            if self.is_enabled:
+                self._restore_torque(JOINTS)
+            elif self._torque_off_pending:
+                self._set_torque(JOINTS, False)
+                self._torque_off_pending = False
+        except (DriverError, OSError) as err:
+            self._reopen_backoff_s = min(self._reopen_backoff_s * 2.0, REOPEN_BACKOFF_MAX_S)
+            self._next_reopen_s = now + self._reopen_backoff_s
+            raise BusDownError(
+                f"{self.name}: bus down; reopen attempt {self._reopen_attempts} failed ({err}); "
+                f"next in {self._reopen_backoff_s:.2f} s"
+            ) from err
+        log.warning("%s: bus back up after %d reopen attempt(s)%s", self.name, self._reopen_attempts,
+                    "; torque restored" if self.is_enabled else "")
+        self._down_reason = None
+
+    def _read_state_once(self) -> BusState:
+        start_s = self.clock.monotonic()
+        servo_states = self._read_servos()
+        end_s = self.clock.monotonic()
+        joints = {}
+        for joint in JOINTS:
+            jc = self.config.joints[joint]
+            raw = servo_states[joint]
+            joints[joint] = dataclasses.replace(
+                raw, position=jc.joint_angle(raw.position), velocity=jc.direction * raw.velocity
+            )
+        return BusState(time_s=(start_s + end_s) / 2.0, joints=joints)
+
+    def _after_read(self, state: BusState) -> BusState:
+        """Log hardware errors once per change; reboot as the recovery policy says
+        (`drivers.servo.recovery`); record every episode and what was done about it
+        (`fault_log`); restore torque lost without an error."""
+        for joint, joint_state in state.joints.items():
+            bits = joint_state.hardware_error_bits
+            if bits and self._faults.get(joint) != bits:
+                log.error("%s", self._hardware_error(joint, bits, "reported"))
+            elif not bits and joint in self._faults:
+                log.info("%s: hardware error cleared", self.describe(joint))
+        self._note_faults(state)
+        now_s = self.clock.monotonic()
+        faults = {j: Fault(decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
+        if self.config.reboot_on_hardware_error:
+            verdicts = self.recovery.assess(faults, now_s)
+        else:
+            verdicts = {joint: REPORTED for joint in faults}
+        self._record_episodes(state, now_s, verdicts)
+        acted = False
+        for joint, verdict in verdicts.items():
+            if verdict == REBOOTING:
+                self._io(functools.partial(self._auto_reboot, joint, faults[joint].reason))
+                acted = True
+        if self.is_enabled:
+            # Torque found off without a hardware error: the servo lost power and came
+            # back. Restore it the safe way (positions read back first).
+            lost = [j for j, s in state.joints.items() if not s.torque_on and j not in self._faults]
+            if lost:
+                log.warning("%s: torque found off on %s; restoring it", self.name, ", ".join(lost))
+                self._io(lambda: self._restore_torque(lost))
+                acted = True
+        if acted:
+            state = self._io(self._read_state_once)
+            self._note_faults(state)
+            self._record_episodes(state, self.clock.monotonic(), {})
+        return state
+
+    def _record_episodes(self, state: BusState, now_s: float, verdicts: Mapping[str, str]) -> None:
+        """Open, update and close the joints' episodes in `fault_log` from a state just read.
+        A faulted joint without a verdict keeps what recovery last did (the read right after
+        its reboot)."""
+        for joint, joint_state in state.joints.items():
+            bits = joint_state.hardware_error_bits
+            if not bits:
+                self._episodes.clear(joint, now_s, functools.partial(self._cleared_detail, now_s))
+                continue
+            verdict = verdicts.get(joint)
+            current = self._episodes.current(joint)
+            shown = verdict or (current.recovery if current else REPORTED)
+            self._episodes.seen(joint, self.config.joints[joint].servo_id, bits, joint_state.hardware_errors,
+                                joint_state.torque_on, now_s, verdict,
+                                self._episode_detail(joint, bits, joint_state.torque_on, shown))
+
+    def _auto_reboot(self, joint: str, reason: str) -> None:
+        """An automatic reboot, recorded in the joint's episode whether it works or not."""
+        try:
+            self._reboot_and_restore(joint, reason)
+        except (DriverError, OSError) as err:
+            self._episodes.acted(joint, REBOOT_FAILED, self.clock.monotonic(),
+                                 f"{self.describe(joint)}: automatic reboot failed: {err}")
+            raise
+        self._episodes.acted(joint, REBOOTED, self.clock.monotonic(),
+                             f"{self.describe(joint)}: rebooted ({reason})"
+                             + (", torque restored at the position read back" if self.is_enabled else ""))
+
+    def _episode_detail(self, joint: str, bits: int, torque_on: bool, recovery: str) -> str:
+        limits = self.recovery.limits
+        what = {
+            REPORTED: "reported (automatic reboot is off: reboot it by hand)",
+            WAITING: f"torque kept; rebooted if it lasts {limits.persist_s:g} s",
+            HELD_OFF: f"back within {limits.holdoff_s:g} s of a reboot; reported, rebooted once that has passed",
+            REBOOTING: "rebooting",
+            REBOOTED: "rebooted, and the error is back",
+            LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
+                              "person (reboot it by hand once the cause is fixed)",
+        }.get(recovery, recovery)
+        meanings = "; ".join(decode_hardware_error(bits))
+        torque = "torque on" if torque_on else "torque off"
+        return f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), {torque}: {what}"
+
+    def _cleared_detail(self, now_s: float, episode: HardwareErrorEpisode, by: str) -> str:
+        how = {BY_AUTOMATIC_REBOOT: "by an automatic reboot", BY_HAND: "by a reboot by hand",
+               BY_ITSELF: "without a reboot by this bus"}.get(by, by)
+        return (f"{self.describe(episode.joint)}: hardware error 0x{episode.bits:02x} "
+                f"({'; '.join(episode.meanings)}) cleared {how} after {now_s - episode.first_seen_s:.3f} s")
+
+    def _note_faults(self, state: BusState) -> None:
+        self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}
+        self._shut_down = {j for j in self._faults if not state[j].torque_on}
+
+    def _reboot_and_restore(self, joint: str, reason: str) -> None:
+        log.warning("%s: rebooting (%s)", self.describe(joint), reason)
+        self._reboot_servo(joint)
+        self._configure([joint])
+        if self.is_enabled:
+            self._restore_torque([joint])
+        self._faults.pop(joint, None)
+        self._shut_down.discard(joint)
+        log.info("%s: rebooted%s", self.describe(joint), ", torque restored" if self.is_enabled else "")
+
+    def _restore_torque(self, joints: Iterable[str]) -> None:
+        """Torque on without a jump: read positions back, goal = present, then torque."""
+        joints = list(joints)
+        present = self._read_servos()
+        self._write_servo_goals({j: present[j].position for j in joints})
+        self._set_torque(joints, True)
+
+    def _check_joint(self, joint: str) -> None:
+        if joint not in self.config.joints:
+            raise ServoConfigError(f"{self.name}: no joint {joint!r}; expected one of {', '.join(JOINTS)}")
+
+    def _hardware_error(self, joint: str, bits: int, what: str) -> ServoHardwareError:
+        meanings = "; ".join(decode_hardware_error(bits))
+        return ServoHardwareError(f"{self.describe(joint)}: hardware error 0x{bits:02x} {what}: {meanings}")
+
+    def _check_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+        checked: dict[str, float] = {}
+        for joint, angle in goals.items():
+            self._check_joint(joint)
+            jc = self.config.joints[joint]
+            if not isinstance(angle, (int, float)) or not math.isfinite(angle):
+                raise JointLimitError(f"{self.describe(joint)}: goal {angle!r} is not a finite angle; nothing sent")
+            if joint in self._shut_down:
+                raise self._hardware_error(
+                    joint, self._faults[joint], "cut its torque (it ignores goals until rebooted: call reboot())"
+                )
+            if jc.min_angle <= angle <= jc.max_angle:
+                if joint in self._clamping:
+                    self._clamping.discard(joint)
+                    log.info("%s: goals back within limits", self.describe(joint))
+                checked[joint] = float(angle)
+                continue
+            if self.config.limit_policy == "refuse":
+                raise JointLimitError(
+                    f"{self.describe(joint)}: goal {angle:g} deg outside limits "
+                    f"[{jc.min_angle:g}, {jc.max_angle:g}]; command refused, nothing sent"
+                )
+            clamped = min(max(float(angle), jc.min_angle), jc.max_angle)
+            # Log the first clamp of an excursion loudly, the rest quietly: at 100 Hz a
+            # warning per cycle would drown the log.
+            level = logging.DEBUG if joint in self._clamping else logging.WARNING
+            self._clamping.add(joint)
+            log.log(level, "%s: goal %g deg outside limits [%g, %g]; clamped to %g",
+                    self.describe(joint), angle, jc.min_angle, jc.max_angle, clamped)
+            checked[joint] = clamped
+        return checked
+
+    # -- hooks for backends (servo frame: degrees from the servo's centre) ---------------
+    @abc.abstractmethod
+    def _connect(self) -> None:
+        """Open the transport and check the servos are there and of the configured model."""
+
+    def _disconnect(self) -> None:
+        """Release the transport. Must tolerate a partial connect and a dead port."""
+
+    def _configure(self, joints: Iterable[str]) -> None:
+        """(Re)apply per-servo settings (profiles, limits, ...), leaving torque as it was."""
+
+    @abc.abstractmethod
+    def _read_servos(self) -> dict[str, JointState]:
+        """All joints' states in the servo frame, in one transaction."""
+
+    @abc.abstractmethod
+    def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
+        """Send goal positions (servo frame) in one transaction; no reply expected."""
+
+    @abc.abstractmethod
+    def _set_torque(self, joints: Iterable[str], on: bool) -> None:
+        """Torque on or off for the given joints."""
+
+    @abc.abstractmethod
+    def _reboot_servo(self, joint: str) -> None:
+        """Reboot one servo and return once it answers again."""
+
+
+def create_servo_bus(config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, **resources: Any) -> ServoBus:
+    """Construct (not open) the backend `config.backend` names.
+
+    `resources` are what a backend needs beyond its config and cannot read from YAML (the
+    simulated head's starting pose); a backend not taking them refuses them."""
+    from drivers.backends import resolve
+
+    cls = resolve("servo_bus", config.backend)
+    if not (isinstance(cls, type) and issubclass(cls, ServoBus)):
+        raise ServoConfigError(f"{config.key_path}.backend: {config.backend!r} is not a ServoBus backend")
+    return cls(config, clock=clock, **resources)

@@ -1,0 +1,165 @@
+"""The simulated camera: one eye of the simulated head, a first-class `Camera` backend.
+
+It owns the frame timing of the simulation: frames fall on a grid of the injected clock
+(frame n at n / fps seconds), so the left and right cameras of a head, sharing a clock,
+produce frames with identical timestamps, like hardware-triggered stereo cameras. At each
+frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
+"left_eye", "right_eye"} in degrees; the service wires the simulated servos to it) and
+renders this eye's view with `drivers.sim.scene`.
+
+A frame shows the world at its timestamp, however late it is rendered (on a loaded machine
+the capture thread runs milliseconds to tens of milliseconds after it): the moving objects
+are placed at the frame's time, and so are the joints when the pose source can tell where
+they were then (`TimedPoseSource`, as the service's simulated world does); a plain callable
+gives the joints at the render time. So both eyes of a pair show the same instant.
+
+Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the next frame
+(real time with the system clock; a `ManualClock` then advances as fast as frames render).
+Without it the thread only watches the clock, and frames appear as someone else (a test,
+the simulated servo loop) advances it.
+"""
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from drivers.cameras.camera import Camera, Capabilities, ErrorCallback, Grab
+from drivers.cameras.config import CameraConfig
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import CameraConfigError, CameraError, DeviceStateError
+from drivers.sim.scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene
+
+log = logging.getLogger(__name__)
+
+PoseSource = Callable[[], Mapping[str, float]]  # the joint angles now
+DEFAULT_FPS = 30.0
+RENDER_LAGS_KEPT = 1000  # the last frames' render lags (`render_lags_s`)
+_PACING_STEP_S = 0.02  # longest uninterrupted sleep, so stop() is prompt
+_WATCH_STEP_S = 0.0005  # how often an unpaced camera looks at the clock
+
+
+@runtime_checkable
+class TimedPoseSource(Protocol):
+    """A pose source that also tells where the joints were at a past time of the clock."""
+
+    def __call__(self) -> Mapping[str, float]: ...
+
+    def at(self, time_s: float) -> Mapping[str, float]: ...
+
+
+def fixed_pose(pan: float = 0.0, tilt: float = 0.0, left_eye: float = 0.0, right_eye: float = 0.0) -> PoseSource:
+    """A pose source for a head that does not move (degrees)."""
+    pose = {"pan": pan, "tilt": tilt, "left_eye": left_eye, "right_eye": right_eye}
+    return lambda: pose
+
+
+class SimulatedCamera(Camera):
+    """One eye of a simulated head (config `eye: left|right`), rendered from the pose source."""
+
+    backend_name = "sim"
+    capabilities = Capabilities(frame_rate=True, colour=True, simulated=True)
+    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std"})
+
+    def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
+                 on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
+                 pose_source: PoseSource | None = None, scene: Scene | None = None,
+                 paced_by_clock: bool = True) -> None:
+        super().__init__(config, name=name, clock=clock, on_error=on_error)
+        if head is None or pose_source is None:
+            # Not config: the service passes its head model (calib_free.sim.head_model.HeadModel) and
+            # the simulated servo bus's joint angles; drivers cannot build them.
+            raise CameraConfigError(f"{self.name}: a simulated camera needs head= (a head model) and "
+                                    "pose_source= (joint angles) from its creator, e.g. create_camera(config, "
+                                    "head=HeadModel.default(...), pose_source=fixed_pose())")
+        if config.eye is None:
+            raise CameraConfigError(f"{self.name}: a simulated camera needs eye: left or right")
+        self.eye_index = 0 if config.eye == "left" else 1
+        lens = head.lens_left if self.eye_index == 0 else head.lens_right
+        for key, wanted, actual in (("width", config.width, lens.width), ("height", config.height, lens.height)):
+            if wanted is not None and wanted != actual:
+                raise CameraConfigError(f"{self.name}: {key} {wanted} differs from the head model's lens ({actual} px)")
+        if scene is not None and scene.colour != (config.image == "colour"):
+            raise CameraConfigError(f"{self.name}: the scene given is {'colour' if scene.colour else 'grey'} "
+                                    f"but image is {config.image!r}")
+        self.head = head
+        self.lens = lens
+        self.pose_source = pose_source
+        self.fps = config.fps or DEFAULT_FPS
+        self.paced_by_clock = paced_by_clock
+        self._scene = scene
+        self._renderer: EyeRenderer | None = None
+        self._last_index: int | None = None
+        # (frame time, render start, image ready) of the last frames, clock seconds.
+        self._render_times: collections.deque[tuple[float, float, float]] = collections.deque(
+            maxlen=RENDER_LAGS_KEPT)
+
+    def render_lags_s(self) -> list[tuple[float, float, float]]:
+        """The last frames' (timestamp, lag of the render's start, lag of the image ready),
+        seconds after the timestamp: how late the capture thread rendered (what the frame
+        shows does not depend on it)."""
+        return [(t, start - t, ready - t) for t, start, ready in list(self._render_times)]
+
+    # -- synchronous use ----------------------------------------------------------------------
+    def render(self, joints: Mapping[str, float], time_s: float | None = None) -> np.ndarray:
+        """This eye's image at the given joint angles (degrees), the moving objects where they
+        are at `time_s` (None: now), without the thread."""
+        self.require_open()
+        assert self._renderer is not None
+        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
+        return self._renderer.render(rotation, centre, time_s)
+
+    # -- hooks --------------------------------------------------------------------------------
+    def _open_device(self) -> None:
+        scene = self._scene or shared_scene(self.config.seed, self.config.image == "colour")
+        self._renderer = EyeRenderer(self.lens, scene)
+        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
+                 self.lens.width, self.lens.height, self.fps, self.config.seed)
+
+    def _close_device(self) -> None:
+        self._renderer = None
+
+    def _start_stream(self) -> None:
+        self._last_index = None
+
+    def _grab(self, timeout_s: float) -> Grab | None:
+        deadline_s = time.monotonic() + timeout_s
+        while True:
+            now_s = self.clock.monotonic()
+            # No rounding up: a frame's time is never later than the clock when it renders,
+            # so where the world was at its timestamp is known by then.
+            index = math.floor(now_s * self.fps)
+            if self._last_index is None or index > self._last_index:
+                break
+            if time.monotonic() >= deadline_s:
+                return None
+            if self.paced_by_clock:
+                self.clock.sleep(min((self._last_index + 1) / self.fps - now_s + 1e-9, _PACING_STEP_S))
+                if self.wait_stop(0.0):
+                    return None
+            elif self.wait_stop(_WATCH_STEP_S):
+                return None
+        self._last_index = index
+        frame_time_s = index / self.fps
+        started_s = self.clock.monotonic()
+        try:
+            source = self.pose_source
+            joints = source.at(frame_time_s) if isinstance(source, TimedPoseSource) else source()
+        except Exception as err:
+            raise CameraError(f"{self.name}: the pose source failed: {err!r}") from err
+        if self._renderer is None:
+            raise DeviceStateError(f"{self.name}: rendering on a closed camera")
+        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
+        image = self._renderer.render(rotation, centre, frame_time_s)
+        if self.config.noise_std > 0:
+            # Sensor noise, deterministic per (seed, eye, frame).
+            rng = np.random.default_rng((self.config.seed, self.eye_index, index))
+            noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
+            image = np.clip(noisy, 0, 255).astype(np.uint8)
+        self._render_times.append((frame_time_s, started_s, self.clock.monotonic()))
+        return Grab(image, frame_time_s, frame_time_s)

@@ -1,0 +1,547 @@
+"""The simulated servo bus: four servos with a motion model and no serial port at all.
+
+This module owns `ProfileAxis`, the motion model shared with the Dynamixel emulator (a
+trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
+velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
+backend built on it. The simulated head and the daemon use it; its fault-injection hooks
+(`inject_bus_down`, `restore_bus`, `inject_hardware_error`) let their tests exercise the
+recovery paths of `drivers.servo.bus` without hardware.
+
+Which servo turns which joint, which way and from where (`servo_bus.wiring`, else as
+`joints` says) belongs to the simulated world: the bus drives each joint's servo by the id
+its config gives, and `SimulatedServoProbe` offers the same servos by id to `headctl setup`,
+which has to find the wiring out from the cameras.
+
+Time comes from an injectable clock, so tests run faster than real time with a
+`drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
+across `open()`/`close()` like real servos do.
+
+Where the joints were at a past time (a simulated frame's exposure, rendered later) comes
+from `JointTrace`: the bus records its servos' motion-model state at every change of course
+(goals, torque, a hold) and at reads into a short ring, and `true_joints_at` replays the motion
+model from it.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
+from drivers.servo.bus import JOINTS, JointState, ServoBus, decode_hardware_error
+from drivers.servo.config import ServoBusConfig, WiredServo
+from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
+
+log = logging.getLogger(__name__)
+
+# Integration step of the motion model: fine enough that a profile ends within a
+# millisecond of the analytic one, coarse enough that a 10 s jump of a ManualClock costs
+# a few thousand steps.
+_STEP_S = 0.001
+# Hardware Error Status bits that cut torque under the X-series default Shutdown (63) = 52:
+# overheating, electrical shock, overload.
+DEFAULT_SHUTDOWN_BITS = 0b0011_0100
+# The trace of the joints' true motion: a row each time the motion changes course (goals
+# written, torque, a hold) and at each read, at least 2 ms apart (a read sooner after the
+# newest row is not kept, a change replaces it), so 128 rows span over a second at the servo
+# loop's 100 Hz, longer than a simulated frame waits for its rendering.
+TRACE_SAMPLES = 128
+_TRACE_SPACING_S = 0.002
+TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
+TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
+# A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
+# loop writes goals every 10 ms, so past rows are a cycle apart).
+_REPLAY_MAX_S = 0.1
+
+
+class ProfileAxis:
+    """One joint moving toward its goal under a velocity and an acceleration limit.
+
+    Unit-agnostic (degrees for the simulator, ticks for the emulator). A limit of
+    `math.inf` means unlimited. Not thread-safe: its owner serialises access.
+    """
+
+    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
+                 max_acceleration: float = math.inf) -> None:
+        self.position = float(position)
+        self.velocity = 0.0
+        self.goal = float(position)
+        self.max_velocity = max_velocity
+        self.max_acceleration = max_acceleration
+        self.time_s = time_s
+
+    @property
+    def moving(self) -> bool:
+        return self.position != self.goal or self.velocity != 0.0
+
+    def set_goal(self, goal: float) -> None:
+        self.goal = float(goal)
+
+    def hold(self) -> None:
+        """Stop where the axis is now (torque off, watchdog, reboot)."""
+        self.goal = self.position
+        self.velocity = 0.0
+
+    def advance_to(self, time_s: float) -> None:
+        """Move the model forward to `time_s` (earlier times are ignored)."""
+        dt_total = time_s - self.time_s
+        if dt_total <= 0.0:
+            return
+        self.time_s = time_s
+        remaining = dt_total
+        while remaining > 0.0 and self.moving:
+            dt = min(_STEP_S, remaining)
+            remaining -= dt
+            self._step(dt)
+
+    def _step(self, dt: float) -> None:
+        distance = self.goal - self.position
+        direction = math.copysign(1.0, distance) if distance else -math.copysign(1.0, self.velocity)
+        accel = self.max_acceleration
+        # The fastest speed from which the axis can still stop at the goal.
+        stop_speed = math.sqrt(2.0 * accel * abs(distance)) if math.isfinite(accel) else math.inf
+        target_v = direction * min(self.max_velocity, stop_speed)
+        if math.isinf(target_v):
+            self.position, self.velocity = self.goal, 0.0
+            return
+        max_dv = accel * dt
+        self.velocity += min(max(target_v - self.velocity, -max_dv), max_dv)
+        new_position = self.position + self.velocity * dt
+        if (self.goal - new_position) * direction <= 0.0:
+            # Reached (or would pass) the goal: settle exactly on it.
+            self.position, self.velocity = self.goal, 0.0
+            return
+        self.position = new_position
+
+
+class JointTrace:
+    """The joints' true motion at past times: rows of the motion model's state (time, then for
+    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
+    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
+    have a NaN time), a ring of the last `size`.
+
+    `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
+    `time_s`: exact as long as every change of course is a row (the bus records one at each);
+    before the oldest row, the oldest position. Not thread-safe: its owner serialises access
+    (a reader in another process copies `rows` under its own lock)."""
+
+    def __init__(self, size: int = TRACE_SAMPLES) -> None:
+        self.rows = np.full((size, TRACE_WIDTH), np.nan)
+        self._next = 0
+
+    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
+            change: bool = False) -> None:
+        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
+        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
+        sample is not kept."""
+        newest = self.rows[(self._next - 1) % len(self.rows)]
+        if time_s - newest[0] < _TRACE_SPACING_S:
+            if not change:
+                return
+            row = newest
+        else:
+            row = self.rows[self._next]
+            self._next = (self._next + 1) % len(self.rows)
+        row[0] = time_s
+        for j, joint in enumerate(JOINTS):
+            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
+
+    def at(self, time_s: float) -> dict[str, float] | None:
+        return joints_at(self.rows, time_s)
+
+
+def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
+    """The joint angles at `time_s` from `JointTrace` rows (in any order); None without a row."""
+    times = rows[:, 0]
+    known = np.isfinite(times)
+    if not known.any():
+        return None
+    before = known & (times <= time_s)
+    if not before.any():  # older than the trace: the oldest position known
+        row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
+        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
+    row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
+    joints = {}
+    for j, joint in enumerate(JOINTS):
+        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
+                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
+        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
+        axis.velocity, axis.goal = float(velocity), float(goal)
+        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
+        joints[joint] = axis.position
+    return joints
+
+
+class _SimServo:
+    """One simulated servo, in the servo frame (degrees from its centre)."""
+
+    def __init__(self, position_deg: float, time_s: float) -> None:
+        self.axis = ProfileAxis(position_deg, time_s)
+        self.goal_deg = position_deg  # the Goal Position register, kept while torque is off
+        self.torque_on = False
+        self.hardware_error_bits = 0
+        self.temperature_c = 35.0
+        self.input_voltage_v = 12.0
+
+
+def wiring_of(config: ServoBusConfig) -> dict[int, WiredServo]:
+    """The simulated head's true wiring: `servo_bus.wiring`, else each joint's servo
+    mounted as `joints` says."""
+    if config.wiring is not None:
+        return dict(config.wiring)
+    return {jc.servo_id: WiredServo(joint, jc.direction, jc.zero_offset) for joint, jc in config.joints.items()}
+
+
+def physical_servos(wiring: Mapping[int, WiredServo], initial_positions: Mapping[str, float] | None,
+                    now: float) -> dict[int, _SimServo]:
+    """The servos by id, each where its joint's `initial_positions` (joint frame) puts it;
+    without one a servo rests at its centre, like a fresh servo (and the emulator) does."""
+    initial = dict(initial_positions or {})
+    return {servo_id: _SimServo(wired.servo_angle(initial[wired.joint]) if wired.joint in initial else 0.0, now)
+            for servo_id, wired in wiring.items()}
+
+
+class SimulatedServoBus(ServoBus):
+    """A `ServoBus` over simulated servos; see the module docstring.
+
+    `initial_positions` (joint frame, degrees; default: each servo at its centre) is where
+    the head rests when the simulation starts. `max_velocity_dps` is the speed a profile velocity of
+    0 ("as fast as possible") stands for.
+    """
+
+    capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
+                              "fault_injection"})
+    # No wire and no servo models: the simulation has no use for baud, retries, latency or model.
+    CONFIG_KEYS = frozenset({"watchdog_ms", "wiring"})
+    JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
+                 initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
+        super().__init__(config, clock=clock, name=name or f"sim-servo-bus({config.port})")
+        self.max_velocity_dps = max_velocity_dps
+        now = clock.monotonic()
+        self._wiring = wiring_of(config)
+        by_id = physical_servos(self._wiring, initial_positions, now)
+        for joint in JOINTS:
+            if config.joints[joint].servo_id not in by_id:
+                raise ServoConfigError(key_path=f"{config.joint_path(joint)}.id", value=config.joints[joint].servo_id,
+                                       expected=f"an id on the simulated bus ({', '.join(map(str, sorted(by_id)))})")
+        # Each configured joint drives the servo of its id, whichever joint that servo turns.
+        self._servos = {joint: by_id[config.joints[joint].servo_id] for joint in JOINTS}
+        self._wired = {wired.joint: by_id[servo_id] for servo_id, wired in self._wiring.items()}
+        self._wired_as = {wired.joint: wired for wired in self._wiring.values()}
+        # Guards the simulated hardware: fault hooks are called from test or daemon threads.
+        self._sim_lock = threading.Lock()
+        self._linked = False
+        self._adapter_present = True
+        self._last_contact_s = now
+        self._trace = JointTrace()
+        self._sample(now, change=True)
+
+    # -- fault injection -----------------------------------------------------------------
+    def inject_bus_down(self) -> None:
+        """The adapter vanishes: every bus call fails with `BusDownError` until `restore_bus()`."""
+        with self._sim_lock:
+            self._adapter_present = False
+            self._linked = False
+        log.info("%s: injected fault: adapter unplugged", self.name)
+
+    def restore_bus(self) -> None:
+        """The adapter is back; the bus reopens on its next back-off attempt."""
+        with self._sim_lock:
+            self._adapter_present = True
+        log.info("%s: injected fault cleared: adapter back", self.name)
+
+    def inject_hardware_error(self, joint: str, bits: int) -> None:
+        """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            servo = self._servos[joint]
+            servo.axis.advance_to(now)
+            servo.hardware_error_bits |= bits
+            if bits & DEFAULT_SHUTDOWN_BITS:
+                servo.torque_on = False
+                servo.axis.hold()
+                self._sample(now, change=True)
+        log.info("%s: injected hardware error 0x%02x on %s (%s)", self.name, bits, joint,
+                 "; ".join(decode_hardware_error(bits)))
+
+    def true_position(self, joint: str) -> float:
+        """Where the simulated joint really is now (joint frame, degrees), bus or no bus: as
+        the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes."""
+        with self._sim_lock:
+            self._sample(self.clock.monotonic())
+            return self._wired_as[joint].joint_angle(self._wired[joint].axis.position)
+
+    def true_joints_at(self, time_s: float) -> dict[str, float]:
+        """Where the simulated joints really were at `time_s` (joint frame, degrees; at most
+        now): from the motion model when no servo has moved on past it, else replayed from the
+        trace of their motion (`JointTrace`)."""
+        with self._sim_lock:
+            time_s = min(time_s, self.clock.monotonic())
+            if all(servo.axis.time_s <= time_s for servo in self._wired.values()):
+                return self._sample(time_s)
+            joints = self._trace.at(time_s)
+            assert joints is not None  # sampled since construction
+            return joints
+
+    def true_trace(self) -> np.ndarray:
+        """A copy of the trace's rows (`JointTrace.rows`), for a reader in another process."""
+        with self._sim_lock:
+            return self._trace.rows.copy()
+
+    def _sample(self, time_s: float, change: bool = False) -> dict[str, float]:
+        """Move every servo forward to `time_s` and record their motion in the trace, a `change`
+        of course (goals, torque, a hold) always (lock held); the joints' positions."""
+        axes = {}
+        for joint, servo in self._wired.items():
+            servo.axis.advance_to(time_s)
+            if joint not in JOINTS:  # a servo that turns nothing the cameras see
+                continue
+            wired, axis = self._wired_as[joint], servo.axis
+            axes[joint] = (wired.joint_angle(axis.position), wired.direction * axis.velocity,
+                           wired.joint_angle(axis.goal), axis.max_velocity, axis.max_acceleration)
+        self._trace.add(time_s, axes, change)
+        return {joint: values[0] for joint, values in axes.items()}
+
+    # -- ServoBus hooks ------------------------------------------------------------------
+    def _connect(self) -> None:
+        with self._sim_lock:
+            if not self._adapter_present:
+                raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+            self._linked = True
+            self._last_contact_s = self.clock.monotonic()
+
+    def _disconnect(self) -> None:
+        with self._sim_lock:
+            self._linked = False
+
+    def _configure(self, joints: Iterable[str]) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            for joint in joints:
+                jc = self.config.joints[joint]
+                servo = self._servos[joint]
+                servo.axis.advance_to(now)
+                servo.axis.max_velocity = jc.profile_velocity or self.max_velocity_dps
+                servo.axis.max_acceleration = jc.profile_acceleration or math.inf
+            self._sample(now, change=True)
+
+    def _read_servos(self) -> dict[str, JointState]:
+        with self._sim_lock:
+            now = self._contact()
+            self._sample(now)
+            states = {}
+            for joint, servo in self._servos.items():
+                servo.axis.advance_to(now)
+                states[joint] = JointState(
+                    position=servo.axis.position,
+                    velocity=servo.axis.velocity,
+                    moving=servo.axis.moving,
+                    torque_on=servo.torque_on,
+                    hardware_error_bits=servo.hardware_error_bits,
+                    temperature_c=servo.temperature_c,
+                    input_voltage_v=servo.input_voltage_v,
+                )
+            return states
+
+    def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            for joint, goal in goals_deg.items():
+                servo = self._servos[joint]
+                servo.axis.advance_to(now)
+                servo.goal_deg = goal
+                if servo.torque_on:
+                    servo.axis.set_goal(goal)
+            self._sample(now, change=True)  # the motion turns toward the new goals here
+
+    def _set_torque(self, joints: Iterable[str], on: bool) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            try:
+                for joint in joints:
+                    servo = self._servos[joint]
+                    servo.axis.advance_to(now)
+                    if on and servo.hardware_error_bits & DEFAULT_SHUTDOWN_BITS:
+                        raise ServoHardwareError(
+                            f"{self.describe(joint)}: torque refused, hardware error "
+                            f"0x{servo.hardware_error_bits:02x}: " + "; ".join(decode_hardware_error(
+                                servo.hardware_error_bits)))
+                    servo.torque_on = on
+                    if on:
+                        # Like a real servo: torque on drives toward the Goal Position register.
+                        servo.axis.set_goal(servo.goal_deg)
+                    else:
+                        servo.axis.hold()
+            finally:
+                self._sample(now, change=True)
+
+    def _reboot_servo(self, joint: str) -> None:
+        with self._sim_lock:
+            now = self._contact()
+            servo = self._servos[joint]
+            servo.axis.advance_to(now)
+            servo.axis.hold()
+            servo.goal_deg = servo.axis.position
+            servo.torque_on = False
+            servo.hardware_error_bits = 0
+            self._sample(now, change=True)
+
+    def _contact(self) -> float:
+        """One packet on the bus: check the link, apply the Bus Watchdog, return now."""
+        if not self._linked:
+            raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+        now = self.clock.monotonic()
+        watchdog_s = self.config.watchdog_ms / 1000.0
+        if watchdog_s and now - self._last_contact_s > watchdog_s:
+            # The host fell silent longer than the watchdog: each torqued servo stopped
+            # where it was at that moment. The driver re-arms the watchdog as soon as it
+            # speaks again (as the Dynamixel backend does), so the trip ends here.
+            trip_s = self._last_contact_s + watchdog_s
+            for joint, servo in self._servos.items():
+                if servo.torque_on and servo.axis.moving:
+                    servo.axis.advance_to(trip_s)
+                    servo.axis.hold()
+                    servo.goal_deg = servo.axis.position
+                    log.warning("%s: bus watchdog expired on %s after %.3f s of silence: servo stopped",
+                                self.name, joint, now - self._last_contact_s)
+                    self._sample(trip_s, change=True)
+        self._last_contact_s = now
+        return now
+
+
+class SimulatedServoProbe:
+    """The simulated head's servos by id (`drivers.servo.probe.ServoProbe`), for `headctl
+    setup`: the ids of `servo_bus.wiring` (else of `joints`), each answering a scan as an
+    XM430-W350 at the config's baud rate. Which joint a servo turns is the simulated
+    world's: `true_position(joint)` is for the simulated cameras, never for the assistant.
+
+    Velocity and acceleration limits shape the motion as on the bus; the torque limit is
+    recorded (the simulation has no load to limit); the watchdog stops a servo whose host
+    fell silent, as the bus's does.
+    """
+
+    MODEL_NUMBER = 1020  # XM430-W350
+    FIRMWARE = 48
+    LIMITS_DEG = (-180.0, 180.0 - 360.0 / 4096)  # one turn around the centre, tick 0 to 4095
+
+    def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, ids: Iterable[int] | None = None,
+                 initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
+        self.config = config
+        self.clock = clock
+        self.name = f"sim-servo-probe({config.port})"
+        self.max_velocity_dps = max_velocity_dps
+        self._wiring = wiring_of(config)
+        now = clock.monotonic()
+        self._servos = physical_servos(self._wiring, initial_positions, now)
+        self._wanted = set(ids) if ids is not None else None
+        self._lock = threading.Lock()
+        self._saved: dict[int, tuple[float, float, float]] = {}  # id -> velocity, acceleration, watchdog
+        self._watchdog_s: dict[int, float] = {}
+        self._torque_limit: dict[int, float] = {}
+        self._last_contact_s = {servo_id: now for servo_id in self._servos}
+        for servo in self._servos.values():
+            servo.axis.max_velocity = max_velocity_dps
+
+    # -- the simulated world's side ------------------------------------------------------
+    def true_position(self, joint: str) -> float:
+        """Where the joint really is (joint frame, degrees): for the simulated cameras."""
+        with self._lock:
+            for servo_id, wired in self._wiring.items():
+                if wired.joint == joint:
+                    servo = self._servos[servo_id]
+                    servo.axis.advance_to(self.clock.monotonic())
+                    return wired.joint_angle(servo.axis.position)
+        raise KeyError(joint)
+
+    def torque_limit(self, servo_id: int) -> float | None:
+        """The torque fraction `limit_motion` set on a servo, if any (tests look)."""
+        return self._torque_limit.get(servo_id)
+
+    # -- ServoProbe ----------------------------------------------------------------------
+    def scan(self) -> list[FoundServo]:
+        ids = sorted(i for i in self._servos if self._wanted is None or i in self._wanted)
+        return [FoundServo(i, self.MODEL_NUMBER, "XM430-W350", self.FIRMWARE, 2.0, self.config.baud) for i in ids]
+
+    def status(self, servo_id: int) -> ServoStatus:
+        with self._lock:
+            servo = self._contact(servo_id)
+            return ServoStatus(position_deg=servo.axis.position, goal_deg=servo.goal_deg, moving=servo.axis.moving,
+                               torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
+                               temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
+                               min_deg=self.LIMITS_DEG[0], max_deg=self.LIMITS_DEG[1])
+
+    def limit_motion(self, servo_id: int, safety: MotionSafety) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            if servo_id not in self._saved:
+                self._saved[servo_id] = (servo.axis.max_velocity, servo.axis.max_acceleration,
+                                         self._watchdog_s.get(servo_id, 0.0))
+            servo.axis.max_velocity = safety.velocity_dps
+            servo.axis.max_acceleration = safety.acceleration_dps2
+            self._watchdog_s[servo_id] = safety.watchdog_s
+            self._torque_limit[servo_id] = safety.torque_fraction
+
+    def restore_motion(self, servo_id: int) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            saved = self._saved.pop(servo_id, None)
+            if saved is not None:
+                servo.axis.max_velocity, servo.axis.max_acceleration, self._watchdog_s[servo_id] = saved
+            self._torque_limit.pop(servo_id, None)
+
+    def set_torque(self, servo_id: int, on: bool) -> None:
+        with self._lock:
+            servo = self._contact(servo_id)
+            servo.torque_on = on
+            if on:
+                servo.axis.set_goal(servo.goal_deg)
+            else:
+                servo.axis.hold()
+
+    def write_goal(self, servo_id: int, servo_deg: float) -> None:
+        lo, hi = self.LIMITS_DEG
+        if not (math.isfinite(servo_deg) and lo <= servo_deg <= hi):
+            raise JointLimitError(f"id {servo_id} on {self.name}: goal {servo_deg:g} deg outside the servo's own "
+                                  f"limits [{lo:g}, {hi:g}]; nothing sent")
+        with self._lock:
+            servo = self._contact(servo_id)
+            servo.goal_deg = servo_deg
+            if servo.torque_on:
+                servo.axis.set_goal(servo_deg)
+
+    def keep_alive(self, servo_id: int) -> None:
+        with self._lock:
+            self._contact(servo_id)
+            self._watchdog_s[servo_id] = 0.0
+
+    def close(self) -> None:
+        """Nothing to release: the simulated servos stay as they are, like real ones."""
+
+    def __enter__(self) -> "SimulatedServoProbe":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _contact(self, servo_id: int) -> _SimServo:
+        """One packet to `servo_id`: the watchdog applied, the motion brought to now."""
+        servo = self._servos.get(servo_id)
+        if servo is None or (self._wanted is not None and servo_id not in self._wanted):
+            raise ServoTimeoutError(f"id {servo_id} on {self.name}: no answer (no such servo)")
+        now = self.clock.monotonic()
+        watchdog_s = self._watchdog_s.get(servo_id, 0.0)
+        if watchdog_s and servo.torque_on and now - self._last_contact_s[servo_id] > watchdog_s:
+            servo.axis.advance_to(self._last_contact_s[servo_id] + watchdog_s)
+            servo.axis.hold()
+            servo.goal_deg = servo.axis.position
+            log.warning("%s: watchdog expired on id %d after %.3f s of silence: servo stopped", self.name, servo_id,
+                        now - self._last_contact_s[servo_id])
+        servo.axis.advance_to(now)
+        self._last_contact_s[servo_id] = now
+        return servo

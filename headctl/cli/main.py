@@ -1,0 +1,55 @@
+"""The `headctl` command line: one entry point, one module per group of subcommands.
+
+Each module in `COMMAND_MODULES` has `register(subparsers)`, which adds its subcommands and
+sets `func(args) -> int` on each. Logging is configured here and only here.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from headctl import __version__
+
+COMMAND_MODULES = (
+    "headctl.cli.experiment",  # experiment: the paper's experiments on the simulated head
+    "headctl.cli.servos",      # emulate-servos, scan
+    "headctl.cli.setup",       # setup: a new head's joints from the images
+    "headctl.cli.cameras",     # cameras, snapshot
+    "headctl.cli.service",     # run, check, status: the daemon
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="headctl",
+        description="Calibration-free driver service for a stereo camera head on Dynamixel servos.",
+    )
+    parser.add_argument("--version", action="version", version=f"headctl {__version__}")
+    parser.add_argument(
+        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        help="logging level (default INFO)",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=getattr(logging, args.log_level),
+        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
+    )
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

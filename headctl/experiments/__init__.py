@@ -1,0 +1,1 @@
+"""Experiments on the simulated head: the online experiments, pursuit, sweeps over seeds and settings, their summaries and plots."""

@@ -1,0 +1,259 @@
+"""`headctl experiment pursuit`: tracking error against the target's angular speed.
+
+On the simulated head (`headctl.experiments.online.SimulatedHeadRig`, a `ManualClock`), a textured cube
+sweeps back and forth around the head (`drivers.sim.motion`) at each speed in turn, and the
+service's own pursuit (`headctl.service.tracking.Tracking`) follows it with a learned map.
+The error is the ground truth: where the cube's front-face centre (the point the track
+started on) is projected in the left image at each frame's exposure, from the servos' true
+positions, measured from the fovea. Reported per speed: RMS and p95 over the run (after the
+first `settle_s`), the lost-lock count (a lost track is started again on the cube), and the
+frame-to-command latency.
+
+How the delay is modelled on the manual clock: frames fall on the cameras' grid (n / fps);
+a pair is handed to the tracker `latency_s - half a servo period` after its exposure (the
+render, the capture thread and the processing of the real-time daemon, measured there), and
+its goal reaches the servos at the next servo cycle (100 Hz), as the servo loop writes it.
+The pose at exposure is the servos' own at that instant.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from calib_free.map.gaze_map import GazeMap
+from calib_free.sim.experiments import EXPERIMENTS, run_experiment
+from calib_free.gaze.pursuit import PursuitParams, TrackOutcome
+from drivers.sim.motion import MovingObject, SceneMotion
+from headctl.experiments.online import SimulatedHeadRig, sim_config
+from headctl.service.build import build_head
+from headctl.service.tracking import Tracking
+
+log = logging.getLogger(__name__)
+
+SPEEDS_DEG_S = (5.0, 10.0, 20.0, 30.0, 40.0)
+GOALS_RMS_PX = {10.0: 2.0, 30.0: 5.0}
+
+
+def learned_map(rig: SimulatedHeadRig, fixations: int = 3000, seed: int = 0) -> GazeMap:
+    """A map learned from `fixations` random fixations of the rig's geometric head model."""
+    width, height = rig.config.image_size
+    gm = GazeMap(rig.config.map_params(), seed=seed)
+    run_experiment(dataclasses.replace(EXPERIMENTS["learn"], fixations=fixations), gm, rig.model, seed=seed,
+                   landing_every=0)
+    return gm
+
+
+class GridPairs:
+    """The cameras and the servo loop on the manual clock: pairs rendered on the cameras' frame
+    grid, each handed over `delay_s` after its exposure (frames go on being exposed meanwhile),
+    and goals written at the next servo cycle. Records the pose and the target's true image
+    position at every exposure; `at` is the tracker's pose source."""
+
+    def __init__(self, rig: SimulatedHeadRig, fps: float, delay_s: float, truth: Callable[[], np.ndarray],
+                 servo_period_s: float = 0.01) -> None:
+        self.rig, self.fps, self.delay_s, self.truth = rig, fps, delay_s, truth
+        self.servo_period_s = servo_period_s
+        self.poses: dict[float, np.ndarray] = {}
+        self.true_positions: list[tuple[float, np.ndarray]] = []
+        self._frames: list[tuple[float, np.ndarray, np.ndarray]] = []  # exposed, not yet handed over
+        self._next_index = math.ceil(rig.clock.monotonic() * fps)
+        self._last_exposure_s: float | None = None
+
+    def advance_to(self, time_s: float) -> None:
+        """Move the clock to `time_s`, exposing every frame of the grid on the way."""
+        clock = self.rig.clock
+        while self._next_index / self.fps <= time_s:
+            exposure = self._next_index / self.fps
+            self._next_index += 1
+            clock.sleep(exposure - clock.monotonic())
+            state = self.rig.bus.read_state()
+            self.poses[round(exposure, 6)] = self.rig.head.pose_from(state.positions)
+            self.true_positions.append((exposure, self.truth()))
+            left, right = self.rig.pairs.wait_pair(exposure, 1.0)
+            self._frames = [*self._frames[-3:], (exposure, left, right)]
+        clock.sleep(time_s - clock.monotonic())
+
+    # -- PairSource -----------------------------------------------------------------------
+    @property
+    def last_exposure_s(self) -> float | None:
+        return self._last_exposure_s
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        while not any(t >= after_s - 1e-9 for t, _, _ in self._frames):
+            self.advance_to(max(self.rig.clock.monotonic(), self._next_index / self.fps))
+        exposure, left, right = next(f for f in self._frames if f[0] >= after_s - 1e-9)
+        self._frames = [f for f in self._frames if f[0] > exposure]
+        self.advance_to(max(self.rig.clock.monotonic(), exposure + self.delay_s))
+        self._last_exposure_s = exposure
+        return left, right
+
+    # -- JointBus (the servo loop's timing) -------------------------------------------------
+    def read_state(self) -> Any:
+        return self.rig.bus.read_state()
+
+    def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+        now = self.rig.clock.monotonic()
+        self.advance_to(math.floor(now / self.servo_period_s + 1) * self.servo_period_s)
+        return self.rig.bus.write_goals(goals)
+
+    # -- ExposurePoses ------------------------------------------------------------------
+    def at(self, time_s: float) -> np.ndarray | None:
+        return self.poses.get(round(time_s, 6))
+
+    def __enter__(self) -> "GridPairs":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+
+@dataclass
+class SpeedRun:
+    speed_deg_s: float
+    errors_px: list[float] = field(default_factory=list)  # true, per frame after settling
+    latency_s: list[float] = field(default_factory=list)
+    lost: int = 0
+    frames: int = 0
+    outcomes: list[str] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        e = np.asarray(self.errors_px)
+        lat = np.asarray(self.latency_s) * 1e3
+        return {"speed_deg_s": self.speed_deg_s, "frames": self.frames, "lost": self.lost,
+                "rms_px": float(np.sqrt(np.mean(e ** 2))) if len(e) else None,
+                "p95_px": float(np.percentile(e, 95)) if len(e) else None,
+                "max_px": float(e.max()) if len(e) else None,
+                "latency_p50_ms": float(np.percentile(lat, 50)) if len(lat) else None}
+
+
+def run_speed(speed_deg_s: float, gm: GazeMap, *, duration_s: float = 6.0, settle_s: float = 1.0,
+              latency_s: float = 0.04, fps: float = 30.0, params: PursuitParams | None = None,
+              obj: MovingObject | None = None, seed: int = 0, publish: Callable[..., Any] | None = None) -> SpeedRun:
+    """Pursue the cube sweeping at `speed_deg_s` for `duration_s` (see the module docstring)."""
+    obj = dataclasses.replace(obj or MovingObject(), speed_deg_s=speed_deg_s)
+    config = dataclasses.replace(sim_config(seed=seed), sim_objects=(obj,))
+    run = SpeedRun(speed_deg_s)
+    with SimulatedHeadRig(seed=seed, config=config) as rig:
+        world = rig.devices.world
+        assert world is not None and world.scene is not None and world.scene.motion is not None
+        motion = world.scene.motion
+        assert isinstance(motion, SceneMotion)
+        fovea = np.array([(rig.model.width - 1) / 2.0, (rig.model.height - 1) / 2.0])
+
+        def truth() -> np.ndarray:
+            """The cube's front-face centre in the left image, from the servos' true positions."""
+            point = obj.centre(motion.elapsed_s()) - np.array([obj.size_m / 2.0, 0.0, 0.0])
+            joints = world.true_joints()
+            (rotation, centre), _ = rig.model.eye_frames_from_joints(
+                joints["pan"], joints["tilt"], joints["left_eye"], joints["right_eye"])
+            uv, _ = rig.model.lens_left.project((rotation @ (point - centre))[None])
+            return np.asarray(uv[0], dtype=float)
+
+        pairs = GridPairs(rig, fps, max(0.0, latency_s - 0.005), truth)
+        head = build_head(rig.config, pairs, pairs, rig.clock)
+        # Start looking at the cube: its direction and distance give pan, tilt and vergence.
+        distance = obj.distance_m
+        vergence = math.degrees(2 * math.atan(rig.model.baseline_m / 2 / distance))
+        head.move_to(np.array([obj.azimuth_deg, obj.elevation_deg, vergence]))
+        head.wait_settled(3.0)
+        motion.start_s = rig.clock.monotonic()  # the sweep starts now, from its centre
+        tracking = Tracking(head, gm, gm.params.disparity_range, params, frame_period_s=1.0 / fps,
+                            publish=publish, poses=lambda: pairs, clock=rig.clock)
+        end_s = motion.start_s + duration_s
+        while rig.clock.monotonic() < end_s:
+            pairs.advance_to(math.ceil(rig.clock.monotonic() * fps) / fps)  # the track starts on this frame
+            start = pairs.true_positions[-1][1]
+            if not (0 <= start[0] < rig.model.width and 0 <= start[1] < rig.model.height):
+                break
+            first = len(pairs.true_positions)
+            end = tracking.run(0, (float(start[0]), float(start[1])), lambda: rig.clock.monotonic() >= end_s)
+            run.outcomes.append(str(end.outcome))
+            run.latency_s.extend(end.stats.frame_to_command_s)
+            for t, uv in pairs.true_positions[first:]:
+                if t - motion.start_s >= settle_s:
+                    run.errors_px.append(float(np.hypot(*(uv - fovea))))
+            run.frames += len(pairs.true_positions) - first
+            if end.outcome is TrackOutcome.LOST or end.outcome is TrackOutcome.NOT_FOUND:
+                run.lost += 1
+                continue
+            break
+    return run
+
+
+def run_pursuit(out_dir: Path, speeds: tuple[float, ...] = SPEEDS_DEG_S, *, duration_s: float = 6.0,
+                latency_s: float = 0.04, map_path: Path | None = None, fixations: int = 3000, seed: int = 0,
+                profile: str = "default") -> dict[str, Any]:
+    """Every speed in turn; writes `pursuit-<profile>.csv`, `.png` and `.json` to `out_dir`."""
+    if map_path is not None:
+        gm = GazeMap.load(map_path)
+        map_source = str(map_path)
+    else:
+        with SimulatedHeadRig(seed=seed) as rig:
+            gm = learned_map(rig, fixations, seed)
+        map_source = f"learned from {fixations} fixations of the geometric head model"
+    runs = []
+    for speed in speeds:
+        run = run_speed(speed, gm, duration_s=duration_s, latency_s=latency_s, seed=seed)
+        log.info("pursuit at %g deg/s: %s", speed, run.summary())
+        runs.append(run)
+    summaries = [r.summary() for r in runs]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = out_dir / f"pursuit-{profile}"
+    with open(stem.with_suffix(".csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["speed_deg_s", "frames", "rms_px", "p95_px", "max_px", "lost", "latency_p50_ms"])
+        for s in summaries:
+            writer.writerow([s["speed_deg_s"], s["frames"], s["rms_px"], s["p95_px"], s["max_px"], s["lost"],
+                             s["latency_p50_ms"]])
+    result = {"experiment": "pursuit", "map": map_source, "duration_s": duration_s,
+              "modelled_latency_ms": latency_s * 1e3, "speeds_deg_s": [s["speed_deg_s"] for s in summaries],
+              "rms_px": [s["rms_px"] for s in summaries], "p95_px": [s["p95_px"] for s in summaries],
+              "max_px": [s["max_px"] for s in summaries], "lost": [s["lost"] for s in summaries],
+              "frame_to_command_p50_ms": [s["latency_p50_ms"] for s in summaries],
+              "goals_rms_px": {str(k): v for k, v in GOALS_RMS_PX.items()}}
+    stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+    plot_pursuit(runs, stem.with_suffix(".png"))
+    return result
+
+
+def plot_pursuit(runs: list[SpeedRun], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    speeds = [r.speed_deg_s for r in runs]
+    summaries = [r.summary() for r in runs]
+    ax.plot(speeds, [s["rms_px"] for s in summaries], "o-", label="RMS")
+    ax.plot(speeds, [s["p95_px"] for s in summaries], "s--", label="p95")
+    for speed, goal in GOALS_RMS_PX.items():
+        ax.plot([speed], [goal], "rv", label="goal (RMS)" if speed == min(GOALS_RMS_PX) else None)
+    ax.set_xlabel("target angular speed, deg/s")
+    ax.set_ylabel("retinal error of the target, px")
+    ax.set_title("smooth pursuit on the simulated head")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def format_result(result: dict[str, Any]) -> str:
+    lines = [f"pursuit ({result['map']}; {result['duration_s']:g} s a speed, "
+             f"{result['modelled_latency_ms']:.0f} ms frame-to-command modelled)",
+             "  speed deg/s   RMS px   p95 px   max px   lost   latency p50 ms   goal"]
+    for i, speed in enumerate(result["speeds_deg_s"]):
+        goal = GOALS_RMS_PX.get(speed)
+        lines.append(f"  {speed:10.0f} {result['rms_px'][i]:8.2f} {result['p95_px'][i]:8.2f} {result['max_px'][i]:8.2f} "
+                     f"{result['lost'][i]:6d} {result['frame_to_command_p50_ms'][i]:16.0f}   "
+                     + (f"RMS <= {goal:g}" if goal else ""))
+    return "\n".join(lines)

@@ -1,0 +1,300 @@
+"""The head: a servo bus and two cameras turned into what the fixation strategy needs.
+
+`Head` implements `calib_free.gaze.fixation.GazeHead` over anything that reads and writes joint
+angles (`JointBus`: a `drivers.servo.bus.ServoBus`, or the service's servo loop) and a source
+of stereo pairs (`PairSource`). It works in poses (pan, tilt, vergence) with symmetric eyes
+(`calib_free.kinematics`), clamps absolute moves to the joint and vergence limits, judges
+"at rest" from the servos' own moving flags and positions, and delivers pairs exposed after
+a given time.
+
+What differs between the service and the experiments is given, not subclassed:
+- `interrupt`: called before every bus access and every slice of waiting for frames; it
+  raises `FixationInterrupted` to stop the fixation in progress (the service stopping, a
+  client cancelling its look);
+- `observer` (`HeadObserver`): told the phase of the fixation, saccade onset and end, and the
+  frame-to-command latency of each vergence step (the service publishes them as events);
+- `goals_in_force`: the goals the bus really drives to, where they can differ from those sent
+  (the servo loop holds a faulted joint, or the present position on stale input);
+- bus errors become `FixationInterrupted` (servo bus down, servo fault), so every way a
+  fixation can end is one `FixationOutcome`.
+
+Pairs come from the cameras' capture threads (`StereoPairSource`, the service) or, in the
+simulated experiments, are rendered on demand at the clock's time (`RenderedPairSource`: no
+frame is rendered while the head moves, which is what makes a 2,000-fixation run take a
+minute rather than ten). With a `drivers.clock.ManualClock` the head runs faster than real
+time: waiting for rest advances the clock instead of sleeping.
+"""
+from __future__ import annotations
+
+import logging
+from typing import Callable, Mapping, Protocol
+
+import numpy as np
+
+from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError, PairTimeoutError
+from calib_free.kinematics import joints_of, pose_of
+from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.errors import BusDownError, CameraError, CameraTimeoutError, DeviceStateError, DriverError
+from drivers.servo.bus import BusState
+from drivers.servo.config import JointConfig
+from drivers.cameras.stereo import StereoPair
+from headctl.errors import ServoLoopStoppedError
+
+log = logging.getLogger(__name__)
+
+ImageTransform = Callable[[np.ndarray], np.ndarray]
+
+
+class JointBus(Protocol):
+    """Joint angles in and out: a `ServoBus`, or the service's servo loop."""
+
+    def read_state(self) -> BusState: ...
+
+    def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]: ...
+
+
+class PairSource(Protocol):
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The first (left, right) pair exposed after `after_s`; PairTimeoutError if none came."""
+
+    @property
+    def last_exposure_s(self) -> float | None:
+        """When the last pair given was exposed (monotonic), if known."""
+
+
+class HeadObserver(Protocol):
+    """What the head tells about the fixation in progress (called on the fixation's thread)."""
+
+    def phase(self, phase: str) -> None: ...
+
+    def saccade_onset(self, pose_before: np.ndarray, goal: np.ndarray) -> None: ...
+
+    def saccade_done(self, pose: np.ndarray, goal: np.ndarray, duration_s: float) -> None: ...
+
+    def vergence_commanded(self, frame_to_command_s: float) -> None: ...
+
+
+def vergence_limits(joints: Mapping[str, JointConfig],
+                    vergence_range: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The vergence the eye joints' limits allow (symmetric eyes), within `vergence_range`."""
+    v_low = max(2 * joints["left_eye"].min_angle, -2 * joints["right_eye"].max_angle)
+    v_high = min(2 * joints["left_eye"].max_angle, -2 * joints["right_eye"].min_angle)
+    if vergence_range is not None:
+        v_low, v_high = max(v_low, vergence_range[0]), min(v_high, vergence_range[1])
+    if v_low >= v_high:
+        raise ValueError(f"no vergence is possible within the eye joints' limits and {vergence_range}")
+    return v_low, v_high
+
+
+def _interrupted(err: BaseException) -> FixationInterrupted:
+    """A bus error as the way the fixation in progress ends."""
+    if isinstance(err, (BusDownError, TimeoutError)):  # the bus gone, or no fresh state in time
+        return FixationInterrupted(FixationOutcome.BUS_DOWN, str(err))
+    if isinstance(err, ServoLoopStoppedError):
+        return FixationInterrupted(FixationOutcome.SHUTDOWN, str(err))
+    return FixationInterrupted(FixationOutcome.SERVO_FAULT, str(err))  # a hardware error, a limit refused, torque off
+
+
+class Head:
+    """A `GazeHead` over a joint bus and a pair source; see the module docstring."""
+
+    def __init__(self, bus: JointBus, pairs: PairSource, joints: Mapping[str, JointConfig], *,
+                 clock: Clock = SYSTEM_CLOCK, vergence_range: tuple[float, float] | None = None,
+                 interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
+                 goals_in_force: Callable[[], Mapping[str, float]] | None = None,
+                 settle_s: float = 0.05, tolerance_deg: float = 0.3, poll_s: float = 0.01) -> None:
+        self.bus = bus
+        self.pairs = pairs
+        self.clock = clock
+        self.interrupt = interrupt
+        self.observer = observer
+        self.goals_in_force = goals_in_force
+        self.settle_s = settle_s
+        self.tolerance_deg = tolerance_deg
+        self.poll_s = poll_s
+        self.image_transform: ImageTransform | None = None  # e.g. a prism: np.flipud
+        # The paper's fig. 9 defect: added to the pan angle read (not to the goals written), so
+        # every pan goal computed from a reading lands that much further.
+        self.pan_reading_offset_deg = 0.0
+        v_low, v_high = vergence_limits(joints, vergence_range)
+        self.pose_low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle, v_low])
+        self.pose_high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle, v_high])
+        self._goal: np.ndarray | None = None
+        self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
+        self.phase = "idle"
+
+    # -- the bus, interruptible ------------------------------------------------------------
+    def _check(self) -> None:
+        if self.interrupt is not None:
+            self.interrupt()
+
+    def _read_state(self) -> BusState:
+        self._check()
+        try:
+            return self.bus.read_state()
+        except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
+            raise _interrupted(err) from err
+
+    def _write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+        self._check()
+        try:
+            return self.bus.write_goals(goals)
+        except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
+            raise _interrupted(err) from err
+
+    def set_phase(self, phase: str) -> None:
+        """What the head is doing, for the status ("saccade", "fine vergence", "idle", ...)."""
+        self.phase = phase
+        if self.observer is not None:
+            self.observer.phase(phase)
+
+    # -- GazeHead ----------------------------------------------------------------------------
+    def read_pose(self) -> np.ndarray:
+        return self.pose_from(self._read_state().positions)
+
+    def pose_from(self, positions: Mapping[str, float]) -> np.ndarray:
+        """(pan, tilt, vergence) as this head reads joint positions (with the pan reading offset)."""
+        pose = pose_of(positions)
+        pose[0] += self.pan_reading_offset_deg
+        return pose
+
+    def move_to(self, pose: np.ndarray) -> np.ndarray:
+        """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits."""
+        self.set_phase("saccade")
+        before = self.read_pose() if self.observer is not None else None
+        goal = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
+        # The servo bus checks each joint's limits again: no goal outside them is ever sent
+        # (with a pan reading offset the goal computed from the reading may lie beyond).
+        sent = self._write_goals(joints_of(goal))
+        self._goal = pose_of(sent)
+        self._saccade = (self.clock.monotonic(), goal)
+        if self.observer is not None and before is not None:
+            self.observer.saccade_onset(before, goal)
+        return goal
+
+    def verge_to(self, vergence: float) -> float:
+        """Move the eyes alone (symmetrically) to `vergence`, clamped; pan and tilt get no goal."""
+        self.set_phase("fine vergence")
+        v = float(np.clip(vergence, self.pose_low[2], self.pose_high[2]))
+        sent = self._write_goals({"left_eye": v / 2, "right_eye": -v / 2})
+        exposed_s = self.pairs.last_exposure_s
+        if self.observer is not None and exposed_s is not None:
+            # From the exposure of the pair this step reacts to until its goal was on the bus.
+            self.observer.vergence_commanded(self.clock.monotonic() - exposed_s)
+        goal = self._goal if self._goal is not None else pose_of(self._read_state().positions)
+        self._goal = np.array([goal[0], goal[1], sent["left_eye"] - sent["right_eye"]])
+        return v
+
+    def wait_settled(self, timeout_s: float) -> float:
+        """Block until the servos report no motion, at their goal, for `settle_s`."""
+        if self.phase in ("idle", "choosing target"):
+            self.set_phase("at rest")
+        if self.goals_in_force is not None:
+            # "At goal" means at the goals the bus really drives to: a goal no servo is driven
+            # to (a joint held after a hardware error, a hold on stale input) is never reached.
+            goals = self.goals_in_force()
+            self._goal = pose_of(goals) if all(j in goals for j in ("pan", "tilt", "left_eye", "right_eye")) \
+                else None
+        deadline = self.clock.monotonic() + timeout_s
+        rest_since: float | None = None
+        while True:
+            state = self._read_state()
+            at_goal = self._goal is None or bool(np.all(
+                np.abs(pose_of(state.positions) - self._goal) <= self.tolerance_deg))
+            if not state.moving and at_goal:
+                rest_since = state.time_s if rest_since is None else rest_since
+                if state.time_s - rest_since >= self.settle_s:
+                    break
+            else:
+                rest_since = None
+            if self.clock.monotonic() >= deadline:
+                raise HeadTimeoutError(f"the head did not come to rest within {timeout_s} s "
+                                       f"(moving: {state.moving}, at goal: {at_goal})")
+            self._check()
+            self.clock.sleep(self.poll_s)
+        if self._saccade is not None:
+            onset_s, goal = self._saccade
+            self._saccade = None
+            if self.observer is not None:
+                self.observer.saccade_done(self.pose_from(state.positions), goal, rest_since - onset_s)
+        return rest_since
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        self._check()
+        phase = self.phase
+        if ":" not in phase:
+            self.set_phase(f"{phase}: waiting for frames")
+        try:
+            left, right = self.pairs.wait_pair(after_s, timeout_s)
+        finally:
+            self.set_phase(phase)
+        if self.image_transform is not None:
+            left, right = self.image_transform(left), self.image_transform(right)
+        return left, right
+
+
+class StereoPairSource:
+    """Pairs from the cameras' capture threads, waited for in short slices so that `interrupt`
+    can stop the wait (a stopping service is not held up by a stalled camera)."""
+
+    def __init__(self, pair: StereoPair, *, clock: Clock = SYSTEM_CLOCK,
+                 interrupt: Callable[[], None] | None = None, slice_s: float = 0.1) -> None:
+        self.pair = pair
+        self.clock = clock
+        self.interrupt = interrupt
+        self.slice_s = slice_s
+        self._last_exposure_s: float | None = None
+
+    @property
+    def last_exposure_s(self) -> float | None:
+        return self._last_exposure_s
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        deadline = self.clock.monotonic() + timeout_s
+        while True:
+            if self.interrupt is not None:
+                self.interrupt()
+            remaining = deadline - self.clock.monotonic()
+            try:
+                frames = self.pair.wait_pair(after_s, max(0.0, min(self.slice_s, remaining)))
+            except CameraTimeoutError as err:
+                if remaining <= self.slice_s:
+                    raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+                continue
+            except (CameraError, DeviceStateError) as err:  # failed, or being restarted: no pair
+                raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
+            self._last_exposure_s = max(frames.left.time_s, frames.right.time_s)
+            return frames.left.image, frames.right.image
+
+
+class RenderedPairSource:
+    """Pairs rendered on demand at the clock's time from the joints' true positions (simulation)."""
+
+    def __init__(self, render: Callable[[dict[str, float]], tuple[np.ndarray, np.ndarray]],
+                 joint_positions: Callable[[], dict[str, float]], clock: Clock,
+                 noise_std: float = 0.0, seed: int = 0) -> None:
+        self.render = render
+        self.joint_positions = joint_positions
+        self.clock = clock
+        self.noise_std = noise_std  # sensor noise, grey levels: a flat wall must not match itself
+        self._rng = np.random.default_rng(seed)
+        self._last_exposure_s: float | None = None
+
+    @property
+    def last_exposure_s(self) -> float | None:
+        return self._last_exposure_s
+
+    def _noisy(self, image: np.ndarray) -> np.ndarray:
+        if self.noise_std <= 0:
+            return image
+        noisy = image.astype(np.float32) + self._rng.normal(0.0, self.noise_std, image.shape).astype(np.float32)
+        return np.clip(noisy, 0, 255).astype(np.uint8)
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        now = self.clock.monotonic()
+        if now < after_s:
+            self.clock.sleep(after_s - now)
+        self._last_exposure_s = self.clock.monotonic()
+        left, right = self.render(self.joint_positions())
+        return self._noisy(left), self._noisy(right)
+

@@ -1,0 +1,1 @@
+"""The servo I/O: the servo loop (a thread or a process of its own), its shared-memory state block and the servos' hardware faults."""

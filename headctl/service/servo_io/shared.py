@@ -1,0 +1,64 @@
+"""The servo process's state block: what the child writes after every cycle and the service
+reads without waiting (`headctl.service.servo_io.process`), laid out as float64 values in shared
+memory under a sequence lock.
+
+Layout: the head's fields (`HEAD_FIELDS`), then per joint `JOINT_FIELDS`, then, on a simulated
+bus, the trace of the servos' true motion (`drivers.sim.servos.JointTrace`'s rows), from which
+the simulated cameras render a frame's exposure.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import time
+from typing import Any
+
+import numpy as np
+
+from calib_free.kinematics import JOINTS
+from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH
+
+HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
+               "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state")
+JOINT_FIELDS = ("position", "velocity", "moving", "torque_on", "hardware_error_bits", "temperature_c",
+                "input_voltage_v", "goal", "true_position")
+_H = {name: i for i, name in enumerate(HEAD_FIELDS)}
+_J = {name: i for i, name in enumerate(JOINT_FIELDS)}
+TRACE_BASE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)
+SIZE = TRACE_BASE + TRACE_SAMPLES * TRACE_WIDTH
+
+
+def _joint_base(j: int) -> int:
+    """Where joint `j`'s fields start in the block."""
+    return len(HEAD_FIELDS) + j * len(JOINT_FIELDS)
+
+
+class SharedState:
+    """The state block: float64 values in shared memory under a sequence lock (the writer makes
+    `seq` odd while it writes; a reader retries until it copied the block between two equal,
+    even values of `seq`). One writer (the child), any number of readers."""
+
+    def __init__(self, raw: Any) -> None:
+        self.raw = raw
+        self.values = np.frombuffer(raw, dtype=np.float64)
+
+    @classmethod
+    def create(cls, size: int = SIZE) -> "SharedState":
+        raw = multiprocessing.get_context("spawn").RawArray("d", size)
+        block = cls(raw)
+        block.values[:] = np.nan
+        block.values[_H["seq"]] = 0.0
+        return block
+
+    def write(self, values: np.ndarray) -> None:
+        seq = self.values[0]
+        self.values[0] = seq + 1.0
+        self.values[1:] = values[1:]
+        self.values[0] = seq + 2.0
+
+    def read(self) -> np.ndarray:
+        while True:
+            before = self.values[0]
+            copy = self.values.copy()
+            if before % 2 == 0 and self.values[0] == before:
+                return copy
+            time.sleep(0)

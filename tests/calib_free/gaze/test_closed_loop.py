@@ -1,0 +1,203 @@
+"""Closed-loop looks (calib_free.gaze.closed_loop) on a head looking at a textured plane.
+
+The plane head (`tests.support.planar_head`) knows exactly where every texel of the plane is
+in its images, so a look's figures are checked against the truth, not against themselves.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from calib_free.gaze.closed_loop import LookController, LookOutcome, find_target, patch_problem
+from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, LookParams
+from headctl.config.head import load_config
+from headctl.errors import ConfigError
+from tests.support import CONFIGS
+from tests.support.planar_head import HEIGHT, WIDTH, LinearMap, PlanarHead, rich_texture
+
+FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
+
+
+class Learner:
+    def __init__(self) -> None:
+        self.samples = []
+
+    def submit(self, sample) -> None:
+        self.samples.append(sample)
+
+
+def looker(head, gain=0.8, params=None, **look):
+    learner = Learner()
+    fixation = params or FixationParams()
+    controller = FixationController(head, LinearMap(gain), fixation, seed=0, learner=learner)
+    return LookController(controller, LookParams(**look) if look else None), learner
+
+
+def true_error_px(head, texel) -> float:
+    """How far the texel chosen as target is from the left fovea at the head's pose now."""
+    return float(np.hypot(*(head.image_position(texel) - FOVEA)))
+
+
+def test_a_look_corrects_until_the_target_is_on_the_fovea_and_every_step_teaches():
+    head = PlanarHead()
+    controller, learner = looker(head, gain=0.8)  # every saccade falls 20 % short
+    target = (262.0, 58.0)
+    texel = head.texel_at(target)
+    record = controller.look((*target, 0.0))
+    assert record.outcome is LookOutcome.ON_TARGET and record.on_target
+    assert 1 <= record.corrective_steps <= 3
+    assert true_error_px(head, texel) <= 1.0  # the truth, not the look's own figure
+    assert record.final_error_px == pytest.approx(true_error_px(head, texel), abs=0.3)
+    assert all(f.taught for f in record.fixations) and len(learner.samples) == len(record.fixations)
+    # The open-loop figure is the first saccade's: 20 % of the way short, in the target's image.
+    assert record.landing_error_px == pytest.approx(0.2 * np.hypot(*(np.array(target) - FOVEA)), rel=0.15)
+
+
+def test_a_look_whose_map_is_right_needs_no_corrective_step():
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    record = controller.look((90.0, 170.0, 0.0))
+    assert record.on_target and record.corrective_steps == 0 and record.final_error_px <= 1.0
+    assert record.landing_error_px == pytest.approx(record.final_error_px, abs=0.5)
+
+
+def test_a_look_stops_after_its_corrective_steps_and_fails_saying_where_the_target_is():
+    head = PlanarHead()
+    controller, _ = looker(head, gain=0.3, max_corrective_steps=2)  # a map far too timid
+    texel = head.texel_at((290.0, 200.0))
+    record = controller.look((290.0, 200.0, 0.0))
+    assert record.outcome is LookOutcome.NOT_ON_TARGET and not record.on_target
+    assert record.corrective_steps == 2
+    assert record.final_error_px == pytest.approx(true_error_px(head, texel), abs=0.5)
+    assert record.final_error_px > 1.0 and "px from the fovea" in record.detail
+
+
+def test_a_target_occluded_after_the_saccade_is_not_found_again_and_no_error_is_reported():
+    head = PlanarHead()
+    target = (250.0, 170.0)
+    u, v = (int(round(c)) for c in head.texel_at(target))
+
+    def cover(h) -> None:  # something grey moves in front of the target once the head has moved
+        if len(h.moves) == 1:
+            h.plane = h.plane.copy()
+            h.plane[v - 40:v + 40, u - 40:u + 40] = 128.0
+
+    head.on_move = cover
+    controller, _ = looker(head, gain=0.8)
+    record = controller.look((*target, 0.0))
+    assert record.outcome is LookOutcome.TARGET_LOST and not record.on_target
+    assert "NCC" in record.detail or "texture" in record.detail
+    assert record.final_error_px is None and record.sightings == []
+    assert record.corrective_steps == 0  # nothing to correct towards
+
+
+def test_a_refused_correspondence_never_gives_the_landing_error():
+    head = PlanarHead()
+    params = FixationParams(confidence_floor=1.0)  # no correspondence is ever confident enough
+    controller, learner = looker(head, gain=0.8, params=params)
+    record = controller.look((240.0, 80.0, 0.0))
+    assert all(f.outcome is FixationOutcome.LOW_CONFIDENCE for f in record.fixations)
+    assert record.fixations[0].position is not None  # a correspondence was computed...
+    assert record.landing_error_px is None  # ...but refused: it is not the look's error
+    assert learner.samples == []
+    # The target was found and corrected for all the same: the head is on it.
+    assert record.on_target and record.final_error_px <= 1.0
+
+
+def test_a_repetitive_target_is_refused_for_want_of_a_patch_that_identifies_it():
+    plane = rich_texture()
+    stripes = 128 + 80 * np.sign(np.sin(2 * np.pi * np.arange(plane.shape[1]) / 9.0))
+    plane[:, :] = stripes[None, :].astype(np.float32)  # vertical stripes everywhere
+    head = PlanarHead(plane)
+    controller, _ = looker(head)
+    record = controller.look((200.0, 100.0, 0.0))
+    assert record.outcome is LookOutcome.NO_TARGET_PATCH and "ambiguous" in record.detail
+    assert record.final_error_px is None
+
+
+def test_a_target_beyond_the_joint_limits_fails_saying_so():
+    head = PlanarHead(pose=(-39.0, 0.0, 8.0))  # at the right end of pan
+    controller, _ = looker(head, gain=1.0)
+    record = controller.look((300.0, 120.0, 0.0))  # 35 deg further right
+    assert record.outcome is LookOutcome.OUT_OF_REACH and "pan" in record.detail
+    assert all(np.all(m >= head.pose_low) and np.all(m <= head.pose_high) for m in head.moves)
+
+
+def test_a_queued_look_returns_to_the_view_its_target_was_chosen_in():
+    head = PlanarHead()
+    reference = head.read_pose()
+    target = (220.0, 150.0)
+    texel = head.texel_at(target)
+    head.move_to(np.array([12.0, -7.0, 8.0]))  # the head moved on before the look ran
+    controller, _ = looker(head, gain=0.9)
+    record = controller.look((*target, 0.0), reference_pose=reference)
+    assert record.view_restored_deg == pytest.approx(12.0)
+    assert np.allclose(head.moves[1], reference)  # back first, then the saccade
+    assert record.on_target and true_error_px(head, texel) <= 1.0
+
+
+def test_a_cancelled_look_ends_with_the_interruption():
+    from calib_free.gaze.fixation import FixationInterrupted
+
+    head = PlanarHead()
+
+    def cancel(h) -> None:
+        if len(h.moves) == 2:
+            raise FixationInterrupted(FixationOutcome.CANCELLED, "look 1 stopped: cancelled by a client")
+
+    head.on_move = cancel
+    controller, _ = looker(head, gain=0.5)
+    record = controller.look((280.0, 200.0, 0.0))
+    assert record.outcome is FixationOutcome.CANCELLED and not record.on_target
+
+
+def test_the_target_is_found_through_a_fish_eye_like_magnification():
+    image = rich_texture(seed=3, size=(WIDTH, HEIGHT))
+    source_xy = (262.3, 71.6)
+    # The patch comes to the fovea magnified 1.7x along the radius, 1.05x across it, and lands
+    # at a known point: an affine warp of the whole image about the target.
+    radial = (np.array(source_xy) - FOVEA) / np.hypot(*(np.array(source_xy) - FOVEA))
+    rotation = np.column_stack([radial, [-radial[1], radial[0]]])
+    linear = rotation @ np.diag([1.7, 1.05]) @ rotation.T
+    landed = FOVEA + np.array([3.4, -2.2])
+    matrix = np.hstack([linear, (landed - linear @ np.array(source_xy))[:, None]])
+    after = cv2.warpAffine(image, matrix, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR)
+    sighting, why = find_target(image, source_xy, after, LookParams())
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
+    assert np.allclose(sighting.warp, linear, atol=0.1)
+
+
+def test_a_flat_or_clipped_patch_cannot_identify_a_target():
+    image = np.full((HEIGHT, WIDTH), 90.0, np.float32)
+    assert "no texture" in patch_problem(image, (100.0, 100.0), LookParams())
+    assert "beyond the image" in patch_problem(rich_texture(size=(WIDTH, HEIGHT)), (3.0, 100.0), LookParams())
+
+
+def test_look_params_are_checked_and_read_from_the_fixation_section(tmp_path):
+    with pytest.raises(ValueError, match="tolerance_px"):
+        LookParams(tolerance_px=0.0)
+    with pytest.raises(ValueError, match="max_corrective_steps"):
+        LookParams(max_corrective_steps=-1)
+    data = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    data["fixation"]["look"] = {"tolerance_px": 0.5, "max_corrective_steps": 5}
+    path = tmp_path / "head.yaml"
+    path.write_text(yaml.safe_dump(data))
+    look = load_config(path).fixation.params.look
+    assert (look.tolerance_px, look.max_corrective_steps) == (0.5, 5)
+    data["fixation"]["look"] = {"tolerance_px": -1}
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="fixation.look.tolerance_px: got -1"):
+        load_config(path)
+
+
+def test_a_look_alike_at_another_depth_is_not_taken_for_the_target():
+    head = PlanarHead()  # the whole plane is at one depth: d = 0 at the start pose
+    controller, _ = looker(head, gain=1.0)
+    record = controller.look((200.0, 100.0, 30.0))  # told the target is 30 px of disparity farther
+    # The eyes converge on the plane, 6 deg of vergence from what the map gives d = 30 px.
+    assert record.fixations[-1].converged
+    assert record.outcome is LookOutcome.TARGET_LOST and "another depth" in record.detail
+    assert not record.on_target

@@ -1,0 +1,200 @@
+"""The OpenCV backend: a generated video file played as a camera on an injected clock, device
+resolution (index, path, udev symlink), granted settings logged, and the drain that keeps the
+held frame the newest the driver has (on a scripted V4L2-like capture on a ManualClock)."""
+from __future__ import annotations
+
+import collections
+import logging
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.cameras.camera import create_camera
+from drivers.cameras.config import CameraConfig
+from drivers.clock import ManualClock
+from drivers.errors import CameraConfigError, CameraLostError
+from drivers.cameras.opencv import OpenCVCamera, resolve_source
+
+FPS = 25.0
+N_FRAMES = 40
+
+
+def frame_level(index: int) -> int:
+    return 20 + 5 * index
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    """An MJPG AVI whose frame i carries a block of grey level 20 + 5 i (and some texture)."""
+    path = str(tmp_path_factory.mktemp("video") / "head.avi")
+    writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*"MJPG"), FPS, (160, 120))
+    assert writer.isOpened(), "cv2.VideoWriter cannot write MJPG AVI"
+    rng = np.random.default_rng(0)
+    texture = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    for i in range(N_FRAMES):
+        image = texture.copy()
+        image[40:80, 60:100] = frame_level(i)
+        writer.write(image)
+    writer.release()
+    return path
+
+
+def decoded_index(image: np.ndarray) -> int:
+    block = image[50:70, 70:90].astype(float).mean()
+    return int(round((block - 20) / 5))
+
+
+def test_video_file_frames_follow_the_clock_in_order_and_loop(video):
+    clock = ManualClock(100.0)
+    config = CameraConfig.from_mapping({"backend": "opencv", "device": video, "image": "colour"}, "cameras.left")
+    with create_camera(config, name="left", clock=clock) as cam:
+        assert not cam.capabilities.exposure and not cam.capabilities.device_timestamps
+        cam.enable()
+        frame = cam.wait_frame(after_s=100.0 + 1.9, timeout_s=10)  # past the end: it loops
+        history = cam.history()
+    assert frame.image.shape == (120, 160, 3)
+    for held in history:
+        n = round((held.time_s - 100.0) * FPS)
+        assert held.time_s == pytest.approx(100.0 + n / FPS)
+        assert decoded_index(held.image) == n % N_FRAMES, f"frame at {held.time_s} s shows the wrong picture"
+    assert [f.counter for f in history] == list(range(history[0].counter, history[0].counter + len(history)))
+
+
+def test_udev_style_symlink_and_grey_frames(video, tmp_path):
+    link = tmp_path / "head-left"
+    os.symlink(video, link)
+    with OpenCVCamera(CameraConfig(backend="opencv", device=str(link), fps=50.0), name="left") as cam:
+        cam.enable()
+        frame = cam.wait_frame(timeout_s=5)
+        assert frame.image.shape == (120, 160) and not frame.is_colour
+        with pytest.raises(CameraConfigError, match="left: the opencv backend has no exposure control"):
+            cam.set_exposure_us(1000.0)
+
+
+def test_device_resolution_and_errors(tmp_path):
+    assert resolve_source(2, "x").target == 2 and resolve_source(2, "x").api == cv2.CAP_V4L2
+    with pytest.raises(CameraLostError, match="left: device /dev/v4l/by-id/none does not exist"):
+        OpenCVCamera(CameraConfig(backend="opencv", device="/dev/v4l/by-id/none"), name="left").open()
+    # /dev/null is a character device, but not a V4L2 one.
+    with pytest.raises(CameraLostError, match="right: OpenCV cannot open /dev/null"):
+        OpenCVCamera(CameraConfig(backend="opencv", device="/dev/null"), name="right").open()
+    with pytest.raises(CameraConfigError, match="pixel_format 'MJPEG': expected a FourCC"):
+        OpenCVCamera(CameraConfig(backend="opencv", pixel_format="MJPEG"))
+    with pytest.raises(CameraConfigError, match=r"cams\.l\.id: got 'Fake_1', expected nothing: id is not used by the "
+                                                r"'opencv' backend"):
+        create_camera(CameraConfig(backend="opencv", id="Fake_1"), key_path="cams.l")
+
+
+class QueueCapture:
+    """A V4L2-like capture on a ManualClock: a frame arrives every period; up to four wait in
+    the driver's queue; grab() takes the oldest waiting one or blocks (advances the clock)."""
+
+    def __init__(self, clock: ManualClock, period_s: float, stamps: bool) -> None:
+        self.clock, self.period_s, self.stamps = clock, period_s, stamps
+        self.next_index = 1
+        self.queue: collections.deque = collections.deque(maxlen=4)
+        self.current = (0, 0.0)
+        self.props = {cv2.CAP_PROP_FRAME_WIDTH: 640, cv2.CAP_PROP_FRAME_HEIGHT: 480, cv2.CAP_PROP_FPS: 1 / period_s,
+                      cv2.CAP_PROP_FOURCC: cv2.VideoWriter_fourcc(*"YUYV")}
+
+    def _arrive(self) -> None:
+        while self.next_index * self.period_s <= self.clock.monotonic() + 1e-12:
+            self.queue.append((self.next_index, self.next_index * self.period_s))
+            self.next_index += 1
+
+    def isOpened(self) -> bool:
+        return True
+
+    def grab(self) -> bool:
+        self._arrive()
+        if not self.queue:
+            self.clock.advance(self.next_index * self.period_s - self.clock.monotonic())
+            self._arrive()
+        self.current = self.queue.popleft()
+        return True
+
+    def retrieve(self):
+        return True, np.full((6, 8, 3), self.current[0], np.uint8)
+
+    def get(self, prop):
+        if prop == cv2.CAP_PROP_POS_MSEC:
+            return self.current[1] * 1e3 if self.stamps else 0.0
+        return self.props.get(prop, 0.0)
+
+    def set(self, prop, value) -> bool:
+        if prop in (cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT):
+            return False  # this "camera" only does 640 x 480
+        self.props[prop] = value
+        return True
+
+    def release(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("stamps", [True, False], ids=["driver-timestamps", "grab-durations"])
+def test_capture_drains_the_driver_queue_so_the_frame_is_never_stale(stamps):
+    clock = ManualClock(0.0)
+    period_s = 0.04
+    capture = QueueCapture(clock, period_s, stamps)
+    cam = OpenCVCamera(CameraConfig(backend="opencv", device=0, fps=25.0), name="left", clock=clock,
+                       capture_factory=lambda target, api: capture)
+    with cam:
+        first = cam._grab(1.0)
+        assert first.image[0, 0, 0] == 1
+        clock.advance(3.5 * period_s)  # a slow consumer: three frames wait in the queue
+        grab = cam._grab(1.0)
+        newest_waiting = 4
+        assert grab.image[0, 0, 0] >= newest_waiting, "a stale frame from the driver queue was delivered"
+        assert clock.monotonic() - grab.time_s < period_s
+        assert cam.stats()["stale_frames_dropped"] >= 2
+
+
+def test_granted_settings_are_logged(caplog):
+    clock = ManualClock(0.0)
+    capture = QueueCapture(clock, 0.04, True)
+    config = CameraConfig(backend="opencv", device=0, pixel_format="MJPG", width=1280, height=720, fps=25.0)
+    with caplog.at_level(logging.INFO, logger="drivers.cameras.opencv"):
+        with OpenCVCamera(config, name="left", clock=clock, capture_factory=lambda target, api: capture):
+            pass
+    text = caplog.text
+    assert "left: /dev/video0: asked MJPG 1280 x 720 at 25.0 fps; granted MJPG 640 x 480 at 25.00 fps" in text
+    assert "left: width 1280 asked, 640 granted by /dev/video0" in text
+
+
+def test_v4l2_formats_are_read_from_the_driver(tmp_path):
+    """`headctl cameras` lists formats with VIDIOC_ENUM_FMT / VIDIOC_ENUM_FRAMESIZES; here a
+    scripted ioctl answers as a UVC driver does (discrete YUYV sizes, a stepwise MJPG range)."""
+    import errno
+
+    from drivers.cameras import opencv as oc
+
+    node = tmp_path / "video0"
+    node.write_bytes(b"")
+    table = [(b"YUYV 4:2:2", "YUYV", [(640, 480), (1280, 720)]), (b"Motion-JPEG", "MJPG", None)]
+    by_code = {cv2.VideoWriter_fourcc(*fourcc): sizes for _, fourcc, sizes in table}
+
+    def fake_ioctl(fd, request, buf):
+        if request == oc._VIDIOC_ENUM_FMT:
+            index, kind, *_ = oc._FMTDESC.unpack(buf)
+            if kind != 1 or index >= len(table):
+                raise OSError(errno.EINVAL, "Invalid argument")
+            desc, fourcc, _ = table[index]
+            buf[:] = oc._FMTDESC.pack(index, kind, 0, desc, cv2.VideoWriter_fourcc(*fourcc), 0, 0, 0, 0)
+        elif request == oc._VIDIOC_ENUM_FRAMESIZES:
+            index, code, *_ = oc._FRMSIZE.unpack(buf)
+            sizes = by_code[code]
+            if sizes is None and index == 0:
+                buf[:] = oc._FRMSIZE.pack(index, code, 3, 160, 1920, 16, 120, 1080, 8, 0, 0)
+            elif sizes is not None and index < len(sizes):
+                buf[:] = oc._FRMSIZE.pack(index, code, 1, *sizes[index], 0, 0, 0, 0, 0, 0)
+            else:
+                raise OSError(errno.EINVAL, "Invalid argument")
+        else:
+            raise AssertionError(f"unexpected ioctl 0x{request:08x}")
+
+    assert oc.v4l2_formats(str(node), ioctl=fake_ioctl) == [
+        "YUYV (YUYV 4:2:2): 640x480, 1280x720",
+        "MJPG (Motion-JPEG): 160x120 to 1920x1080",
+    ]

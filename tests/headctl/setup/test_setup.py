@@ -1,0 +1,134 @@
+"""`headctl setup` in process: random wirings of the simulated head found from the images.
+
+The assistant runs on a `ManualClock` over the simulated servos by id and two small
+simulated cameras rendering from where the servos really are; the wiring is drawn at random
+and compared with what the assistant wrote only at the end.
+"""
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.cameras.camera import create_camera
+from drivers.cameras.config import CameraConfig
+from drivers.clock import ManualClock
+from drivers.servo.config import JOINTS, PartialServoBusConfig
+from drivers.servo.probe import create_servo_probe
+from drivers.sim.servos import SimulatedServoProbe
+from headctl.cli.main import build_parser
+from headctl.config.head import load_config
+from headctl.service.build import SIM_START_JOINTS, sim_head_model
+from headctl.setup.config import eye_zeros, propose, write_config
+from headctl.setup.identify import Finding, SafeProbing, Shift, classify, identify
+
+WIDTH, HEIGHT = 160, 120
+
+
+def camera_section() -> dict:
+    eye = {"backend": "sim", "width": WIDTH, "height": HEIGHT, "fps": 30, "lens": "foveated", "seed": 0,
+           "noise_std": 2.0}
+    return {"left": {**eye, "eye": "left"}, "right": {**eye, "eye": "right"}}
+
+
+def random_wiring(rng: random.Random, extra: int = 0) -> dict[int, dict]:
+    ids = rng.sample(range(1, 40), 4 + extra)
+    joints = list(JOINTS) + ["none"] * extra
+    rng.shuffle(joints)
+    return {i: {"joint": joint, "direction": rng.choice((1, -1)), "zero_offset": round(rng.uniform(-20, 20), 1)}
+            for i, joint in zip(ids, joints)}
+
+
+class RenderedPairs:
+    """Both eyes rendered on demand from where the simulated servos really are."""
+
+    def __init__(self, probe: SimulatedServoProbe, clock: ManualClock) -> None:
+        model = sim_head_model(CameraConfig.from_mapping(camera_section()["left"]))
+        self.cameras = [create_camera(CameraConfig.from_mapping(camera_section()[side]), name=side, clock=clock,
+                                      head=model, pose_source=lambda: {}) for side in ("left", "right")]
+        for camera in self.cameras:
+            camera.open()
+        self.probe, self.clock = probe, clock
+        self.rng = np.random.default_rng(0)
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        self.clock.sleep(max(0.0, after_s - self.clock.monotonic()) + 1 / 30)
+        joints = {joint: self.probe.true_position(joint) for joint in JOINTS}
+        left, right = (c.render(joints).astype(np.float32) for c in self.cameras)  # type: ignore[attr-defined]
+        noisy = [np.clip(im + self.rng.normal(0, 2.0, im.shape), 0, 255).astype(np.uint8) for im in (left, right)]
+        return noisy[0], noisy[1]
+
+    def close(self) -> None:
+        for camera in self.cameras:
+            camera.close()
+
+
+def run_assistant(wiring: dict[int, dict], tmp_path: Path):
+    clock = ManualClock()
+    partial = {"servo_bus": {"backend": "sim", "port": "sim:test", "wiring": wiring}, "cameras": camera_section(),
+               "fixation": {"vergence_range": [1, 20]}, "state_dir": str(tmp_path / "state")}
+    bus = PartialServoBusConfig.from_mapping(partial["servo_bus"])
+    probe = create_servo_probe(bus, clock=clock, initial_positions=SIM_START_JOINTS)
+    assert isinstance(probe, SimulatedServoProbe)
+    pairs = RenderedPairs(probe, clock)
+    try:
+        with SafeProbing(probe, clock) as probing:
+            found = probe.scan()
+            result = identify(probing, pairs, found)
+            if result.missing(JOINTS):
+                return result, None, probe
+            joints = result.joints
+            proposals = propose(joints, eye_zeros(probing, pairs, joints["left_eye"], joints["right_eye"]))
+        tmp_path.mkdir(parents=True, exist_ok=True)
+        out = tmp_path / "head.yaml"
+        write_config(partial, None, {"backend": "sim", "port": "sim:test"}, proposals, out)
+        return result, out, probe
+    finally:
+        pairs.close()
+
+
+def test_random_wirings_are_found_and_the_config_checks(tmp_path):
+    rng = random.Random(2026)
+    for n in range(20):
+        wiring = random_wiring(rng)
+        result, out, probe = run_assistant(wiring, tmp_path / str(n))
+        assert out is not None, [f.detail for f in result.findings]
+        config = load_config(out)
+        args = build_parser().parse_args(["check", "--no-connect", "--config", str(out)])
+        assert args.func(args) == 0
+        for servo_id, wired in wiring.items():
+            jc = config.servo_bus.joints[wired["joint"]]
+            assert jc.servo_id == servo_id, (n, wiring)
+            assert jc.direction == wired["direction"], (n, wiring)
+            if wired["joint"] in ("pan", "tilt"):  # the start pose is straight ahead
+                assert jc.zero_offset == pytest.approx(wired["zero_offset"], abs=0.3)
+            else:  # parallel against a room 1-3 m away: biased by up to 1 deg
+                assert jc.zero_offset == pytest.approx(wired["zero_offset"], abs=1.5)
+            # Every servo back where it started, torque as it was (off), settings restored.
+            status = probe.status(servo_id)
+            assert not status.torque_on and not status.moving
+            assert probe.torque_limit(servo_id) is None
+        assert config.servo_bus.joints["pan"].min_angle <= 0.0 <= config.servo_bus.joints["pan"].max_angle
+
+
+def test_a_servo_that_moves_nothing_visible_is_reported_not_guessed(tmp_path):
+    wiring = random_wiring(random.Random(7), extra=1)
+    result, out, _probe = run_assistant(wiring, tmp_path)
+    blind = next(i for i, w in wiring.items() if w["joint"] == "none")
+    by_id = {f.servo.servo_id: f for f in result.findings}
+    assert by_id[blind].outcome is Finding.NOTHING_VISIBLE and by_id[blind].joint is None
+    assert out is not None  # the four others still make a head
+    config = load_config(out)
+    assert blind not in {jc.servo_id for jc in config.servo_bus.joints.values()}
+
+
+def test_motion_like_no_joint_or_like_another_servo_is_not_guessed():
+    assert classify(Shift(5, 5, 0.9), Shift(5, 5, 0.9))[0] is Finding.UNATTRIBUTED  # diagonal
+    assert classify(Shift(8, 0, 0.9), Shift(-8, 0, 0.9))[0] is Finding.UNATTRIBUTED  # opposite
+    assert classify(Shift(8, 0, 0.9), Shift(1.5, 0, 0.9))[0] is Finding.UNATTRIBUTED  # unlike amounts
+    assert classify(Shift(0, 6, 0.9), Shift(0, 0, 1.0))[0] is Finding.UNATTRIBUTED  # one eye, vertically
+    assert classify(Shift(0.3, 0.2, 0.9), Shift(0.1, 0, 1.0))[0] is Finding.NOTHING_VISIBLE
+    assert classify(Shift(-8, 0, 0.9), Shift(0, 0, 1.0))[1:3] == ("left_eye", 1)
+    assert classify(Shift(0, -8, 0.9), Shift(0.2, -8.3, 0.9))[1:3] == ("tilt", -1)
