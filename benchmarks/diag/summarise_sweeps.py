@@ -1,4 +1,4 @@
-"""The geometric experiments' sweeps summed up: the figures docs/results.md states, and plots.
+"""The geometric experiments' sweeps summed up: the figures the docs/results/ pages state, and plots.
 
 Reads the runs that `headctl experiment sweep NAME --profiles default,paper` kept under
 `<sweeps>/sweep-NAME/runs/` (each run's JSON and per-fixation CSV) for `learn` (also

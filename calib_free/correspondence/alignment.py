@@ -110,7 +110,7 @@ def warp_aligned(image: np.ndarray, patch: np.ndarray, x: float, y: float, itera
     more towards the image centre (growing with the patch's area: -0.12 px at 30-60 px of
     eccentricity with a 40 x 40 patch at 320 x 240, -0.27 px with 60 x 60). The quadratic map
     follows that change: its centre is unbiased (measured +0.00 to +0.03 px), and the match
-    error's median falls from 0.13 to 0.07-0.09 px (docs/results.md). No alignment (the window
+    error's median falls from 0.13 to 0.07-0.09 px (docs/results/correspondence.md). No alignment (the window
     leaves the image, the patch is flat, ECC diverges or moves the match more than 3 px): (x, y).
 
     ECC in its inverse-compositional form (`_correspondence_kernels.ecc_polynomial`): the

@@ -517,7 +517,7 @@ class GazeMap:
             # level), so a window's median tops the threshold for a few adaptations in a row
             # every few hundred: each such false alarm cut the fit to `global_memory_min`
             # fixations and faded the residual grid, and the landing error drifted up over a
-            # long run (docs/results.md). A changed head keeps the windows high:
+            # long run (docs/results/online.md). A changed head keeps the windows high:
             # their surprise, in thresholds, is summed until it makes `error_window` (a window
             # 3x over the long-run level counts 1: 10 in a row; a prism's 10-15x counts 3-5).
             # The false alarms measured summed to 4.3 at most. While the memory regrows after a
