@@ -208,7 +208,7 @@ def _field_of(loc: tuple[int | str, ...]) -> str | None:
 async def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     errors: list[FieldProblem] = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": str(e.get("msg", "invalid"))}
-                                    for e in exc.errors()]
+                                  for e in exc.errors()]
     first: FieldProblem = errors[0] if errors else {"field": None, "reason": "invalid request"}
     if any(e.get("type") == "json_invalid" for e in exc.errors()):
         first = {"field": "body", "reason": "the body is not valid JSON"}
