@@ -44,7 +44,7 @@ import threading
 import time
 from http import HTTPStatus
 from pathlib import Path
-from typing import Any, AsyncIterator, Literal
+from typing import AsyncIterator, Literal, TypeAlias, TypedDict
 
 import cv2
 import numpy as np
@@ -57,8 +57,9 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, QueueFullError, UnavailableError
+from headctl.json_types import JSON, JSONObject
 from headctl.service.control import HeadService, SimFault
-from headctl.service.events import plain
+from headctl.service.events import Event, plain
 from headctl.service.looks import LookJob, LookKind, LookRequest
 
 log = logging.getLogger(__name__)
@@ -164,15 +165,17 @@ ERROR_TEXT = {
 }
 # What any route may answer: the server's own limits, the token, and a daemon not running.
 COMMON_ERRORS = (400, 401, 408, 413, 431, 503)
-ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+# A route's answers for its OpenAPI schema, by status: what FastAPI's `responses` takes.
+Responses: TypeAlias = dict[int | str, dict[str, object]]
+ERROR_RESPONSES: Responses = {
     code: {"model": ErrorBody, "description": ERROR_TEXT[code]} for code in COMMON_ERRORS}
 
 
 def answers(*codes: int, ok: str | None = None, media_type: str | None = None,
-            accepted: bool = False) -> dict[int | str, dict[str, Any]]:
+            accepted: bool = False) -> Responses:
     """A route's answers beyond COMMON_ERRORS for its OpenAPI schema: its own refusals, 202 for
     a look not finished yet, and the 200's media type when it is not JSON."""
-    documented: dict[int | str, dict[str, Any]] = {
+    documented: Responses = {
         code: {"model": ErrorBody, "description": ERROR_TEXT[code]} for code in codes}
     if ok is not None or media_type is not None:
         documented[200] = {"description": ok or "Successful Response"}
@@ -184,22 +187,29 @@ def answers(*codes: int, ok: str | None = None, media_type: str | None = None,
     return documented
 
 
-def error_response(status: int, field: str | None, reason: str, *, close: bool = False, **extra: Any) -> JSONResponse:
+def error_response(status: int, field: str | None, reason: str, *, close: bool = False, **extra: JSON) -> JSONResponse:
     """The answer to a refused request (`close`: and the connection closed after it)."""
     return JSONResponse({"error": HTTPStatus(status).phrase, "field": field, "reason": reason, **extra},
                         status_code=status, headers={"Connection": "close"} if close else None)
 
 
-def _field_of(loc: tuple[Any, ...]) -> str | None:
+class FieldProblem(TypedDict):
+    """One field a request got wrong, as a 422 answer lists it."""
+
+    field: str | None
+    reason: str
+
+
+def _field_of(loc: tuple[int | str, ...]) -> str | None:
     parts = [str(p) for p in loc if p not in ("body", "query", "path", "header")]
     return ".".join(parts) or (str(loc[0]) if loc else None)
 
 
 async def _on_invalid(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    errors: list[dict[str, Any]] = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": str(e.get("msg", "invalid"))}
-                                    for e in exc.errors()]
-    first: dict[str, Any] = errors[0] if errors else {"field": None, "reason": "invalid request"}
+    errors: list[FieldProblem] = [{"field": _field_of(tuple(e.get("loc", ()))), "reason": str(e.get("msg", "invalid"))}
+                                  for e in exc.errors()]
+    first: FieldProblem = errors[0] if errors else {"field": None, "reason": "invalid request"}
     if any(e.get("type") == "json_invalid" for e in exc.errors()):
         first = {"field": "body", "reason": "the body is not valid JSON"}
     return error_response(422, first["field"], first["reason"], errors=errors)
@@ -467,7 +477,7 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
     from headctl.api.metrics import registry_for
     app.state.registry = registry_for(service)
 
-    def openapi() -> dict[str, Any]:
+    def openapi() -> JSONObject:
         # Every refusal is JSON, whatever the route's own media type (FastAPI would give an
         # error model the route's: image/jpeg for the eyes' frames).
         if app.openapi_schema is None:
@@ -502,13 +512,13 @@ class StateCache:
         return cached[2]
 
 
-def _json(body: Any, status: int = 200) -> Response:
+def _json(body: object, status: int = 200) -> Response:
     # NaN is no JSON: `plain` turns it into null before it gets here.
     return Response(json.dumps(body, default=_default, allow_nan=False), status_code=status,
                     media_type="application/json")
 
 
-def _default(value: Any) -> Any:
+def _default(value: object) -> JSON:
     converted = plain(value)
     if converted is value:
         return str(value)
@@ -531,10 +541,10 @@ async def _wait_done(job: LookJob, wait_s: float) -> None:
 
 async def _event_stream(app: FastAPI, service: HeadService, after: int | None) -> AsyncIterator[bytes]:
     loop = asyncio.get_running_loop()
-    queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(maxsize=1024)
+    queue: asyncio.Queue[Event | None] = asyncio.Queue(maxsize=1024)
     lost = 0
 
-    def put(event: dict[str, Any] | None) -> None:
+    def put(event: Event | None) -> None:
         nonlocal lost
         try:
             queue.put_nowait(event)
@@ -543,7 +553,7 @@ async def _event_stream(app: FastAPI, service: HeadService, after: int | None) -
 
     entry = (loop, put)
     app.state.streams.add(entry)
-    def deliver(event: dict[str, Any]) -> None:
+    def deliver(event: Event) -> None:
         loop.call_soon_threadsafe(put, event)
 
     unsubscribe = service.events.subscribe(deliver, after_seq=after)

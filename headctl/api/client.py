@@ -21,10 +21,11 @@ import ssl
 import urllib.error
 import urllib.parse
 import urllib.request
-from typing import Any, Iterator
+from typing import Iterator
 
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError
+from headctl.json_types import JSON, JSONObject
 
 
 class ApiError(HeadctlError):
@@ -72,43 +73,43 @@ class ApiClient:
         return cls(url, token, timeout_s, cafile=cafile)
 
     # -- the routes ---------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
+    def state(self) -> JSONObject:
         return self.request("GET", "/api/v1/state")
 
-    def learning(self, since: int = 0) -> dict[str, Any]:
+    def learning(self, since: int = 0) -> JSONObject:
         return self.request("GET", f"/api/v1/learning?since={since}")
 
     def look_target(self, x: float, y: float, d: float | None = None, wait_s: float = 0.0,
-                    replace: bool = False) -> dict[str, Any]:
+                    replace: bool = False) -> JSONObject:
         """Fixate the image target (x, y, d); `d` None: the daemon measures it at (x, y)."""
-        body: dict[str, Any] = {"x": x, "y": y, "wait_s": wait_s, "replace": replace}
+        body: JSONObject = {"x": x, "y": y, "wait_s": wait_s, "replace": replace}
         if d is not None:
             body["d"] = d
         return self.request("POST", "/api/v1/look/target", body, wait_s=wait_s)
 
     def look_angles(self, pan: float, tilt: float, vergence: float, relative: bool = False, wait_s: float = 0.0,
-                    replace: bool = False) -> dict[str, Any]:
+                    replace: bool = False) -> JSONObject:
         return self.request("POST", "/api/v1/look/angles",
                             {"pan": pan, "tilt": tilt, "vergence": vergence, "relative": relative,
                              "wait_s": wait_s, "replace": replace}, wait_s=wait_s)
 
-    def look(self, look_id: int, wait_s: float = 0.0) -> dict[str, Any]:
+    def look(self, look_id: int, wait_s: float = 0.0) -> JSONObject:
         return self.request("GET", f"/api/v1/looks/{look_id}?wait_s={wait_s}", wait_s=wait_s)
 
-    def cancel_look(self, look_id: int, wait_s: float = 0.0) -> dict[str, Any]:
+    def cancel_look(self, look_id: int, wait_s: float = 0.0) -> JSONObject:
         """Cancel a queued look, or stop a running one (waiting up to `wait_s` for it to stop)."""
         return self.request("DELETE", f"/api/v1/looks/{look_id}?wait_s={wait_s}", wait_s=wait_s)
 
-    def track(self, x: float | None = None, y: float | None = None) -> dict[str, Any]:
+    def track(self, x: float | None = None, y: float | None = None) -> JSONObject:
         """Pursue the patch at (x, y) of the left image (None: what is on the fovea) until stopped."""
-        body: dict[str, Any] = {"target": "fovea"} if x is None or y is None else {"x": x, "y": y}
+        body: JSONObject = {"target": "fovea"} if x is None or y is None else {"x": x, "y": y}
         return self.request("POST", "/api/v1/track", body)
 
-    def get_track(self) -> dict[str, Any]:
+    def get_track(self) -> JSONObject:
         """The last track and, while it runs, its figures so far."""
         return self.request("GET", "/api/v1/track")
 
-    def stop_track(self, wait_s: float = 2.0) -> dict[str, Any]:
+    def stop_track(self, wait_s: float = 2.0) -> JSONObject:
         return self.request("DELETE", f"/api/v1/track?wait_s={wait_s}", wait_s=wait_s)
 
     def set_exploration(self, enabled: bool) -> bool:
@@ -117,7 +118,7 @@ class ApiClient:
     def set_torque(self, enabled: bool) -> bool:
         return bool(self.request("POST", "/api/v1/torque", {"enabled": enabled})["enabled"])
 
-    def events(self, after: int | None = None, timeout_s: float = 30.0) -> Iterator[dict[str, Any]]:
+    def events(self, after: int | None = None, timeout_s: float = 30.0) -> Iterator[JSONObject]:
         """The event stream, one event (its JSON data) at a time, until the server closes it."""
         path = "/api/v1/events" + (f"?after={after}" if after is not None else "")
         parts = urllib.parse.urlsplit(self.url)
@@ -135,7 +136,8 @@ class ApiClient:
                 if line.startswith("data:"):
                     data.append(line[5:].strip())
                 elif not line and data:
-                    yield json.loads("\n".join(data))
+                    event: JSONObject = json.loads("\n".join(data))
+                    yield event
                     data = []
         finally:
             conn.close()
@@ -147,7 +149,8 @@ class ApiClient:
             headers["Authorization"] = f"Bearer {self.token}"
         return headers
 
-    def request(self, method: str, path: str, body: dict[str, Any] | None = None, wait_s: float = 0.0) -> Any:
+    def request(self, method: str, path: str, body: JSONObject | None = None, wait_s: float = 0.0) -> JSONObject:
+        """The daemon's answer to `method path` (every route answers a JSON object)."""
         data = None if body is None else json.dumps(body).encode()
         headers = self._headers()
         if data is not None:
@@ -155,7 +158,8 @@ class ApiClient:
         req = urllib.request.Request(self.url + path, data=data, method=method, headers=headers)
         try:
             with urllib.request.urlopen(req, timeout=self.timeout_s + wait_s, context=self.tls) as response:
-                return json.loads(response.read())
+                answer: JSONObject = json.loads(response.read())
+                return answer
         except urllib.error.HTTPError as err:
             raise self._refusal(err.code, err.read()) from None
         except (urllib.error.URLError, OSError, http.client.HTTPException) as err:
@@ -164,6 +168,7 @@ class ApiClient:
                            "with this config (and is it http, or https)?") from err
 
     def _refusal(self, status: int, payload: bytes) -> ApiError:
+        answer: JSON
         try:
             answer = json.loads(payload)
         except ValueError:

@@ -21,7 +21,7 @@ import ssl
 import threading
 import time
 from http import HTTPStatus
-from typing import Any, cast
+from typing import cast
 
 import uvicorn
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -147,7 +147,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         return cast("type[GuardedHttpToolsProtocol]", type(cls.__name__, (cls,), {
             "request_timeout_s": request_timeout_s, "max_head_bytes": max_head_bytes}))
 
-    def __init__(self, config: UvicornConfig, server_state: ServerState, app_state: dict[str, Any],
+    def __init__(self, config: UvicornConfig, server_state: ServerState, app_state: dict[str, object],
                  _loop: asyncio.AbstractEventLoop | None = None) -> None:
         super().__init__(config, server_state, app_state, _loop)
         self.logger = _HTTP_LOG

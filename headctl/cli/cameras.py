@@ -16,7 +16,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 from drivers.cameras.camera import create_camera
 from drivers.cameras.config import CameraConfig, StereoCamerasConfig
@@ -24,11 +24,15 @@ from drivers.cameras.stereo import StereoPair
 from drivers.config.reader import read_config
 from drivers.errors import BackendImportError, CameraError, ConfigError
 
+if TYPE_CHECKING:
+    from calib_free.sim.head_model import HeadModel
+    from drivers.sim.camera import PoseSource
+
 log = logging.getLogger(__name__)
 _ARAVIS_INSTALL = "apt-get install gir1.2-aravis-0.8 && pip install 'PyGObject<3.51' (./setup.sh does both)"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add this module's subcommands to `sub`."""
     cameras = sub.add_parser(
         "cameras",
@@ -110,7 +114,14 @@ def load_cameras_config(path: str) -> StereoCamerasConfig:
     return cameras
 
 
-def sim_resources(config: StereoCamerasConfig, pose: list[float]) -> dict[str, dict[str, Any]]:
+class SimResources(TypedDict, total=False):
+    """What `create_camera` gives a simulated camera beyond its config."""
+
+    head: HeadModel
+    pose_source: PoseSource
+
+
+def sim_resources(config: StereoCamerasConfig, pose: list[float]) -> dict[str, SimResources]:
     """The head model and pose source the simulated cameras need (one head for both eyes;
     `load_cameras_config` has checked that the eyes agree)."""
     from calib_free.sim.head_model import HeadModel

@@ -26,7 +26,7 @@ def _int_list(text: str) -> list[int]:
     return values
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add this module's subcommands to `sub`."""
     from drivers.dynamixel.tables.x_series import X_BAUD_CODES, X_MODELS
     from drivers.dynamixel.tables.v1 import P1_MODELS

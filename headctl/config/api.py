@@ -18,7 +18,7 @@ import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from drivers.config.reader import check_settings, config_keys, setting
 from drivers.config.file import read_bounded
@@ -76,6 +76,21 @@ class ApiConfig:
     def url(self) -> str:
         host = "127.0.0.1" if self.host in ("0.0.0.0", "") else ("[::1]" if self.host == "::" else self.host)
         return f"{'https' if self.tls_cert else 'http'}://{host}:{self.port}"
+
+
+class ApiChanges(TypedDict, total=False):
+    """Fields of an `ApiConfig` to replace (`HeadConfig.with_api`)."""
+
+    enabled: bool
+    host: str
+    port: int
+    token: str | None
+    token_file: str | None
+    tls_cert: str | None
+    tls_key: str | None
+    max_queued_looks: int
+    stream_fps: float
+    jpeg_quality: int
 
 
 def resolve_api(api: ApiConfig, path: Path) -> ApiConfig:
@@ -170,14 +185,14 @@ def beside(config_path: Path, value: str, key_path: str) -> Path:
     return file if file.is_absolute() else config_path.resolve().parent / file
 
 
-def secrets_in(data: Any) -> list[str]:
+def secrets_in(data: object) -> list[str]:
     """Strings of a raw config that may be secrets: the values of keys that name a token
     anywhere (not a token file's path), and of keys the api section does not know (a
     misspelt `token`)."""
     found: list[str] = []
     known_api = set(config_keys(ApiConfig)) - {"token"}
 
-    def walk(value: Any, depth: int) -> None:
+    def walk(value: object, depth: int) -> None:
         if depth > 40:
             return
         if isinstance(value, Mapping):

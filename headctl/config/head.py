@@ -27,10 +27,10 @@ import math
 import os
 import stat
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Unpack, cast
 
 from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.gaze.exploration import EXPLORATION_KINDS
@@ -42,9 +42,10 @@ from drivers.config.reader import check_settings, config_error_from, config_meta
 from drivers.config.file import read_yaml_file
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.motion import MovingObject
-from headctl.config.api import ApiConfig, beside, resolve_api, scrub, secrets_in
+from headctl.config.api import ApiChanges, ApiConfig, beside, resolve_api, scrub, secrets_in
 from headctl.config.tracking import TrackingConfig
 from headctl.errors import ConfigError
+from headctl.json_types import JSON
 from headctl.service.head import vergence_limits
 
 log = logging.getLogger(__name__)
@@ -60,7 +61,7 @@ SEED_MAX = 2**63 - 1  # numpy's generators take any seed >= 0; this one fits eve
 MAX_GRID_NODES = 1 << 22  # the map's grid: 3 x 8 bytes a node, 100 MB; the default has 157500
 
 
-def _each(lo: float, hi: float) -> Any:
+def _each(lo: float, hi: float) -> Callable[[Iterable[float]], bool]:
     """A check that every number of a list lies in [lo, hi]."""
     return lambda values: all(lo <= v <= hi for v in values)
 
@@ -129,12 +130,13 @@ class GazeMapConfig:
 
     profile: str = setting("default", choices=PROFILES, expected=" or ".join(PROFILES))
     seed: int = setting(0, lo=0, hi=SEED_MAX, expected="a seed >= 0")
-    overrides: Mapping[str, Any] = setting(default_factory=dict, inline=GazeMapParams,
+    overrides: Mapping[str, object] = setting(default_factory=dict, inline=GazeMapParams,
                                            exclude=("image_size", "profile"))
 
     def __post_init__(self) -> None:
         check_settings(self)
-        grid = self.overrides.get("grid_shape")
+        # The reader has given each override its field's type.
+        grid = cast("tuple[int, ...] | None", self.overrides.get("grid_shape"))
         if grid is not None and math.prod(grid) > MAX_GRID_NODES:
             raise ConfigError(key_path="grid_shape", value=grid,
                               expected=f"at most {MAX_GRID_NODES} nodes in all ({math.prod(grid)} asked): "
@@ -240,7 +242,7 @@ class HeadConfig:
     def lock_path(self) -> Path:
         return self.state_dir / LOCK_FILE
 
-    def with_api(self, **changes: Any) -> "HeadConfig":
+    def with_api(self, **changes: Unpack[ApiChanges]) -> "HeadConfig":
         return dataclasses.replace(self, api=dataclasses.replace(self.api, **changes))
 
     def with_state_dir(self, state_dir: str | os.PathLike[str]) -> "HeadConfig":
@@ -248,7 +250,7 @@ class HeadConfig:
 
 
 # --- loading ----------------------------------------------------------------------------------
-def read_yaml(path: str | os.PathLike[str]) -> Any:
+def read_yaml(path: str | os.PathLike[str]) -> JSON:
     """A YAML file's document, read strictly (`drivers.config.file.read_yaml_file`: at most 1 MiB,
     UTF-8, no duplicate keys, bounded nesting); ConfigError naming the file and the line or
     key path if it cannot be read or parsed."""
@@ -261,7 +263,7 @@ def load_config(path: str | os.PathLike[str] | None = None) -> HeadConfig:
     return parse_config(read_yaml(path), path)
 
 
-def parse_config(data: Any, path: Path) -> HeadConfig:
+def parse_config(data: JSON, path: Path) -> HeadConfig:
     """The typed config from a YAML document read from `path`; ConfigError naming `path`.
 
     Beyond the reader's checks: the backends (resolved, so imported, here), the cameras
@@ -289,7 +291,7 @@ def parse_config(data: Any, path: Path) -> HeadConfig:
         raise
 
 
-def _textures_beside(data: Any, path: Path) -> Any:
+def _textures_beside(data: JSON, path: Path) -> JSON:
     """The raw config with a relative `cameras.scene.textures` made relative to the config
     file's directory, as every path a config names is."""
     cameras = data.get("cameras") if isinstance(data, dict) else None
@@ -301,7 +303,7 @@ def _textures_beside(data: Any, path: Path) -> Any:
     return {**data, "cameras": {**cameras, "scene": {**scene, "textures": resolved}}}
 
 
-def _correspondence_of_the_profile(config: HeadConfig, data: Any) -> HeadConfig:
+def _correspondence_of_the_profile(config: HeadConfig, data: JSON) -> HeadConfig:
     """The correspondence and the exploration follow `gaze_map.profile` (the `paper` profile:
     eqs. 1-7 and random exploration in motor space) unless `fixation.correspondence.profile`
     or `fixation.exploration` says otherwise."""
@@ -309,14 +311,15 @@ def _correspondence_of_the_profile(config: HeadConfig, data: Any) -> HeadConfig:
     fixation = fixation if isinstance(fixation, dict) else {}
     given = fixation.get("correspondence")
     params = config.fixation.params
-    changes: dict[str, Any] = {}
-    if not (isinstance(given, dict) and "profile" in given):
-        changes["correspondence"] = dataclasses.replace(params.correspondence, profile=config.gaze_map.profile)
-    if "exploration" not in fixation and config.gaze_map.profile == "paper":
-        changes["exploration"] = "random"
-    if not changes:
+    profile_given = isinstance(given, dict) and "profile" in given
+    random_exploration = "exploration" not in fixation and config.gaze_map.profile == "paper"
+    if profile_given and not random_exploration:
         return config
-    fixation_config = dataclasses.replace(config.fixation, params=dataclasses.replace(params, **changes))
+    correspondence = (params.correspondence if profile_given
+                      else dataclasses.replace(params.correspondence, profile=config.gaze_map.profile))
+    changed = dataclasses.replace(params, correspondence=correspondence,
+                                  exploration="random" if random_exploration else params.exploration)
+    fixation_config = dataclasses.replace(config.fixation, params=changed)
     return dataclasses.replace(config, fixation=fixation_config)
 
 

@@ -14,7 +14,7 @@ import logging
 import re
 import threading
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Callable, NotRequired, Protocol, TypedDict
 
 import numpy as np
 
@@ -27,10 +27,12 @@ from calib_free.kinematics import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
+from headctl.json_types import JSONObject
 from headctl.service.events import EventHub
-from headctl.service.looks import LookJob, LookKind, LookRequest, LookState
+from headctl.service.looks import LookAnswer, LookJob, LookKind, LookRequest, LookState
 from headctl.service.parts import RunningParts, ServiceParts, ServicePhase
 from headctl.service.status import StatusSnapshot, status_snapshot
+from headctl.service.tracking import TrackFigures
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +110,14 @@ class SimFault(enum.StrEnum):
     CAMERA_RESUME = "camera_resume"
 
 
+class MapAnswer(TypedDict):
+    """What a map action did: the file saved, loaded or started again in, and its adaptations."""
+
+    path: str
+    adaptations: int
+    backup: NotRequired[str]  # a reset's: where the map before it was saved
+
+
 class HeadService(Protocol):
     """What the API and the metrics may ask of the service."""
 
@@ -116,7 +126,7 @@ class HeadService(Protocol):
 
     def snapshot(self) -> StatusSnapshot: ...
 
-    def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]: ...
+    def learning_since(self, since: int = 0, limit: int = 5000) -> JSONObject: ...
 
     def look(self, request: LookRequest, replace: bool = False) -> LookJob: ...
 
@@ -128,11 +138,11 @@ class HeadService(Protocol):
 
     def set_torque(self, enabled: bool) -> bool: ...
 
-    def save_map(self, name: str | None = None) -> dict[str, Any]: ...
+    def save_map(self, name: str | None = None) -> MapAnswer: ...
 
-    def load_map(self, name: str | None = None) -> dict[str, Any]: ...
+    def load_map(self, name: str | None = None) -> MapAnswer: ...
 
-    def reset_map(self, seed: int | None = None) -> dict[str, Any]: ...
+    def reset_map(self, seed: int | None = None) -> MapAnswer: ...
 
     def inject_fault(self, fault: SimFault, joint: str | None = None, camera: str | None = None,
                      bits: int = 0) -> str: ...
@@ -145,9 +155,9 @@ class HeadService(Protocol):
 
     def stop_track(self) -> LookJob: ...
 
-    def get_track(self) -> dict[str, Any]: ...
+    def get_track(self) -> LookAnswer: ...
 
-    def tracking_now(self) -> dict[str, Any] | None: ...
+    def tracking_now(self) -> TrackFigures | None: ...
 
 
 class ServiceControl:
@@ -166,7 +176,7 @@ class ServiceControl:
     def snapshot(self) -> StatusSnapshot:
         return status_snapshot(self.parts, self.more_faults() if self.more_faults is not None else None)
 
-    def learning_since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]:
+    def learning_since(self, since: int = 0, limit: int = 5000) -> JSONObject:
         return self.parts.learning.since(since, limit)
 
     def latest_frame(self, side: str) -> Frame | None:
@@ -281,7 +291,7 @@ class ServiceControl:
             return job
         return self.parts.looks.cancel(job.id)
 
-    def get_track(self) -> dict[str, Any]:
+    def get_track(self) -> LookAnswer:
         """The last track queued (its job), with the running one's figures so far."""
         with self._track_lock:
             job = self._track
@@ -293,7 +303,7 @@ class ServiceControl:
             out["result"] = {"stats": live}
         return out
 
-    def tracking_now(self) -> dict[str, Any] | None:
+    def tracking_now(self) -> TrackFigures | None:
         """The running track's figures (position of the patch, errors, latency), or None."""
         running = self.parts.running
         return running.fixation.tracking_status() if running is not None else None
@@ -327,7 +337,7 @@ class ServiceControl:
                                       "'before-lens-swap.npz' (letters, digits, . _ -; ending .npz)", "name")
         return self.parts.config.state_dir / name
 
-    def save_map(self, name: str | None = None) -> dict[str, Any]:
+    def save_map(self, name: str | None = None) -> MapAnswer:
         """Save the map (default: the checkpoint file, atomically, keeping .prev)."""
         running = self._running()
         path = self._map_path(name)
@@ -349,7 +359,7 @@ class ServiceControl:
         self.parts.hub.publish("map", action="saved", path=str(path), adaptations=adaptations)
         return {"path": str(path), "adaptations": adaptations}
 
-    def load_map(self, name: str | None = None) -> dict[str, Any]:
+    def load_map(self, name: str | None = None) -> MapAnswer:
         """Replace the map being learned by a saved one (made for the same map parameters)."""
         running = self._running()
         path = self._map_path(name)
@@ -368,7 +378,7 @@ class ServiceControl:
         self.parts.hub.publish("map", action="loaded", path=str(path), adaptations=gm.adaptations)
         return {"path": str(path), "adaptations": gm.adaptations}
 
-    def reset_map(self, seed: int | None = None) -> dict[str, Any]:
+    def reset_map(self, seed: int | None = None) -> MapAnswer:
         """Start learning again from a random map; the map before is saved as `before-reset.npz`."""
         running = self._running()
         config = self.parts.config

@@ -14,14 +14,27 @@ import logging
 import math
 import threading
 import time
-from typing import Any, Callable
+from typing import Callable, TypeAlias, TypedDict
 
 import numpy as np
+
+from headctl.json_types import JSON, JSONObject
 
 log = logging.getLogger(__name__)
 
 
-Subscriber = Callable[[dict[str, Any]], None]
+# An event: its `seq`, `time` and `type`, then the fields its publisher gave (made `plain`).
+Event: TypeAlias = JSONObject
+Subscriber = Callable[[Event], None]
+
+
+class LogEntry(TypedDict):
+    """A warning or error logged, as the status lists it."""
+
+    time: float
+    level: str
+    logger: str
+    message: str
 
 
 class EventHub:
@@ -30,14 +43,14 @@ class EventHub:
     def __init__(self, history: int = 512) -> None:
         self._lock = threading.Lock()
         self._seq = 0
-        self._history: collections.deque[dict[str, Any]] = collections.deque(maxlen=history)
+        self._history: collections.deque[Event] = collections.deque(maxlen=history)
         self._subscribers: list[Subscriber] = []
         self.counts: collections.Counter[str] = collections.Counter()
 
-    def publish(self, type_: str, **fields: Any) -> dict[str, Any]:
+    def publish(self, type_: str, **fields: object) -> Event:
         with self._lock:
             self._seq += 1
-            event = {"seq": self._seq, "time": time.time(), "type": type_,
+            event: Event = {"seq": self._seq, "time": time.time(), "type": type_,
                      **{k: plain(v) for k, v in fields.items()}}
             self._history.append(event)
             self.counts[type_] += 1
@@ -70,7 +83,7 @@ class EventHub:
         with self._lock:
             return self._seq
 
-    def recent(self, count: int = 50) -> list[dict[str, Any]]:
+    def recent(self, count: int = 50) -> list[Event]:
         with self._lock:
             return list(self._history)[-count:]
 
@@ -80,7 +93,7 @@ class EventHub:
             return len(self._subscribers)
 
 
-def plain(value: Any, digits: int | None = 4) -> Any:
+def plain(value: object, digits: int | None = 4) -> JSON:
     """JSON-ready: numpy arrays and scalars as lists and floats, floats rounded to `digits`
     (None: kept whole), and NaN and infinities as None (JSON has neither)."""
     if isinstance(value, np.ndarray):
@@ -106,7 +119,7 @@ class EventLog(logging.Handler):
 
     def __init__(self, size: int = 50) -> None:
         super().__init__(level=logging.WARNING)
-        self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=size)
+        self.events: collections.deque[LogEntry] = collections.deque(maxlen=size)
         self.counts: collections.Counter[str] = collections.Counter()
 
     def emit(self, record: logging.LogRecord) -> None:

@@ -13,7 +13,7 @@ import collections
 import contextlib
 import logging
 import threading
-from typing import Any, Callable, Iterator
+from typing import Callable, Iterator, TypedDict
 
 import numpy as np
 
@@ -27,7 +27,7 @@ from headctl.service.head import Head
 from headctl.service.events import EventHub, plain
 from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
 from headctl.service.servo_io.loop import join_thread
-from headctl.service.tracking import Tracking
+from headctl.service.tracking import TrackFigures, Tracking
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +81,12 @@ class HeadEvents:
         self.vergence_latency_s.append(frame_to_command_s)
 
 
+class FixationCounts(TypedDict):
+    done: int
+    taught: int
+    refused: dict[str, int]  # by outcome
+
+
 class FixationThread(threading.Thread):
     """Clients' looks first, else exploratory fixations (back to back or at `rate_hz`) while
     exploration is on; paused while `paused_reason()` says why."""
@@ -115,11 +121,11 @@ class FixationThread(threading.Thread):
         self.abort.set()
         join_thread(self, timeout_s)
 
-    def tracking_status(self) -> dict[str, Any] | None:
+    def tracking_status(self) -> TrackFigures | None:
         """The running track's figures (the patch's position, errors, latency), or None."""
         return self.tracking.status() if self.tracking is not None else None
 
-    def counts(self) -> dict[str, Any]:
+    def counts(self) -> FixationCounts:
         with self._lock:
             return {"done": self.done, "taught": self.taught, "refused": dict(self.refused)}
 
@@ -202,7 +208,7 @@ class FixationThread(threading.Thread):
         first, last = (fixations[0], fixations[-1]) if fixations else (None, None)
         sighting = look.sightings[-1] if look.sightings and len(look.sightings) == len(fixations) else None
         accepted = first is not None and first.taught  # its correspondence (position, confidence) was accepted
-        result: dict[str, Any] = {
+        result: dict[str, object] = {
             "on_target": look.on_target, "final_error_px": look.final_error_px,
             "tolerance_px": self.looker.params.tolerance_px, "corrective_steps": look.corrective_steps,
             "landing_error_px": look.landing_error_px,

@@ -17,9 +17,10 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable, TypedDict
 
 from headctl.errors import ControlError, NotFoundError, QueueFullError
+from headctl.json_types import JSONObject
 
 log = logging.getLogger(__name__)
 
@@ -58,9 +59,9 @@ class LookRequest:
     d_ncc: float | None = None
     d_reason: str = ""
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         names = ("pan", "tilt", "vergence") if self.kind is LookKind.ANGLES else ("x", "y", "d")
-        out: dict[str, Any] = {"kind": self.kind, **dict(zip(names, self.values))}
+        out: dict[str, object] = {"kind": self.kind, **dict(zip(names, self.values))}
         if self.kind is LookKind.TRACK:
             out.pop("d")  # measured where the patch is taken
         elif self.kind is LookKind.ANGLES:
@@ -76,6 +77,21 @@ class LookRequest:
         return out
 
 
+class LookAnswer(TypedDict):
+    """A look as the API answers it (`LookJob.as_dict`, made `plain` there)."""
+
+    id: int
+    request: dict[str, object]  # `LookRequest.as_dict`
+    state: LookState
+    outcome: str
+    detail: str
+    result: JSONObject
+    created: float
+    started: float | None
+    finished: float | None
+    cancel_requested: bool
+
+
 @dataclass
 class LookJob:
     id: int
@@ -83,7 +99,7 @@ class LookJob:
     state: LookState = LookState.QUEUED
     outcome: str = ""  # the fixation's outcome ("taught" or why it did not teach), or why it failed
     detail: str = ""
-    result: dict[str, Any] = field(default_factory=dict)
+    result: JSONObject = field(default_factory=dict)  # the look's figures, made `plain`
     created_s: float = field(default_factory=time.time)
     started_s: float | None = None
     finished_s: float | None = None
@@ -118,7 +134,7 @@ class LookJob:
             self.cancel_outcome, self.cancel_detail = outcome, detail
             self.cancel_requested.set()
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> LookAnswer:
         return {"id": self.id, "request": self.request.as_dict(), "state": self.state, "outcome": self.outcome,
                 "detail": self.detail, "result": self.result, "created": self.created_s,
                 "started": self.started_s, "finished": self.finished_s,
@@ -174,7 +190,7 @@ class LookQueue:
             return bool(self._queued) or self._cond.wait_for(lambda: bool(self._queued), timeout_s)
 
     def finish(self, job: LookJob, state: LookState, outcome: str, detail: str = "",
-               result: dict[str, Any] | None = None) -> None:
+               result: JSONObject | None = None) -> None:
         with self._cond:
             self._finish_locked(job, state, outcome, detail, result)
 
@@ -209,7 +225,7 @@ class LookQueue:
             return len(self._queued)
 
     def _finish_locked(self, job: LookJob, state: LookState, outcome: str, detail: str = "",
-                       result: dict[str, Any] | None = None) -> None:
+                       result: JSONObject | None = None) -> None:
         job.state, job.outcome, job.detail = state, outcome, detail
         job.result = result or {}
         job.finished_s = time.time()

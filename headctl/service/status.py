@@ -12,18 +12,46 @@ from __future__ import annotations
 import dataclasses
 import os
 import threading
-from typing import Any, Callable
+from typing import Callable, Sequence, TypedDict
 
 import numpy as np
 
 from calib_free.gaze.fixation import FixationRecord
 from drivers.cameras.camera import StreamHealth
-from headctl.service.events import EventHub, plain
+from headctl.json_types import JSONObject
+from headctl.service.events import EventHub, LogEntry, plain
 from headctl.service.parts import ServiceParts, ServicePhase
+from headctl.service.tracking import TrackFigures
 
 STALLED_FRAME_S = 1.0  # a streaming camera without a frame for this long is reported stalled
 STALLED_LOOP_S = 1.0  # a live servo loop without a cycle for this long is reported stalled
 FAILING_READS_S = 0.5  # servo reads failing for this long are reported
+
+
+class LastFixation(TypedDict):
+    """The last fixation as the status shows it (`last_fixation`)."""
+
+    index: int
+    kind: str
+    outcome: str
+    detail: str
+    duration_s: float
+    converged: bool
+    confidence: float | None  # these four: None without a match
+    position: np.ndarray | None
+    left: list[float] | None
+    right: list[float] | None
+
+
+class VergenceLatency(TypedDict):
+    count: int
+    p50: float | None  # ms
+    p99: float | None
+
+
+class RestoredMap(TypedDict):
+    adaptations: int
+    recent_retinal_errors: list[float]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,7 +70,7 @@ class JointStatus:
 class CameraStatus:
     name: str
     health: str
-    stats: dict[str, Any]
+    stats: dict[str, int]
     restarts: int
     frame_age_s: float | None
     last_error: str | None
@@ -56,10 +84,10 @@ class FixationStatus:
     taught: int
     refused: dict[str, int]
     looks_queued: int
-    last: dict[str, Any] | None
-    vergence_latency_ms: dict[str, Any]
+    last: LastFixation | None
+    vergence_latency_ms: VergenceLatency
     landing_error_px_median: float | None  # over the last target looks measured
-    tracking: dict[str, Any] | None = None  # the running track's figures (GET /api/v1/track has them too)
+    tracking: TrackFigures | None = None  # the running track's figures (GET /api/v1/track has them too)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +108,7 @@ class LearningStatus:
 class MapStatus:
     path: str
     restored_from: str
-    restored: dict[str, Any]
+    restored: RestoredMap
     problems: list[str]
     checkpoints: int
     last_checkpoint_adaptations: int | None
@@ -100,20 +128,20 @@ class StatusSnapshot:
     joints: dict[str, JointStatus]
     pose: dict[str, float] | None
     torque: bool | None
-    servo_loop: dict[str, Any] | None  # counters and period/jitter quantiles (`ServoLoop.timing`)
+    servo_loop: JSONObject | None  # counters and period/jitter quantiles (`ServoLoop.timing`)
     bus_down: bool
     fixation: FixationStatus
     learning: LearningStatus | None
     map: MapStatus
     cameras: dict[str, CameraStatus]
-    hardware_errors: dict[str, Any]  # the servos' error episodes: open now, the last ended, reboots
-    warnings: list[dict[str, Any]]  # the last warnings and errors logged
+    hardware_errors: JSONObject  # the servos' error episodes: open now, the last ended, reboots
+    warnings: list[LogEntry]  # the last warnings and errors logged
     warning_counts: dict[str, int]
     event_counts: dict[str, int]  # events published, by type
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> JSONObject:
         """The JSON of `GET /api/v1/state` (valid JSON whatever the values: NaN becomes null)."""
-        out: dict[str, Any] = plain(digits=None, value={
+        out: JSONObject = plain(digits=None, value={
             "state": str(self.state), "pid": self.pid, "config": self.config, "uptime_s": self.uptime_s,
             "faults": list(self.faults.values()), "api": self.api, "events_seq": self.events_seq,
             "image_size": list(self.image_size),
@@ -133,12 +161,12 @@ def _percentiles(values: list[float], qs: tuple[float, ...]) -> list[float | Non
     return [float(np.percentile(arr, q)) if len(arr) else None for q in qs]
 
 
-def _mean(values: list[Any]) -> float | None:
+def _mean(values: Sequence[float | None]) -> float | None:
     finite = [float(v) for v in values if v is not None and np.isfinite(v)]
     return float(np.mean(finite)) if finite else None
 
 
-def last_fixation(record: FixationRecord) -> dict[str, Any]:
+def last_fixation(record: FixationRecord) -> LastFixation:
     match = record.match
     return {"index": record.index, "kind": str(record.kind), "outcome": str(record.outcome),
             "detail": record.detail, "duration_s": record.duration_s, "converged": record.converged,

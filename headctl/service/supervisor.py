@@ -11,10 +11,9 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from typing import Any
-
 from drivers.cameras.camera import StreamHealth
 from drivers.errors import DriverError
+from headctl.service.fixation_thread import FixationCounts
 from headctl.service.parts import ServiceParts
 from headctl.service.servo_io.loop import join_thread
 from headctl.service.status import FaultWatcher, service_state
@@ -28,7 +27,7 @@ WATCHDOG_LOOP_S = 1.0  # the servo loop must have cycled this recently for WATCH
 
 def status_line(parts: ServiceParts, faults: dict[str, str]) -> str:
     running = parts.running
-    counts = running.fixation.counts() if running is not None else {"done": 0, "taught": 0}
+    counts = running.fixation.counts() if running is not None else FixationCounts(done=0, taught=0, refused={})
     adaptations = running.adapter.progress.adaptations if running is not None else 0
     line = (f"{service_state(parts, faults)}: {counts['done']} fixations, {counts['taught']} taught, "
             f"{adaptations} adaptations")
@@ -65,7 +64,7 @@ class Supervisor(threading.Thread):
     def tick(self) -> None:
         """One round of supervision (the thread's; a test may call it on a manual clock)."""
         faults = self.faults.check()
-        fields: dict[str, Any] = {}
+        fields: dict[str, str | int] = {}
         now = self.clock.monotonic()
         line = status_line(self.parts, faults)
         if line != self._last_line and now - self._last_line_s >= STATUS_LINE_EVERY_S:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 import os
 import socket
-from typing import Any, Mapping
+from typing import Mapping
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,7 @@ class SystemdNotifier:
     def enabled(self) -> bool:
         return self._sock is not None
 
-    def notify(self, **fields: Any) -> None:
+    def notify(self, **fields: str | int) -> None:
         if self._sock is None:
             return
         message = "\n".join(f"{k.upper()}={v}" for k, v in fields.items())

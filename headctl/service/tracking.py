@@ -19,7 +19,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from typing import Callable, Mapping, Protocol, TypedDict
 
 import numpy as np
 
@@ -34,7 +34,10 @@ from headctl.service.servo_io.loop import join_thread
 
 log = logging.getLogger(__name__)
 
-Publish = Callable[..., Any]  # EventHub.publish(type_, **fields)
+class Publish(Protocol):
+    """Tells an event (`EventHub.publish`)."""
+
+    def __call__(self, type_: str, **fields: object) -> object: ...
 
 
 class ExposurePoses(Protocol):
@@ -52,7 +55,7 @@ class ServoPoses(threading.Thread):
     """`ExposurePoses` from the servo loop: the thread `pose-history` reads every state the loop
     publishes (`read_state`: the first one after the call) into a `PoseHistory`."""
 
-    def __init__(self, bus: JointBus, pose_from: Callable[[Any], np.ndarray], size: int = 256) -> None:
+    def __init__(self, bus: JointBus, pose_from: Callable[[Mapping[str, float]], np.ndarray], size: int = 256) -> None:
         super().__init__(name="pose-history", daemon=True)
         self.bus = bus
         self.pose_from = pose_from
@@ -89,6 +92,33 @@ class ServoPoses(threading.Thread):
         self.stop()
 
 
+class ErrorFigures(TypedDict):
+    rms: float | None
+    p95: float | None
+    last: float | None
+
+
+class LatencyFigures(TypedDict):
+    p50: float | None
+    p95: float | None
+    count: int
+
+
+class TrackFigures(TypedDict):
+    """A track's figures as the API and the events show them (`TrackStats.as_dict`)."""
+
+    frames: int
+    found: int
+    misses: int
+    refreshes: int
+    no_pose: int
+    retinal_error_px: ErrorFigures
+    frame_to_command_ms: LatencyFigures
+    position: list[float] | None  # (x, y, d) of the last match in the left image
+    ncc: float | None
+    patch_size_px: int
+
+
 @dataclass
 class TrackStats:
     """A track's figures so far (read by the API while it runs)."""
@@ -104,7 +134,7 @@ class TrackStats:
     last_ncc: float | None = None
     patch_size_px: int = 0
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> TrackFigures:
         errors = np.asarray(self.retinal_error_px, dtype=float)
         latency = np.asarray(self.frame_to_command_s, dtype=float) * 1e3
 
@@ -146,7 +176,7 @@ class Tracking:
         self.current: TrackStats | None = None  # the running track's, for the API and the eyes' images
         self.latency_s: collections.deque[float] = collections.deque(maxlen=2000)  # of every track
 
-    def _tell(self, type_: str, **fields: Any) -> None:
+    def _tell(self, type_: str, **fields: object) -> None:
         if self.publish is not None:
             self.publish(type_, **fields)
 
@@ -252,7 +282,7 @@ class Tracking:
         self._tell("track_stopped", id=track_id, outcome=str(outcome), detail=detail, stats=stats.as_dict())
         return TrackEnd(outcome, detail, stats)
 
-    def status(self) -> dict[str, Any] | None:
+    def status(self) -> TrackFigures | None:
         """The running track's figures, or None."""
         stats = self.current
         return None if stats is None else stats.as_dict()
