@@ -74,8 +74,11 @@ def load_baseline(rev: str) -> types.ModuleType:
     (folder / "calib_free").rename(package)
     for source in package.rglob("*.py"):
         source.write_text(re.sub(r"\bcalib_free\b", "calib_free_baseline", source.read_text()))
-    sys.path.insert(0, str(folder))
-    return importlib.import_module("calib_free_baseline.correspondence")
+    sys.path.insert(0, str(folder))  # the other revision's tree: importable only from where it was extracted
+    # a revision with the package `calib_free/correspondence/` has the search in its `search.py`; others in
+    # the module `calib_free/correspondence.py`
+    nested = (package / "correspondence" / "search.py").exists()
+    return importlib.import_module("calib_free_baseline.correspondence" + (".search" if nested else ""))
 
 
 def rendered_pairs(width: int, height: int, count: int, seed: int = 0,
