@@ -100,7 +100,7 @@ def import_graph(root: Path, packages: Iterable[str]) -> Graph:
             for i in range(1, len(parts) + 1):
                 implied = ".".join(parts[:i])
                 if (implied == target or implied in modules) and implied not in own:
-                    edges.setdefault(implied, line)
+                    edges[implied] = min(line, edges.get(implied, line))
         graph[module] = edges
     return graph
 
