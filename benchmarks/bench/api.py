@@ -61,9 +61,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchmarks.support.daemon_process import BenchDaemon
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from daemon_process import BenchDaemon  # noqa: E402
 HISTORY_CYCLES = 6000  # ServoLoop's default history: what the state's percentiles cover
 JITTER_GOAL_MS = 1.0
 LONGEST_GOAL_MS = 20.0  # the longest period at 100 Hz, under any load

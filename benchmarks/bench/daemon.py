@@ -22,14 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+from drivers.servo.config import ServoBusConfig
+from drivers.sim.servos import SimulatedServoBus
+from headctl.config.head import load_config
+from headctl.service.servo_io.loop import ServoLoop
+from headctl.api.client import ApiClient, ApiError
 
-from drivers.servo.config import ServoBusConfig  # noqa: E402
-from drivers.sim.servos import SimulatedServoBus  # noqa: E402
-from headctl.config.head import load_config  # noqa: E402
-from headctl.service.servo_io.loop import ServoLoop  # noqa: E402
-from headctl.api.client import ApiClient, ApiError  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def idle_baseline(config_path: Path, seconds: float) -> dict:

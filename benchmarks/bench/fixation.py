@@ -46,20 +46,19 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))  # tests.support, from a checkout
+from benchmarks.support.image_error import radial_tangential_error
+from calib_free.map.gaze_map import GazeMap
+from calib_free.correspondence import search as correspondence
+from calib_free.map.adapter import MapAdapter, Sample
+from calib_free.gaze.fixation import FixationController
+from calib_free.kinematics import joints_of
+from calib_free.sim.head_model import HeadModel, JointLimits
+from drivers.sim.scene import StereoRenderer, shared_scene
+from headctl.experiments.online import SimulatedHeadRig
+from headctl.experiments.saccades import SaccadeCase, Scored, saccade_cases
+from headctl.experiments.saccades import accuracy as accuracy_of
 
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from calib_free.correspondence import search as correspondence  # noqa: E402
-from calib_free.map.adapter import MapAdapter, Sample  # noqa: E402
-from calib_free.gaze.fixation import FixationController  # noqa: E402
-from calib_free.kinematics import joints_of  # noqa: E402
-from calib_free.sim.head_model import HeadModel, JointLimits  # noqa: E402
-from drivers.sim.scene import StereoRenderer, shared_scene  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig  # noqa: E402
-from tests.support.saccade_pairs import SaccadeCase, Scored, saccade_cases  # noqa: E402
-from tests.support.saccade_pairs import accuracy as accuracy_of  # noqa: E402
-from tests.support.sim_truth import radial_tangential_error  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def load_baseline(rev: str) -> types.ModuleType:
@@ -75,8 +74,11 @@ def load_baseline(rev: str) -> types.ModuleType:
     (folder / "calib_free").rename(package)
     for source in package.rglob("*.py"):
         source.write_text(re.sub(r"\bcalib_free\b", "calib_free_baseline", source.read_text()))
-    sys.path.insert(0, str(folder))
-    return importlib.import_module("calib_free_baseline.correspondence")
+    sys.path.insert(0, str(folder))  # the other revision's tree: importable only from where it was extracted
+    # a revision with the package `calib_free/correspondence/` has the search in its `search.py`; others in
+    # the module `calib_free/correspondence.py`
+    nested = (package / "correspondence" / "search.py").exists()
+    return importlib.import_module("calib_free_baseline.correspondence" + (".search" if nested else ""))
 
 
 def rendered_pairs(width: int, height: int, count: int, seed: int = 0,

@@ -16,7 +16,7 @@
    Pixels whose map command (with that d, or 0 for a refused pixel) would take pan or tilt
    beyond the joint limits are drawn again (counted): no head reaches them.
 3. The truth: the world point the target pixel showed before the look (the first surface along
-   its ray, `tests.support.sim_truth`), projected into the left image at the servos' true
+   its ray, `drivers.sim.truth`), projected into the left image at the servos' true
    final position; its distance from the fovea beside the look's own `final_error_px`.
 
     .venv/bin/python -m benchmarks.bench.looks [--explore 2000] [--looks 100] [--seed 0]
@@ -38,18 +38,16 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.support, run from anywhere
-
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from calib_free.map.adapter import MapAdapter  # noqa: E402
-from calib_free.gaze.closed_loop import MIN_PATCH_STD, LookController, LookRecord, patch_problem  # noqa: E402
-from calib_free.correspondence.disparity import as_grey_float  # noqa: E402
-from calib_free.gaze.fixation import FixationController  # noqa: E402
-from drivers.sim.scene import shared_scene  # noqa: E402
-from headctl.errors import ControlError  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig  # noqa: E402
-from headctl.service.control import DISPARITY_BAND_PX, disparity_at, target_disparity  # noqa: E402
-from tests.support.sim_truth import first_surface, hidden_from  # noqa: E402
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.adapter import MapAdapter
+from calib_free.gaze.closed_loop import MIN_PATCH_STD, LookController, LookRecord, patch_problem
+from calib_free.correspondence.disparity import as_grey_float
+from calib_free.gaze.fixation import FixationController
+from drivers.sim.scene import shared_scene
+from drivers.sim.truth import first_surface, hidden_from
+from headctl.errors import ControlError
+from headctl.experiments.online import SimulatedHeadRig
+from headctl.service.control import DISPARITY_BAND_PX, disparity_at, target_disparity
 
 JOINT_ORDER = ("pan", "tilt", "left_eye", "right_eye")
 

@@ -33,15 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-from drivers.sim.motion import MovingObject  # noqa: E402
-from headctl.api.client import ApiClient  # noqa: E402
-from headctl.config.head import load_config  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig  # noqa: E402
-from headctl.experiments.pursuit import learned_map  # noqa: E402
-from headctl.service.daemon import Daemon  # noqa: E402
+from drivers.sim.motion import MovingObject
+from headctl.api.client import ApiClient
+from headctl.config.head import load_config
+from headctl.experiments.online import SimulatedHeadRig
+from headctl.experiments.pursuit import learned_map
+from headctl.service.daemon import Daemon
 
 TRUTH_DELAY_S = 0.02  # the truth is taken this far in the past: inside the joints' trace, never extrapolated
 

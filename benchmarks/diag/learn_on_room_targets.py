@@ -22,13 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from calib_free.sim.experiments import EXPERIMENTS, landing_errors_px, landing_targets, map_predictor, run_experiment  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig  # noqa: E402
-from headctl.experiments.sweep import parse_seeds  # noqa: E402
-from summarise_sweeps import finished_runs, fmt  # noqa: E402
+from benchmarks.diag.summarise_sweeps import finished_runs, fmt
+from calib_free.map.gaze_map import GazeMap
+from calib_free.sim.experiments import EXPERIMENTS, landing_errors_px, landing_targets, map_predictor, run_experiment
+from headctl.experiments.online import SimulatedHeadRig
+from headctl.experiments.sweep import parse_seeds
 
 
 def learn_on_room(seed: int, fixations: int, width: int = 320, height: int = 240) -> tuple[float, float]:

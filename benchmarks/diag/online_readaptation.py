@@ -14,15 +14,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from headctl.experiments.online import ONLINE_EXPERIMENTS, run_online  # noqa: E402
+from calib_free.map.gaze_map import GazeMap
+from headctl.experiments.online import ONLINE_EXPERIMENTS, run_online
 
 BANDS_PX = ((0, 30), (30, 50), (50, 70), (70, 1000))
 IMAGE_HEIGHT = 240  # run_online's default image size is 320 x 240

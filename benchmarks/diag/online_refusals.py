@@ -33,18 +33,16 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from calib_free.map.adapter import MapAdapter  # noqa: E402
-from calib_free.correspondence.search import CorrespondenceParams, match_fixation, stereo_inconsistency  # noqa: E402
-from calib_free.correspondence.disparity import as_grey_float  # noqa: E402
-from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams  # noqa: E402
-from calib_free.kinematics import JOINTS  # noqa: E402
-from calib_free.sim.head_model import HeadModel  # noqa: E402
-from drivers.sim.scene import Scene  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig, exploration_for  # noqa: E402
-from tests.support.sim_truth import axis_point, hidden_from, texture_at  # noqa: E402
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.adapter import MapAdapter
+from calib_free.correspondence.search import CorrespondenceParams, match_fixation, stereo_inconsistency
+from calib_free.correspondence.disparity import as_grey_float
+from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams
+from calib_free.kinematics import JOINTS
+from calib_free.sim.head_model import HeadModel
+from drivers.sim.scene import Scene
+from drivers.sim.truth import axis_point, hidden_from, texture_at
+from headctl.experiments.online import SimulatedHeadRig, exploration_for
 
 RIGHT_PX, WRONG_PX = 1.0, 3.0
 

@@ -5,7 +5,7 @@ Runs `--fixations` exploratory fixations on the simulated head from a random map
 angles before and after it. Then:
 
 1. The samples against the truth: what ended on the left fovea (the first surface along the
-   left optical axis at the true final joints, `tests.support.sim_truth`), projected into the
+   left optical axis at the true final joints, `drivers.sim.truth`), projected into the
    pre-fixation pair at the true joints before: the true (x, y, d), beside the correspondence's;
    and the pose read against the true one, the executed command against the true motion; the
    (x, y) error's mean and spread, radial and tangential, by eccentricity (a bias the map learns).
@@ -31,17 +31,16 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from calib_free.map.gaze_map import GazeMap  # noqa: E402
-from calib_free.map.adapter import MapAdapter  # noqa: E402
-from calib_free.correspondence.search import CorrespondenceParams  # noqa: E402
-from calib_free.sim.experiments import landing_errors_px, landing_targets, map_predictor  # noqa: E402
-from calib_free.gaze.fixation import FixationController, FixationParams  # noqa: E402
-from calib_free.kinematics import JOINTS, pose_of  # noqa: E402
-from calib_free.sim.head_model import FixationSampler, HeadModel  # noqa: E402
-from headctl.experiments.online import SimulatedHeadRig, exploration_for  # noqa: E402
-from tests.support.sim_truth import axis_point, hidden_from, radial_tangential_error  # noqa: E402
+from benchmarks.support.image_error import radial_tangential_error
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.adapter import MapAdapter
+from calib_free.correspondence.search import CorrespondenceParams
+from calib_free.sim.experiments import landing_errors_px, landing_targets, map_predictor
+from calib_free.gaze.fixation import FixationController, FixationParams
+from calib_free.kinematics import JOINTS, pose_of
+from calib_free.sim.head_model import FixationSampler, HeadModel
+from drivers.sim.truth import axis_point, hidden_from
+from headctl.experiments.online import SimulatedHeadRig, exploration_for
 
 DRANGE = (-60.0, 60.0)
 

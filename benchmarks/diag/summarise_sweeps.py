@@ -43,11 +43,9 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from headctl.experiments.plots import PAPER_FIG5  # noqa: E402
-from headctl.experiments.sweep import RUN_FILE, result_json  # noqa: E402
-from headctl.experiments.summary import run_figures, spread  # noqa: E402
+from headctl.experiments.plots import PAPER_FIG5
+from headctl.experiments.sweep import RUN_FILE, result_json
+from headctl.experiments.summary import run_figures, spread
 
 EXPERIMENTS = ("learn", "learn-nopose", "baseline", "prism", "pan-defect", "swap", "online-prism", "online-pan-defect")
 LEARN_FIGURES = ("pan_deg", "tilt_deg", "vergence_deg", "retinal_error")

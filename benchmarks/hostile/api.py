@@ -59,11 +59,10 @@ from schemathesis import GenerationMode
 from schemathesis.specs.openapi.checks import (content_type_conformance, negative_data_rejection,
                                                response_schema_conformance, status_code_conformance)
 
+from benchmarks.support.daemon_process import BenchDaemon
 from headctl.api.app import MAX_CONNECTIONS
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from daemon_process import BenchDaemon  # noqa: E402
 STREAMS = {("GET", "/api/v1/events"), ("GET", "/api/v1/eyes/{side}.mjpg")}
 # Those that change the head's state for the others come last.
 OPERATIONS = [

@@ -45,17 +45,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from benchmarks.support.yaml_text import Map, Raw, emit, tree
+import headctl.service.daemon
+from headctl.cli.main import main
+from headctl.config.head import load_config
+from headctl.errors import ConfigError
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-import yaml  # noqa: E402
-
-import headctl.service.daemon  # noqa: E402
-from headctl.cli.main import main  # noqa: E402
-from headctl.config.head import load_config  # noqa: E402
-from headctl.errors import ConfigError  # noqa: E402
-from tests.support.yaml_text import Map, Raw, emit, tree  # noqa: E402
-
 TOKEN = "hostile-bench-token-8d41c2"
 TLS = ROOT / "tests" / "data" / "tls"
 SIM_TEXT = (ROOT / "configs" / "sim.yaml").read_text()

@@ -26,11 +26,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
+from calib_free.map.file import temporary_files
+from headctl.api.client import ApiClient, ApiError
 
-from calib_free.map.file import temporary_files  # noqa: E402
-from headctl.api.client import ApiClient, ApiError  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 MAX_KILLS = 50
 START_TIMEOUT_S = 60.0

@@ -39,8 +39,10 @@ _ATLAS_WIDTH = 4096
 
 
 class Lens(Protocol):
-    width: int
-    height: int
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
 
     def unproject(self, uv: np.ndarray) -> np.ndarray: ...
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
@@ -57,8 +59,10 @@ class SceneMotion(Protocol):
 class HeadGeometry(Protocol):
     """What the renderer needs of a head model (`calib_free.sim.head_model.HeadModel` has it)."""
 
-    lens_left: Lens
-    lens_right: Lens
+    @property
+    def lens_left(self) -> Lens: ...
+    @property
+    def lens_right(self) -> Lens: ...
 
     def eye_frames_from_joints(self, pan: float, tilt: float, left_eye: float,
                                right_eye: float) -> list[tuple[np.ndarray, np.ndarray]]: ...

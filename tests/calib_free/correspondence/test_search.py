@@ -11,10 +11,11 @@ from calib_free.correspondence.search import (CorrespondenceError, Correspondenc
                                        _backward_distance, correspondence_map, foveal_patch, match_eye,
                                        stereo_inconsistency)
 from calib_free.correspondence.disparity import foveal_disparity
+from calib_free.kinematics import joints_of
 from calib_free.sim.head_model import HeadModel, JointLimits
 from drivers.sim.scene import StereoRenderer, shared_scene
-from tests.support.saccade_pairs import accuracy, saccade_cases, scored
-from tests.support.sim_truth import foveal_point, hidden_from, joints, texture_at
+from drivers.sim.truth import foveal_point, hidden_from, texture_at
+from headctl.experiments.saccades import accuracy, saccade_cases, scored
 
 W, H = 320, 240
 PAPER = CorrespondenceParams.profile_values("paper")
@@ -154,13 +155,13 @@ def rendered_cases():
         while len(cases) < 160:
             pre = rng.uniform(model.limits.low, model.limits.high)
             post = model.limits.clamp(pre + np.r_[rng.uniform(-15, 15, 2), 0.0])
-            target = foveal_point(model, scene, post)
+            target = foveal_point(model, scene, joints_of(post))
             r, seen = model.image_position(target[None, :], pre)
             (_, eye), _ = model.eye_frames(pre)
             if not seen[0] or hidden_from(scene, eye, target, 0.01):
                 continue  # out of view or occluded before the saccade: no right answer
             kind = texture_at(scene, target)
-            images = [renderer.render(joints(p))[0] for p in (pre, post)]
+            images = [renderer.render(joints_of(p))[0] for p in (pre, post)]
             noisy = [np.clip(im + rng.normal(0, 2.0, im.shape), 0, 255).astype(np.uint8) for im in images]
             cases.append((noisy[0], noisy[1], r[0, :2], kind))
     return cases

@@ -23,12 +23,12 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmarks.support.yaml_text import Map, Raw, emit, tree
 import headctl.service.daemon
 from headctl.cli.main import main
 from headctl.config.head import load_config
 from headctl.errors import ConfigError
 from tests.support import CONFIGS
-from tests.support.yaml_text import Map, Raw, emit, tree
 
 TOKEN = "hostile-token-5f3a9c1e7b"  # in the api section of every generated config
 BASE = yaml.safe_load((CONFIGS / "sim.yaml").read_text())

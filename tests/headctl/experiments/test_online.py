@@ -6,10 +6,10 @@ import numpy as np
 
 from calib_free.sim.experiments import landing_targets
 from drivers.sim.scene import shared_scene
+from drivers.sim.truth import first_surface
 from headctl.experiments import online
 from headctl.experiments.online import OnlineSpec, RoomSurfaces, run_online, sim_config
 from headctl.service.build import sim_head_model
-from tests.support.sim_truth import first_surface
 
 
 def test_room_surfaces_meet_rays_where_the_test_ray_caster_does():

@@ -1,15 +1,20 @@
-"""Ground truth for image tests on the simulated head: what is on a fovea, and where it was.
+"""What benchmarks and tests may ask of the simulated world: the first surface a ray meets, the
+texture at a point, what is on an eye's fovea, and whether a point is hidden from an eye.
 
 The renderer knows the room only as boxes; a single ray's first surface is a slab test per
-box, done here for one ray at a time (tests only need a few hundred).
+box, done here for one ray at a time (the callers need a few hundred to a few thousand).
+Eye frames are those of `HeadGeometry.eye_frames_from_joints`: world-to-camera rotation and
+optical centre.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
-from calib_free.kinematics import joints_of as joints  # noqa: F401 (re-exported for the tests)
-from calib_free.sim.head_model import HeadModel
-from drivers.sim.scene import Scene
+from drivers.sim.scene import HeadGeometry, Scene
+
+OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])  # in camera coordinates
 
 
 def first_surface(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:
@@ -23,7 +28,8 @@ def first_surface(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> np
             t_in, t_out = float(np.max(np.minimum(a1, a2))), float(np.min(np.maximum(a1, a2)))
             if 1e-6 < t_in < t_out and t_in < best:
                 best = t_in
-    return origin + best * direction
+    point: np.ndarray = origin + best * direction
+    return point
 
 
 def texture_at(scene: Scene, point: np.ndarray) -> str:
@@ -35,15 +41,16 @@ def texture_at(scene: Scene, point: np.ndarray) -> str:
 
 
 def axis_point(scene: Scene, rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """The world point on an eye's fovea: its optical axis' first surface (an eye frame of
-    `HeadModel.eye_frames`: world-to-camera rotation and centre)."""
-    return first_surface(scene, centre, rotation.T @ np.array([0.0, 0.0, 1.0]))
+    """The world point on an eye's fovea: its optical axis' first surface, for the eye frame
+    (`rotation`, `centre`)."""
+    return first_surface(scene, centre, rotation.T @ OPTICAL_AXIS)
 
 
-def foveal_point(model: HeadModel, scene: Scene, pose: np.ndarray) -> np.ndarray:
-    """The world point on the left fovea (the left optical axis' first surface) at `pose`."""
-    (rotation, centre), _ = model.eye_frames(pose)
-    return axis_point(scene, rotation, centre)
+def foveal_point(geometry: HeadGeometry, scene: Scene, joints: Mapping[str, float], eye: int = 0) -> np.ndarray:
+    """The world point on an eye's fovea (0 left, 1 right) at joint angles {pan, tilt,
+    left_eye, right_eye} (degrees)."""
+    frames = geometry.eye_frames_from_joints(joints["pan"], joints["tilt"], joints["left_eye"], joints["right_eye"])
+    return axis_point(scene, *frames[eye])
 
 
 def hidden_from(scene: Scene, centre: np.ndarray, point: np.ndarray, tolerance_m: float) -> bool:
@@ -51,16 +58,3 @@ def hidden_from(scene: Scene, centre: np.ndarray, point: np.ndarray, tolerance_m
     distance = float(np.linalg.norm(point - centre))
     hit = first_surface(scene, centre, (point - centre) / distance)
     return float(np.linalg.norm(hit - centre)) < distance - tolerance_m
-
-
-def radial_tangential_error(measured_xy: np.ndarray, true_xy: np.ndarray,
-                            centre: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Image positions' errors split about the image centre: (the truth's eccentricity, the
-    error along the radius, positive outwards, and across it), each (n,) for (n, 2) inputs."""
-    offset = np.atleast_2d(true_xy) - centre
-    eccentricity = np.hypot(*offset.T)
-    unit = offset / np.maximum(eccentricity, 1e-9)[:, None]
-    error = np.atleast_2d(measured_xy) - np.atleast_2d(true_xy)
-    radial = np.sum(error * unit, axis=1)
-    tangential = error[:, 1] * unit[:, 0] - error[:, 0] * unit[:, 1]
-    return eccentricity, radial, tangential

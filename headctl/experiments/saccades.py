@@ -4,7 +4,8 @@ For each saccade (pan and tilt within +-`max_step_deg`, vergence kept) and each 
 pre- and post-fixation images of that eye with sensor noise, and where the world point on
 that eye's post-fixation fovea (its optical axis' first surface) was in the pre-fixation
 image. Saccades whose foveal point was out of view or hidden before are skipped: they have
-no right answer. Shared by the correspondence tests and `benchmarks/bench/fixation.py`.
+no right answer. The correspondence tests and `benchmarks.bench.fixation` judge the
+correspondence search on these cases.
 """
 from __future__ import annotations
 
@@ -14,9 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_free.correspondence.search import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
+from calib_free.kinematics import joints_of
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import Scene, StereoRenderer
-from tests.support.sim_truth import axis_point, hidden_from, joints, texture_at
+from drivers.sim.truth import axis_point, hidden_from, texture_at
 
 
 @dataclass(frozen=True)
@@ -44,7 +46,7 @@ def saccade_cases(scene: Scene, model: HeadModel, count: int, seed: int = 11, no
         for _ in range(count):
             pre = rng.uniform(model.limits.low, model.limits.high)
             post = model.limits.clamp(pre + np.r_[rng.uniform(-max_step_deg, max_step_deg, 2), 0.0])
-            images = [renderer.render(joints(p)) for p in (pre, post)]
+            images = [renderer.render(joints_of(p)) for p in (pre, post)]
             noise = [noise_std * rng.standard_normal(images[0][0].shape, dtype=np.float32) for _ in range(4)]
             for eye in (0, 1):
                 target = axis_point(scene, *model.eye_frames(post)[eye])
