@@ -40,6 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.support, run from anywhere
 
+from calib_free.map.file import read_map, write_map  # noqa: E402
 from calib_free.map.gaze_map import GazeMap  # noqa: E402
 from calib_free.map.adapter import MapAdapter  # noqa: E402
 from calib_free.gaze.closed_loop import MIN_PATCH_STD, LookController, LookRecord, patch_problem  # noqa: E402
@@ -248,7 +249,7 @@ def main() -> int:
     parser.add_argument("--band-px", type=int, default=DISPARITY_BAND_PX,
                         help=f"rows either side searched to measure d (default {DISPARITY_BAND_PX}; 0: the same rows)")
     args = parser.parse_args()
-    gm = GazeMap.load(args.map) if args.map else GazeMap.for_image(320, 240, seed=args.seed)
+    gm = read_map(args.map) if args.map else GazeMap.for_image(320, 240, seed=args.seed)
     rng = np.random.default_rng(args.seed + 101)
     started = time.monotonic()
     with SimulatedHeadRig(seed=args.seed) as rig, MapAdapter(gm) as adapter:
@@ -257,7 +258,7 @@ def main() -> int:
         taught = sum(controller.fixate().taught for _ in range(0 if args.map else args.explore))
         adapter.wait_idle()
         if args.save_map:
-            adapter.with_map(lambda m: m.save(args.save_map))
+            adapter.with_map(lambda m: write_map(m, args.save_map))
         explored_s = time.monotonic() - started
         print(f"explored {0 if args.map else args.explore} fixations ({taught} taught) in {explored_s:.0f} s",
               file=sys.stderr)

@@ -36,6 +36,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from calib_free.map.file import write_map  # noqa: E402
 from drivers.sim.motion import MovingObject  # noqa: E402
 from headctl.api.client import ApiClient  # noqa: E402
 from headctl.config.head import load_config  # noqa: E402
@@ -86,7 +87,7 @@ def main() -> int:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp, SimulatedHeadRig() as rig:
         state = Path(tmp)
-        learned_map(rig).save(state / "gaze_map.npz")
+        write_map(learned_map(rig), state / "gaze_map.npz")
         for speed in (float(s) for s in args.speeds.split(",")):
             cube = MovingObject(speed_deg_s=speed)
             config = load_config().with_state_dir(state).with_api(port=0)

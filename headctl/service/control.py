@@ -22,6 +22,7 @@ from calib_free.map.gaze_map import GazeMap
 from calib_free.gaze.closed_loop import target_patch_problem
 from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
 from calib_free.errors import MapFileError
+from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
 from calib_free.kinematics import JOINTS
 from drivers.cameras.camera import Frame
@@ -339,7 +340,7 @@ class ServiceControl:
             adaptations = checkpointer.last_adaptations
         else:
             def save(gm: GazeMap) -> int:
-                gm.save(path)
+                write_map(gm, path)
                 return gm.adaptations
 
             try:
@@ -356,7 +357,7 @@ class ServiceControl:
         if not path.exists():
             raise NotFoundError(f"{path}: no such map file", "name")
         try:
-            gm = GazeMap.load(path)
+            gm = read_map(path)
         except MapFileError as err:
             raise ControlError(str(err), "name") from err
         if gm.params != self.parts.config.map_params():
@@ -373,7 +374,7 @@ class ServiceControl:
         running = self._running()
         config = self.parts.config
         backup = config.state_dir / "before-reset.npz"
-        running.adapter.with_map(lambda gm: gm.save(backup, keep_previous=False))
+        running.adapter.with_map(lambda gm: write_map(gm, backup, keep_previous=False))
         seed = config.gaze_map.seed if seed is None else seed
         running.adapter.replace_map(GazeMap(config.map_params(), seed=seed))
         log.warning("gaze map reset to a random map (seed %d); the previous one is in %s", seed, backup)
