@@ -4,7 +4,7 @@
    `headctl experiment online` does (`SimulatedHeadRig`: a manual clock, rendered pairs with
    sensor noise, the adapter thread learning).
 2. Then `--looks` looks of each kind, each from wherever an exploratory fixation left the head
-   (one runs between looks), through `calib_free.gaze.closed_loop.LookController`, which teaches the
+   (one runs between looks), through `calib_free.gaze.look.LookController`, which teaches the
    map as the service's looks do:
    - textured targets: random pixels of the left image whose patch identifies them in their own
      view (`patch_problem`: textured, not repetitive), with their disparity measured;
@@ -43,7 +43,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # tests.support, r
 from calib_free.map.file import read_map, write_map  # noqa: E402
 from calib_free.map.gaze_map import GazeMap  # noqa: E402
 from calib_free.map.adapter import MapAdapter  # noqa: E402
-from calib_free.gaze.closed_loop import MIN_PATCH_STD, LookController, LookRecord, patch_problem  # noqa: E402
+from calib_free.gaze.look import LookController, LookRecord  # noqa: E402
+from calib_free.gaze.refind import MIN_PATCH_STD, patch_problem  # noqa: E402
 from calib_free.correspondence.disparity import as_grey_float  # noqa: E402
 from calib_free.gaze.fixation import FixationController  # noqa: E402
 from drivers.sim.scene import shared_scene  # noqa: E402
