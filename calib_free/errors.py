@@ -16,3 +16,11 @@ class MapFileError(CalibFreeError, ValueError):
 
 class CorrespondenceError(CalibFreeError, ValueError):
     """Images that cannot be matched: wrong shapes, a patch larger than the image."""
+
+
+class DisparityError(CalibFreeError, ValueError):
+    """A disparity the pair does not give: no match in the right image scores well enough."""
+
+
+class TargetPatchError(CalibFreeError, ValueError):
+    """An image target a look cannot find again by its patch: flat, repetitive, or beyond the image."""

@@ -4,7 +4,7 @@
    `headctl experiment online` does (`SimulatedHeadRig`: a manual clock, rendered pairs with
    sensor noise, the adapter thread learning).
 2. Then `--looks` looks of each kind, each from wherever an exploratory fixation left the head
-   (one runs between looks), through `calib_free.gaze.closed_loop.LookController`, which teaches the
+   (one runs between looks), through `calib_free.gaze.look.LookController`, which teaches the
    map as the service's looks do:
    - textured targets: random pixels of the left image whose patch identifies them in their own
      view (`patch_problem`: textured, not repetitive), with their disparity measured;
@@ -38,9 +38,11 @@ from typing import Any
 
 import numpy as np
 
+from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
-from calib_free.gaze.closed_loop import MIN_PATCH_STD, LookController, LookRecord, patch_problem
+from calib_free.gaze.look import LookController, LookRecord
+from calib_free.gaze.refind import MIN_PATCH_STD, patch_problem
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController
 from drivers.sim.scene import shared_scene
@@ -246,7 +248,7 @@ def main() -> int:
     parser.add_argument("--band-px", type=int, default=DISPARITY_BAND_PX,
                         help=f"rows either side searched to measure d (default {DISPARITY_BAND_PX}; 0: the same rows)")
     args = parser.parse_args()
-    gm = GazeMap.load(args.map) if args.map else GazeMap.for_image(320, 240, seed=args.seed)
+    gm = read_map(args.map) if args.map else GazeMap.for_image(320, 240, seed=args.seed)
     rng = np.random.default_rng(args.seed + 101)
     started = time.monotonic()
     with SimulatedHeadRig(seed=args.seed) as rig, MapAdapter(gm) as adapter:
@@ -255,7 +257,7 @@ def main() -> int:
         taught = sum(controller.fixate().taught for _ in range(0 if args.map else args.explore))
         adapter.wait_idle()
         if args.save_map:
-            adapter.with_map(lambda m: m.save(args.save_map))
+            adapter.with_map(lambda m: write_map(m, args.save_map))
         explored_s = time.monotonic() - started
         print(f"explored {0 if args.map else args.explore} fixations ({taught} taught) in {explored_s:.0f} s",
               file=sys.stderr)

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_free.map.file import write_map
 from drivers.sim.motion import MovingObject
 from headctl.api.client import ApiClient
 from headctl.config.head import load_config
@@ -83,7 +84,7 @@ def main() -> int:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp, SimulatedHeadRig() as rig:
         state = Path(tmp)
-        learned_map(rig).save(state / "gaze_map.npz")
+        write_map(learned_map(rig), state / "gaze_map.npz")
         for speed in (float(s) for s in args.speeds.split(",")):
             cube = MovingObject(speed_deg_s=speed)
             config = load_config().with_state_dir(state).with_api(port=0)

@@ -76,7 +76,7 @@ class MapReader(Protocol):
 
 @dataclass(frozen=True)
 class LookParams:
-    """How a closed-loop look (`calib_free.gaze.closed_loop`) finds its target again and corrects."""
+    """How a closed-loop look (`calib_free.gaze.look`) finds its target again and corrects."""
 
     tolerance_px: float = 1.0  # the target this near the left fovea: the look is on target
     max_corrective_steps: int = 3  # corrective fixations after the first before giving up
@@ -132,7 +132,7 @@ class FixationParams:
     # commands in motor space, or "teaching", image targets chosen so that the fixation teaches.
     exploration: str = "teaching"
     correspondence: CorrespondenceParams = field(default_factory=CorrespondenceParams)
-    look: LookParams = field(default_factory=LookParams)  # closed-loop looks (`calib_free.gaze.closed_loop`)
+    look: LookParams = field(default_factory=LookParams)  # closed-loop looks (`calib_free.gaze.look`)
 
     def __post_init__(self) -> None:
         if self.vergence_tolerance_px <= 0:

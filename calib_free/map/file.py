@@ -43,12 +43,13 @@ import struct
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import IO, Any
 
 import numpy as np
 
 from calib_free.errors import MapFileError
-from calib_free.map.gaze_map import GazeMap, GazeMapParams
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.params import GazeMapParams
 
 log = logging.getLogger(__name__)
 
@@ -105,9 +106,6 @@ _TMP_PREFIX_SEPARATOR = "."
 _TMP_SUFFIX = ".tmp"
 _PREV_SUFFIX = ".prev"
 _TEMPORARY = re.compile(r".+\.[a-z0-9_]+\.tmp(\.prev)?")
-
-_Map = TypeVar("_Map", bound=GazeMap)
-
 
 def map_entries(gaze_map: GazeMap) -> dict[str, np.ndarray]:
     """The arrays a map file holds for `gaze_map`, by entry name (call `settle()` first)."""
@@ -240,20 +238,20 @@ def pose_terms(params: GazeMapParams) -> int:
             + pose_monomials * _max_terms(params.pose_cross_degree))
 
 
-def read_map(path: str | os.PathLike[str], map_class: type[_Map]) -> _Map:
-    """A `map_class` map from a file `write_map` wrote, checked whole before use (the module
+def read_map(path: str | os.PathLike[str]) -> GazeMap:
+    """The map of a file `write_map` wrote, checked whole before use (the module
     docstring lists the checks). Raises MapFileError naming the file and what is wrong, and
     nothing else."""
     path = Path(path)
     try:
-        return _read(path, map_class)
+        return _read(path)
     except MapFileError:
         raise
     except Exception as err:  # a failure the checks did not foresee is still a bad file, never a crash
         raise MapFileError(f"{path}: not a readable gaze map file ({type(err).__name__}: {err})") from err
 
 
-def _read(path: Path, map_class: type[_Map]) -> _Map:
+def _read(path: Path) -> GazeMap:
     try:
         info = path.stat()
     except FileNotFoundError as err:
@@ -299,7 +297,7 @@ def _read(path: Path, map_class: type[_Map]) -> _Map:
                                    f"a map file holds all of {sorted(POSE_ENTRIES)} or none")
             arrays = {name: _read_array(archive, members[name], specs[name], name, path)
                       for name in members if name not in _TEXT_SPECS}
-    return _build(path, map_class, params, arrays)
+    return _build(path, params, arrays)
 
 
 _EOCD = struct.Struct("<4s4H2LH")  # end of central directory record
@@ -514,7 +512,7 @@ def _params_problem(p: GazeMapParams) -> str:
     return ""
 
 
-def _build(path: Path, map_class: type[_Map], params: GazeMapParams, arrays: dict[str, np.ndarray]) -> _Map:
+def _build(path: Path, params: GazeMapParams, arrays: dict[str, np.ndarray]) -> GazeMap:
     """The map of checked entries, after the checks that relate one entry to another."""
     adaptations = int(arrays["adaptations"])
     long_run_error = float(arrays["long_run_error"])
@@ -539,7 +537,7 @@ def _build(path: Path, map_class: type[_Map], params: GazeMapParams, arrays: dic
             problems.append(f"{name} is {arrays[name].tolist()}, expected variances (at least 0)")
     if problems:
         raise MapFileError(f"{path}: {'; '.join(problems)}")
-    gm = map_class(params, grid=arrays["grid"])
+    gm = GazeMap(params, grid=arrays["grid"])
     if gm.polynomial is not None:
         gm.polynomial.coef = arrays["polynomial_coef"]
         gm.polynomial.covariance = arrays["polynomial_covariance"]

@@ -27,7 +27,7 @@ from calib_free.map.gaze_map import GazeMap
 from calib_free.gaze.exploration import EXPLORATION_KINDS
 from calib_free.sim.experiments import (EXPERIMENTS, ExperimentResult, ExperimentSpec, final_head, landing_targets,
                                     representation_floor, run_experiment)
-from calib_free.map.gaze_map import PROFILES, GazeMapParams
+from calib_free.map.params import PROFILES, GazeMapParams
 from calib_free.lens import LENS_KINDS
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import ROOMS as ROOM_KINDS

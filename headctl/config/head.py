@@ -35,7 +35,7 @@ from typing import Unpack, cast
 from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.gaze.exploration import EXPLORATION_KINDS
 from calib_free.gaze.fixation import FixationParams
-from calib_free.map.gaze_map import PROFILES, GazeMapParams
+from calib_free.map.params import PROFILES, GazeMapParams
 from calib_free.correspondence.alignment import ALIGNMENT_WARPS
 from drivers.cameras.config import CameraConfig, MAX_IMAGE_SIDE, StereoCamerasConfig
 from drivers.config.reader import check_settings, config_error_from, config_meta, declare_settings, read_config, setting

@@ -28,6 +28,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from calib_free.map.file import read_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.sim.experiments import EXPERIMENTS, run_experiment
 from calib_free.gaze.pursuit import PursuitParams, TrackOutcome
@@ -193,7 +194,7 @@ def run_pursuit(out_dir: Path, speeds: tuple[float, ...] = SPEEDS_DEG_S, *, dura
                 profile: str = "default") -> dict[str, Any]:
     """Every speed in turn; writes `pursuit-<profile>.csv`, `.png` and `.json` to `out_dir`."""
     if map_path is not None:
-        gm = GazeMap.load(map_path)
+        gm = read_map(map_path)
         map_source = str(map_path)
     else:
         with SimulatedHeadRig(seed=seed) as rig:

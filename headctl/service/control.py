@@ -19,10 +19,13 @@ from typing import Callable, NotRequired, Protocol, TypedDict
 import numpy as np
 
 from calib_free.map.gaze_map import GazeMap
-from calib_free.gaze.closed_loop import target_patch_problem
-from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
-from calib_free.errors import MapFileError
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX
+from calib_free.correspondence.disparity import disparity_at as measured_disparity_at
+from calib_free.errors import DisparityError, MapFileError, TargetPatchError
+from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
+from calib_free.gaze.look import TargetDisparity
+from calib_free.gaze.look import target_disparity as look_disparity
 from calib_free.kinematics import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
@@ -37,67 +40,28 @@ from headctl.service.tracking import TrackFigures
 log = logging.getLogger(__name__)
 
 PAIR_MAX_AGE_S = 0.5  # a target's disparity is measured only in a pair this recent
-# A match this good or better gives a target's disparity; below, the patch is likely matched to
-# something else (a distinctly textured patch scores 0.8-1 on the simulated head).
-MIN_DISPARITY_NCC = 0.6
-# Rows searched either side of the target's own: off-centre, the fish-eye's vertical disparity
-# (the paper's lens: up to 3.5 px; the simulated head: 2.3 px at p90, 4.1 px at p99 of random pixels).
-DISPARITY_BAND_PX = 4
 MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
 
 
 def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                  disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX) -> tuple[float, float]:
-    """The disparity (px) at (x, y) of the left image of a pair, and its NCC: where the patch of
-    `patch_size` around it lies in the right image, within `disparity_range` along the same
-    rows and `band_px` rows either side. InvalidRequestError (naming `d`) when it matches below
-    MIN_DISPARITY_NCC."""
-    d, ncc = horizontal_offset(as_grey_float(left), as_grey_float(right), (x, y), patch_size, disparity_range,
-                               band_px)
-    if ncc < MIN_DISPARITY_NCC:
-        raise InvalidRequestError(
-            f"d: the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "
-            f"scores NCC {ncc:.2f} < {MIN_DISPARITY_NCC}: too near the border, no texture there, or "
-            "seen by one eye only); send d", "d")
-    return d, ncc
-
-
-@dataclasses.dataclass(frozen=True)
-class TargetDisparity:
-    """The disparity a target sent without one is looked at with: measured (`ncc` its match's),
-    or the fixation's own, 0, when it cannot be measured but the look can find the target by
-    its patch (`reason` says why it was not measured)."""
-
-    d: float
-    ncc: float | None = None
-    reason: str = ""
-
-    @property
-    def measured(self) -> bool:
-        return self.ncc is not None
+    """`calib_free.correspondence.disparity.disparity_at`; InvalidRequestError (naming `d`) where
+    it cannot be measured."""
+    try:
+        return measured_disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
+    except DisparityError as err:
+        raise InvalidRequestError(f"d: {err}; send d", "d") from None
 
 
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
                      band_px: int = DISPARITY_BAND_PX) -> TargetDisparity:
-    """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
-    be measured (seen by one eye only, a vertical disparity or depth edge the match does not
-    survive, a patch too near the border for `patch_size`), d = 0: the look starts at the depth
-    the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
-    InvalidRequestError (naming `d`) when the target has no patch for the closed loop to find it
-    again by (`target_patch_problem`: flat, repetitive, reaching beyond the image): no look can
-    end on it, whatever its d."""
-    problem = target_patch_problem(as_grey_float(left), (x, y), look)
+    """`calib_free.gaze.look.target_disparity`; InvalidRequestError (naming `d`) when the target
+    cannot be looked at."""
     try:
-        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
-    except InvalidRequestError as err:
-        unmeasured = str(err).removeprefix("d: ").removesuffix("; send d")
-        if problem:
-            raise InvalidRequestError(f"d: {unmeasured}, and the target cannot be looked at: {problem}", "d") from None
-        return TargetDisparity(0.0, None, f"{unmeasured}: looked at from the depth the eyes fixate (d = 0)")
-    if problem:
-        raise InvalidRequestError(f"d: the target at ({x:g}, {y:g}) cannot be looked at: {problem}", "d")
-    return TargetDisparity(d, ncc)
+        return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px)
+    except TargetPatchError as err:
+        raise InvalidRequestError(f"d: {err}", "d") from None
 
 
 class SimFault(enum.StrEnum):
@@ -349,7 +313,7 @@ class ServiceControl:
             adaptations = checkpointer.last_adaptations
         else:
             def save(gm: GazeMap) -> int:
-                gm.save(path)
+                write_map(gm, path)
                 return gm.adaptations
 
             try:
@@ -366,7 +330,7 @@ class ServiceControl:
         if not path.exists():
             raise NotFoundError(f"{path}: no such map file", "name")
         try:
-            gm = GazeMap.load(path)
+            gm = read_map(path)
         except MapFileError as err:
             raise ControlError(str(err), "name") from err
         if gm.params != self.parts.config.map_params():
@@ -383,7 +347,7 @@ class ServiceControl:
         running = self._running()
         config = self.parts.config
         backup = config.state_dir / "before-reset.npz"
-        running.adapter.with_map(lambda gm: gm.save(backup, keep_previous=False))
+        running.adapter.with_map(lambda gm: write_map(gm, backup, keep_previous=False))
         seed = config.gaze_map.seed if seed is None else seed
         running.adapter.replace_map(GazeMap(config.map_params(), seed=seed))
         log.warning("gaze map reset to a random map (seed %d); the previous one is in %s", seed, backup)

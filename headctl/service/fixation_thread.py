@@ -17,7 +17,7 @@ from typing import Callable, Iterator, TypedDict
 
 import numpy as np
 
-from calib_free.gaze.closed_loop import LookController
+from calib_free.gaze.look import LookController
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome,
                                  FixationRecord, HeadTimeoutError)
 from calib_free.gaze.pursuit import TrackOutcome
@@ -195,7 +195,7 @@ class FixationThread(threading.Thread):
             self.events.publish("look_done", id=job.id, state=job.state, outcome=job.outcome, detail=job.detail)
 
     def _look_at_target(self, job: LookJob) -> None:
-        """A closed-loop look (`calib_free.gaze.closed_loop`): `done` only with the target within the
+        """A closed-loop look (`calib_free.gaze.look`): `done` only with the target within the
         tolerance of the left fovea; every figure of the result from an accepted measurement."""
         target = np.asarray(job.request.values, dtype=float)
         reference = job.request.reference_pose

@@ -18,7 +18,7 @@ from pathlib import Path
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
 from calib_free.errors import MapFileError
-from calib_free.map.file import temporary_files
+from calib_free.map.file import read_map, temporary_files, write_map
 from drivers.clock import SYSTEM_CLOCK, Clock
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError
@@ -59,7 +59,7 @@ def restore_map(config: HeadConfig) -> tuple[GazeMap, str, list[str]]:
         if not os.path.lexists(candidate):
             continue
         try:
-            gm = GazeMap.load(candidate)
+            gm = read_map(candidate)
             if gm.params != wanted:
                 raise MapFileError(f"{candidate}: saved for other map parameters (image size {gm.params.image_size}, "
                                    f"grid {gm.params.grid_shape}, profile {gm.params.profile}) than {config.path} sets")
@@ -74,7 +74,7 @@ def restore_map(config: HeadConfig) -> tuple[GazeMap, str, list[str]]:
         log.info("gaze map restored from %s (%d adaptations)", candidate, gm.adaptations)
         if main_refused:
             try:
-                gm.save(path, keep_previous=False)
+                write_map(gm, path, keep_previous=False)
             except OSError as err:
                 problems.append(f"{path}: cannot write the restored map back: {err}")
                 log.error("gaze map: %s", problems[-1])
@@ -182,7 +182,7 @@ class Checkpointer:
         return True
 
     def _save_map(self, gm: GazeMap) -> tuple[GazeMap, int]:
-        gm.save(self.path)
+        write_map(gm, self.path)
         return gm, gm.adaptations
 
 

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 
 from calib_free.errors import MapFileError
 
-from calib_free.map.gaze_map import GazeMap, GazeMapParams
-from calib_free.map.file import MAX_MEMBERS, read_map, temporary_files
+from calib_free.map.gaze_map import GazeMap
+from calib_free.map.params import GazeMapParams
+from calib_free.map.file import MAX_MEMBERS, read_map, temporary_files, write_map
 
 
 def _small_map(profile: str = "default", adaptations: int = 12, pose: bool = False) -> GazeMap:
@@ -34,7 +35,7 @@ def _small_map(profile: str = "default", adaptations: int = 12, pose: bool = Fal
 
 def _saved(tmp_path: Path, profile: str = "default", adaptations: int = 12) -> Path:
     path = tmp_path / f"{profile}.npz"
-    _small_map(profile, adaptations).save(path)
+    write_map(_small_map(profile, adaptations), path)
     return path
 
 
@@ -72,7 +73,7 @@ def _replaced(tmp_path: Path, entry: str, data: bytes, profile: str = "default")
 
 def _refused(path: Path, *fragments: str) -> str:
     with pytest.raises(MapFileError) as caught:
-        GazeMap.load(path)
+        read_map(path)
     message = str(caught.value)
     assert message.startswith(str(path)), message
     for fragment in fragments:
@@ -84,8 +85,8 @@ def _refused(path: Path, *fragments: str) -> str:
 @pytest.mark.parametrize("profile", ["default", "paper"])
 def test_files_the_code_writes_load_and_continue_identically(tmp_path, profile):
     gm = _small_map(profile)
-    gm.save(tmp_path / "m.npz")
-    loaded = GazeMap.load(tmp_path / "m.npz")
+    write_map(gm, tmp_path / "m.npz")
+    loaded = read_map(tmp_path / "m.npz")
     assert loaded.adaptations == gm.adaptations and list(loaded.recent_errors) == list(gm.recent_errors)
     assert np.array_equal(loaded.grid, gm.grid)
     for m in (gm, loaded):
@@ -94,8 +95,8 @@ def test_files_the_code_writes_load_and_continue_identically(tmp_path, profile):
 
 
 def test_a_map_that_never_adapted_loads_with_no_long_run_error_yet(tmp_path):
-    _small_map(adaptations=0).save(tmp_path / "fresh.npz")
-    loaded = GazeMap.load(tmp_path / "fresh.npz")
+    write_map(_small_map(adaptations=0), tmp_path / "fresh.npz")
+    loaded = read_map(tmp_path / "fresh.npz")
     assert loaded.adaptations == 0 and np.isnan(loaded.long_run_error)
     assert loaded.adapt((10.0, 10.0, 1.0), (1.0, -1.0, 0.5)).accepted and np.isfinite(loaded.long_run_error)
 
@@ -103,7 +104,7 @@ def test_a_map_that_never_adapted_loads_with_no_long_run_error_yet(tmp_path):
 def test_a_file_without_surprised_loads_with_none_pending(tmp_path):
     members = _members(_saved(tmp_path))
     del members["surprised.npy"]
-    assert GazeMap.load(_write_members(tmp_path / "older.npz", members)).surprised == 0.0
+    assert read_map(_write_members(tmp_path / "older.npz", members)).surprised == 0.0
 
 
 POSE = (5.0, -10.0, 8.0)
@@ -112,9 +113,9 @@ POSE = (5.0, -10.0, 8.0)
 def test_a_pose_aware_map_loads_and_continues_identically(tmp_path):
     gm = _small_map(pose=True, adaptations=30)
     assert np.isfinite(gm.fit_errors).all()  # its pose-aware part learned
-    gm.save(tmp_path / "m.npz")
+    write_map(gm, tmp_path / "m.npz")
     assert {"pose_coef.npy", "pose_covariance.npy", "pose_noise.npy", "fit_errors.npy"} <= _members(tmp_path / "m.npz").keys()
-    loaded = GazeMap.load(tmp_path / "m.npz")
+    loaded = read_map(tmp_path / "m.npz")
     np.testing.assert_array_equal(loaded.pose_polynomial.coef, gm.pose_polynomial.coef)
     np.testing.assert_array_equal(loaded.fit_errors, gm.fit_errors)
     rng = np.random.default_rng(7)
@@ -129,7 +130,7 @@ def test_a_pose_aware_map_loads_and_continues_identically(tmp_path):
 
 def _older_file(tmp_path: Path, gm: GazeMap) -> Path:
     """`gm` as a map file from before the pose inputs: no pose parameters, noise or pose entries."""
-    gm.save(tmp_path / "new.npz")
+    write_map(gm, tmp_path / "new.npz")
     members = _members(tmp_path / "new.npz")
     params = json.loads(np.load(io.BytesIO(members["params.npy"]))[()])
     for key in ("pose_degree", "pose_position_degree", "pose_cross_degree"):
@@ -143,7 +144,7 @@ def _older_file(tmp_path: Path, gm: GazeMap) -> Path:
 @pytest.mark.parametrize("profile", ["default", "paper"])
 def test_an_older_map_file_loads_answers_as_before_and_learns_the_pose(tmp_path, profile):
     gm = _small_map(profile, adaptations=30)
-    loaded = GazeMap.load(_older_file(tmp_path, gm))
+    loaded = read_map(_older_file(tmp_path, gm))
     # The parameters a config of the same profile makes today: the service keeps the file.
     assert loaded.params == GazeMapParams.profile_values(profile, **{
         k: getattr(gm.params, k) for k in ("image_size", "disparity_range", "grid_shape")})
@@ -154,12 +155,12 @@ def test_an_older_map_file_loads_answers_as_before_and_learns_the_pose(tmp_path,
         assert loaded.pose_polynomial is not None and not loaded.pose_trusted
         assert loaded.adapt(position, (1.0, -1.0, 0.5), pose=POSE).accepted
         assert np.isfinite(loaded.fit_errors).all()
-        loaded.save(tmp_path / "again.npz")
+        write_map(loaded, tmp_path / "again.npz")
         assert "pose_coef.npy" in _members(tmp_path / "again.npz")
 
 
 def test_pose_entries_come_all_or_none(tmp_path):
-    _small_map(pose=True).save(tmp_path / "m.npz")
+    write_map(_small_map(pose=True), tmp_path / "m.npz")
     members = _members(tmp_path / "m.npz")
     del members["pose_covariance.npy"]
     _refused(_write_members(tmp_path / "bad.npz", members), "'pose_covariance'", "all of")
@@ -167,13 +168,13 @@ def test_pose_entries_come_all_or_none(tmp_path):
 
 def test_a_fortran_ordered_or_deflated_file_loads_the_same(tmp_path):
     path = _saved(tmp_path)
-    original = GazeMap.load(path)
+    original = read_map(path)
     members = _members(path)
     members["grid.npy"] = _npy(np.asfortranarray(original.grid))
     with zipfile.ZipFile(tmp_path / "other.npz", "w", compression=zipfile.ZIP_DEFLATED) as archive:
         for name, data in members.items():
             archive.writestr(name, data)
-    assert np.array_equal(GazeMap.load(tmp_path / "other.npz").grid, original.grid)
+    assert np.array_equal(read_map(tmp_path / "other.npz").grid, original.grid)
 
 
 # --- what is refused, and how ----------------------------------------------------------------------
@@ -454,7 +455,7 @@ _ENTRY_SHAPES = {"format": (), "params": (), "grid": (3, 6, 5, 4), "recent_error
 @pytest.fixture(scope="module")
 def valid_file(tmp_path_factory) -> bytes:
     path = tmp_path_factory.mktemp("valid") / "m.npz"
-    _small_map(pose=True).save(path)
+    write_map(_small_map(pose=True), path)
     return path.read_bytes()
 
 
@@ -479,7 +480,7 @@ def test_a_randomly_corrupted_file_gives_a_usable_map_or_map_file_error(tmp_path
             members[f"{name}.npy"] = _npy(array)
         _write_members(path, members)
     try:
-        gm = read_map(path, GazeMap)
+        gm = read_map(path)
     except MapFileError as err:
         assert str(err).startswith(str(path))
         event(f"{kind}: refused")

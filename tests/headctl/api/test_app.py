@@ -24,8 +24,9 @@ import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
+from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
-from calib_free.gaze.closed_loop import target_patch_problem
+from calib_free.gaze.refind import target_patch_problem
 from calib_free.correspondence.disparity import as_grey_float
 from headctl.api.server import ApiServer
 from headctl.cli.main import main
@@ -753,12 +754,12 @@ def test_map_save_load_reset_and_their_refusals(head):
     state_dir = daemon.config.state_dir
     wait_state(client, lambda s: s["learning"]["adaptations"] >= 1, 60, "an adaptation")
     saved = client.request("POST", "/api/v1/map/save", {"name": "snapshot.npz"})
-    assert saved["path"] == str(state_dir / "snapshot.npz") and GazeMap.load(saved["path"]).adaptations >= 1
+    assert saved["path"] == str(state_dir / "snapshot.npz") and read_map(saved["path"]).adaptations >= 1
     default = client.request("POST", "/api/v1/map/save", {})
     assert default["path"] == str(state_dir / "gaze_map.npz")
 
     reset = client.request("POST", "/api/v1/map/reset", {"seed": 7})
-    assert reset["adaptations"] == 0 and GazeMap.load(reset["backup"]).adaptations >= saved["adaptations"]
+    assert reset["adaptations"] == 0 and read_map(reset["backup"]).adaptations >= saved["adaptations"]
     assert client.state()["learning"]["adaptations"] < saved["adaptations"] or saved["adaptations"] < 3
     loaded = client.request("POST", "/api/v1/map/load", {"name": "snapshot.npz"})
     assert loaded["adaptations"] == saved["adaptations"]
@@ -772,7 +773,7 @@ def test_map_save_load_reset_and_their_refusals(head):
         assert code == status and answer["field"] == field and words in answer["reason"], answer
     # A map made for another image size is refused, the running one kept.
     other = GazeMap(load_config().map_params().__class__.profile_values("default", image_size=(640, 480)))
-    other.save(state_dir / "other.npz")
+    write_map(other, state_dir / "other.npz")
     code, answer, _ = raw(client, "POST", "/api/v1/map/load", json.dumps({"name": "other.npz"}))
     assert code == 409 and "other map parameters" in answer["reason"]
 

@@ -12,7 +12,7 @@ import time
 import pytest
 import yaml
 
-from calib_free.map.gaze_map import GazeMap
+from calib_free.map.file import read_map
 from tests.support.daemon_proc import SIM
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.slow]
@@ -74,7 +74,7 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     before = d.status()["learning"]
     code, seconds = d.terminate()
     assert code == 0 and seconds < 5.0
-    saved = GazeMap.load(state / "gaze_map.npz")
+    saved = read_map(state / "gaze_map.npz")
     assert saved.adaptations >= before["adaptations"]
     assert not (state / "api.url").exists()
 
@@ -90,7 +90,7 @@ def test_learns_survives_faults_and_continues_after_sigterm_and_restart(tmp_path
     again.wait(_taught(1), 60, "learning goes on after the restart")
     code, seconds = again.terminate()
     assert code == 0 and seconds < 5.0
-    assert GazeMap.load(state / "gaze_map.npz").adaptations > saved.adaptations
+    assert read_map(state / "gaze_map.npz").adaptations > saved.adaptations
 
 
 def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, service_process):
@@ -108,7 +108,7 @@ def test_kill_9_during_a_checkpoint_leaves_a_loadable_map(tmp_path, service_proc
         assert d.proc.poll() is None
     d.proc.send_signal(signal.SIGKILL)
     d.proc.wait(5)
-    gm = GazeMap.load(state / "gaze_map.npz")
+    gm = read_map(state / "gaze_map.npz")
     assert gm.adaptations >= 1
     again = service_process(state, path)
     s = again.wait(lambda s: s["state"] == "running", 30, "restarted after kill -9")

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
+from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter, Sample
 from drivers.clock import ManualClock
@@ -34,7 +35,7 @@ def test_restore_starts_fresh_then_loads_what_was_saved(tmp_path):
     gm, source, problems = restore_map(config)
     assert source == "new" and not problems
     gm.adapt((160, 120, -10), (1.0, 2.0, -1.0))
-    gm.save(config.map_path)
+    write_map(gm, config.map_path)
     again, source, problems = restore_map(config)
     assert source == str(config.map_path) and again.adaptations == 1 and not problems
     assert np.allclose(again.command((100, 100, 0)), gm.command((100, 100, 0)))
@@ -43,20 +44,20 @@ def test_restore_starts_fresh_then_loads_what_was_saved(tmp_path):
 def test_a_corrupt_map_is_reported_moved_aside_and_the_previous_one_used(tmp_path):
     config = _config(tmp_path)
     gm, _, _ = restore_map(config)
-    gm.save(config.map_path)
+    write_map(gm, config.map_path)
     gm.adapt((160, 120, -10), (1.0, 2.0, -1.0))
-    gm.save(config.map_path)  # the first save is now .prev
+    write_map(gm, config.map_path)  # the first save is now .prev
     config.map_path.write_bytes(b"not a map")
     restored, source, problems = restore_map(config)
     assert source == f"{config.map_path}.prev" and restored.adaptations == 0
     assert len(problems) == 1 and "not a readable gaze map file" in problems[0]
     assert (tmp_path / "gaze_map.npz.bad").read_bytes() == b"not a map"
-    assert GazeMap.load(config.map_path).adaptations == 0  # a good main file again
+    assert read_map(config.map_path).adaptations == 0  # a good main file again
 
 
 def test_a_map_for_other_parameters_is_refused(tmp_path):
     config = _config(tmp_path)
-    GazeMap.for_image(640, 480).save(config.map_path)
+    write_map(GazeMap.for_image(640, 480), config.map_path)
     gm, source, problems = restore_map(config)
     assert source == "new" and "saved for other map parameters" in problems[0]
 
@@ -72,8 +73,8 @@ def test_checkpoints_every_n_adaptations_are_loadable(tmp_path):
             adapter.submit(Sample(np.array([100.0 + i, 120.0, -5.0]), np.array([1.0, 0.5, -0.5]), 1.0))
         assert adapter.wait_idle(10)
     assert cp.count == 2 and cp.last_adaptations == 4
-    assert GazeMap.load(config.map_path).adaptations == 4
-    assert GazeMap.load(f"{config.map_path}.prev").adaptations == 2
+    assert read_map(config.map_path).adaptations == 4
+    assert read_map(f"{config.map_path}.prev").adaptations == 2
 
 
 
@@ -112,9 +113,9 @@ BAD_FILES = {
 
 def _good_main_and_prev(config):
     gm, _, _ = restore_map(config)
-    gm.save(config.map_path)
+    write_map(gm, config.map_path)
     gm.adapt((160, 120, -10), (1.0, 2.0, -1.0))
-    gm.save(config.map_path)  # the first save (0 adaptations) is now .prev
+    write_map(gm, config.map_path)  # the first save (0 adaptations) is now .prev
 
 
 @pytest.mark.parametrize("bad", sorted(BAD_FILES))
@@ -125,7 +126,7 @@ def test_a_malformed_main_file_falls_back_to_prev(tmp_path, bad):
     gm, source, problems = restore_map(config)
     assert source == f"{config.map_path}.prev" and gm.adaptations == 0
     assert len(problems) == 1 and problems[0].startswith(f"{config.map_path}: ")
-    assert (tmp_path / "gaze_map.npz.bad").exists() and GazeMap.load(config.map_path).adaptations == 0
+    assert (tmp_path / "gaze_map.npz.bad").exists() and read_map(config.map_path).adaptations == 0
 
 
 def test_both_files_malformed_give_a_random_map_and_both_are_moved_aside(tmp_path):
@@ -180,7 +181,7 @@ def test_loading_a_malformed_file_through_the_api_is_a_conflict_naming_the_file(
     client = ApiClient(daemon.api_url, timeout_s=10.0)
     for bad in ("adaptations of two", "a 2**40-element grid", "nan in recent errors", "not a zip"):
         path = config.state_dir / "bad.npz"
-        GazeMap(config.map_params(), seed=1).save(path, keep_previous=False)
+        write_map(GazeMap(config.map_params(), seed=1), path, keep_previous=False)
         BAD_FILES[bad](path)
         with pytest.raises(ControlError) as caught:
             daemon.control.load_map("bad.npz")
@@ -222,7 +223,7 @@ def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
         assert cp.due() and cp.maybe_on_time() and cp.count == 2 and cp.last_adaptations == 3
         clock.advance(300.0)
         assert not cp.changed() and not cp.maybe_on_time() and cp.count == 2
-        assert GazeMap.load(config.map_path).adaptations == 3
+        assert read_map(config.map_path).adaptations == 3
         adapter.replace_map(GazeMap(config.map_params(), seed=5))  # a reset is a change too
         assert cp.changed() and cp.maybe_on_time() and cp.last_adaptations == 0
 

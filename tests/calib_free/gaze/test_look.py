@@ -1,4 +1,4 @@
-"""Closed-loop looks (calib_free.gaze.closed_loop) on a head looking at a textured plane.
+"""Closed-loop looks (calib_free.gaze.look, calib_free.gaze.refind) on a head looking at a textured plane.
 
 The plane head (`tests.support.planar_head`) knows exactly where every texel of the plane is
 in its images, so a look's figures are checked against the truth, not against themselves.
@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_free.gaze.closed_loop import LookController, LookOutcome, find_target, patch_problem
+from calib_free.errors import TargetPatchError
+from calib_free.gaze.look import LookController, LookOutcome, target_disparity
+from calib_free.gaze.refind import find_target, patch_problem
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, LookParams
 from headctl.config.head import load_config
 from headctl.errors import ConfigError
@@ -201,3 +203,27 @@ def test_a_look_alike_at_another_depth_is_not_taken_for_the_target():
     assert record.fixations[-1].converged
     assert record.outcome is LookOutcome.TARGET_LOST and "another depth" in record.detail
     assert not record.on_target
+
+
+def test_a_target_is_looked_at_with_its_measured_disparity_else_from_the_fixation_depth():
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    measured = target_disparity(left, np.roll(left, 6, axis=1), 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams())
+    assert measured.measured and measured.d == pytest.approx(6.0, abs=0.3) and measured.reason == ""
+    unmeasured = target_disparity(left, rich_texture(seed=5, size=(WIDTH, HEIGHT)), 150.0, 110.0, (32, 20),
+                                  (-60.0, 60.0), LookParams())
+    assert not unmeasured.measured and unmeasured.ncc is None and unmeasured.d == 0.0
+    assert unmeasured.reason.startswith("the disparity at (150, 110) could not be measured")
+    assert unmeasured.reason.endswith(": looked at from the depth the eyes fixate (d = 0)")
+
+
+def test_a_target_without_a_patch_to_find_it_by_is_refused_whatever_its_disparity():
+    flat = np.full((HEIGHT, WIDTH), 128.0, np.float32)
+    with pytest.raises(TargetPatchError) as err:
+        target_disparity(flat, flat, 160.0, 120.0, (32, 20), (-60.0, 60.0), LookParams())
+    assert "could not be measured" in str(err.value)
+    assert ", and the target cannot be looked at: " in str(err.value) and "no texture" in str(err.value)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    with pytest.raises(TargetPatchError) as err:  # measured, but the look's 21 x 21 patch does not fit
+        target_disparity(left, np.roll(left, 6, axis=1), 150.0, 9.6, (32, 20), (-60.0, 60.0), LookParams())
+    assert str(err.value).startswith("the target at (150, 9.6) cannot be looked at: ")
+    assert "beyond the image" in str(err.value)

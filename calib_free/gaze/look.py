@@ -1,0 +1,288 @@
+"""Closed-loop looks: a look at an image target ends with the target on the left fovea.
+
+One fixation through the map (`FixationController.fixate`: saccade, fine vergence,
+correspondence) brings the target near the foveae, as near as the map is right. A look then
+closes the loop on what it sees: the target's patch, taken around (x, y) in the left image
+just before the saccade, is found again in the left image after it (`calib_free.gaze.refind`),
+and while it lies farther than `LookParams.tolerance_px` from the left fovea a corrective
+fixation goes to where it is now -- the map's command for that position and the disparity
+measured there -- up to `max_corrective_steps` of them. Every step is a fixation like any
+other: converged and confident, it teaches the map. A saccade the joint limits stopped ends
+the look: no correction can go further.
+
+A target is in the view of the pose it was chosen in (`reference_pose`). When the head has
+moved since (a queued look), the look first returns to that pose, so that the image before
+the saccade is the view the target was chosen in and its patch is the target's. A target
+sent without its disparity is looked at with the one `target_disparity` measures in that
+view, else from the depth the eyes fixate.
+
+The target not found again, or found where the eyes converged far from the vergence the map
+gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth), fails the
+look saying so. A look's figures come only from accepted measurements: `final_error_px` from
+the target found after the last step, `landing_error_px` from a first fixation whose
+correspondence was accepted (it taught).
+"""
+from __future__ import annotations
+
+import enum
+import logging
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
+from calib_free.errors import DisparityError, TargetPatchError
+from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
+                                      HeadTimeoutError, LookParams, PairTimeoutError)
+from calib_free.gaze.refind import (TargetSighting, find_target, fovea, patch_problem, patch_variants,
+                                    target_patch_problem)
+from calib_free.map.gaze_map import Vector
+
+log = logging.getLogger(__name__)
+
+
+class LookOutcome(enum.StrEnum):
+    """How a look ended, beyond its fixations' own outcomes."""
+
+    ON_TARGET = "on target"
+    TARGET_LOST = "target not found again"
+    NOT_ON_TARGET = "target not on the fovea"
+    NO_TARGET_PATCH = "no patch to find the target by"
+    OUT_OF_REACH = "target beyond the joint limits"
+
+
+# A fixation ending so stops the look: it was interrupted, or never moved (no images after it).
+_STOPS_A_LOOK = frozenset({FixationOutcome.SHUTDOWN, FixationOutcome.CANCELLED, FixationOutcome.BUS_DOWN,
+                           FixationOutcome.SERVO_FAULT, FixationOutcome.NO_FRAMES, FixationOutcome.NOT_SETTLED,
+                           FixationOutcome.TARGET_OUTSIDE})
+
+
+@dataclass(frozen=True)
+class TargetDisparity:
+    """The disparity a target sent without one is looked at with: measured (`ncc` its match's),
+    or the fixation's own, 0, when it cannot be measured but the look can find the target by
+    its patch (`reason` says why it was not measured)."""
+
+    d: float
+    ncc: float | None = None
+    reason: str = ""
+
+    @property
+    def measured(self) -> bool:
+        return self.ncc is not None
+
+
+def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
+                     disparity_range: tuple[float, float], look: LookParams,
+                     band_px: int = DISPARITY_BAND_PX) -> TargetDisparity:
+    """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
+    be measured (seen by one eye only, a vertical disparity or depth edge the match does not
+    survive, a patch too near the border for `patch_size`), d = 0: the look starts at the depth
+    the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
+    TargetPatchError when the target has no patch for the closed loop to find it again by
+    (`target_patch_problem`: flat, repetitive, reaching beyond the image): no look can end on
+    it, whatever its d."""
+    problem = target_patch_problem(as_grey_float(left), (x, y), look)
+    try:
+        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
+    except DisparityError as err:
+        if problem:
+            raise TargetPatchError(f"{err}, and the target cannot be looked at: {problem}") from None
+        return TargetDisparity(0.0, None, f"{err}: looked at from the depth the eyes fixate (d = 0)")
+    if problem:
+        raise TargetPatchError(f"the target at ({x:g}, {y:g}) cannot be looked at: {problem}")
+    return TargetDisparity(d, ncc)
+
+
+@dataclass
+class LookRecord:
+    """Everything about one look: its fixations (the first, then the corrective ones), where the
+    target was found after each, and how it ended."""
+
+    target: np.ndarray  # (x, y, d)
+    fixations: list[FixationRecord] = field(default_factory=list)
+    sightings: list[TargetSighting] = field(default_factory=list)  # after each fixation, while found
+    outcome: LookOutcome | FixationOutcome | None = None
+    detail: str = ""
+    view_restored_deg: float | None = None  # how far the head was from the target's view when the look began
+    duration_s: float = 0.0
+
+    @property
+    def on_target(self) -> bool:
+        return self.outcome is LookOutcome.ON_TARGET
+
+    @property
+    def corrective_steps(self) -> int:
+        return max(0, len(self.fixations) - 1)
+
+    @property
+    def final_error_px(self) -> float | None:
+        """Distance of the target from the left fovea after the last step, in its final image;
+        None when the target was not found there."""
+        if not self.fixations or len(self.sightings) != len(self.fixations):
+            return None
+        last = self.fixations[-1].final_left_image
+        assert last is not None  # a sighting was made in it
+        return self.sightings[-1].distance_px(fovea(last))
+
+    @property
+    def landing_error_px(self) -> float | None:
+        """The first saccade's landing error in the image the target was chosen in: from the
+        first fixation's correspondence, only if it was accepted (the fixation taught)."""
+        first = self.fixations[0] if self.fixations else None
+        if first is None or not first.taught or first.position is None:
+            return None
+        return float(np.hypot(*(first.position[:2] - self.target[:2])))
+
+
+class LookController:
+    """Closed-loop looks on a `FixationController`'s head and map (see the module doc)."""
+
+    SAME_VIEW_DEG = 0.25  # the head this near the target's reference pose on every axis: the same view
+
+    def __init__(self, fixation: FixationController, params: LookParams | None = None,
+                 on_fixation: Callable[[FixationRecord], None] | None = None) -> None:
+        self.fixation = fixation
+        self.params = params if params is not None else fixation.params.look
+        self.on_fixation = on_fixation  # told of each of a look's fixations as it ends
+        self.clock = fixation.clock
+
+    def look(self, target: Vector, reference_pose: Vector | None = None) -> LookRecord:
+        """Look at an image target (x, y, d) chosen in the view of `reference_pose` (None: the
+        head's view now), until it is on the left fovea or the look fails."""
+        started = self.clock()
+        record = LookRecord(np.asarray(target, dtype=float))
+        try:
+            self._run(record, reference_pose)
+        except FixationInterrupted as err:
+            record.outcome, record.detail = err.outcome, str(err)
+        except HeadTimeoutError as err:
+            record.outcome = FixationOutcome.NO_FRAMES if isinstance(err, PairTimeoutError) \
+                else FixationOutcome.NOT_SETTLED
+            record.detail = str(err)
+        record.duration_s = self.clock() - started
+        log.debug("look at %s: %s %s (%d corrective steps, final error %s px)", record.target.tolist(),
+                  record.outcome, record.detail, record.corrective_steps, record.final_error_px)
+        return record
+
+    def _restore_view(self, record: LookRecord, reference_pose: Vector) -> None:
+        head = self.fixation.head
+        reference = np.asarray(reference_pose, dtype=float)
+        moved = float(np.max(np.abs(head.read_pose() - reference)))
+        record.view_restored_deg = moved
+        if moved > self.SAME_VIEW_DEG:
+            head.move_to(reference)
+            head.wait_settled(self.fixation.params.settle_timeout_s)
+
+    def _run(self, record: LookRecord, reference_pose: Vector | None) -> None:
+        p = self.params
+        if reference_pose is not None:
+            self._restore_view(record, reference_pose)
+        fixation = self._fixate(record, record.target, reference_pose)
+        source = fixation.pre_left_image
+        source_xy = (float(record.target[0]), float(record.target[1]))
+        warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
+        # The target's patch: whichever of `patch_variants` identify the target in its own view;
+        # the larger is tried where the smaller is not found again.
+        variants = patch_variants(p)
+        if source is not None and fixation.final_left_image is not None:
+            problems = [patch_problem(source, source_xy, variant) for variant in variants]
+            variants = [variant for variant, why in zip(variants, problems) if not why]
+            if not variants:
+                record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, problems[0]
+                return
+        while True:
+            final_left = fixation.final_left_image
+            if fixation.outcome in _STOPS_A_LOOK or final_left is None or source is None:
+                record.outcome, record.detail = fixation.outcome, fixation.detail
+                return
+            sighting, why = None, ""
+            for variant in variants:
+                sighting, reason = find_target(source, source_xy, final_left, variant, warps)
+                why = why or reason
+                if sighting is not None:
+                    variants = [variant]  # the same patch from here on, its warp carried over
+                    break
+            if sighting is None:
+                beyond = self._beyond_limits(fixation)
+                record.outcome = LookOutcome.OUT_OF_REACH if beyond else LookOutcome.TARGET_LOST
+                record.detail = f"{beyond}; {why}" if beyond else why
+                return
+            record.sightings.append(sighting)
+            warps = [sighting.warp]
+            error = sighting.distance_px(fovea(final_left))
+            mismatch = self._depth_mismatch(record, fixation)
+            if error <= p.tolerance_px and mismatch:
+                # The patch's look-alike at another depth (a patch across a depth edge, whose two
+                # parts moved apart): what the eyes converged on is not the target.
+                record.outcome, record.detail = LookOutcome.TARGET_LOST, mismatch
+                return
+            if error <= p.tolerance_px:
+                # On target: the left fovea is the look's reference. Eyes that did not converge
+                # (the right eye sees something else there) are said, not corrected for again.
+                record.outcome = LookOutcome.ON_TARGET
+                record.detail = (f"{error:.2f} px from the fovea after {record.corrective_steps} corrective steps"
+                                 + ("" if fixation.converged else f"; the eyes did not converge: {fixation.outcome}"))
+                return
+            beyond = self._beyond_limits(fixation)
+            if beyond:
+                record.outcome = LookOutcome.OUT_OF_REACH
+                record.detail = f"{error:.2f} px from the fovea; {beyond}"
+                return
+            if record.corrective_steps >= p.max_corrective_steps:
+                record.outcome = LookOutcome.NOT_ON_TARGET
+                record.detail = (f"{error:.2f} px from the fovea (tolerance {p.tolerance_px} px) after "
+                                 f"{record.corrective_steps} corrective steps")
+                return
+            d = self._disparity_at(fixation, sighting)
+            fixation = self._fixate(record, (sighting.x, sighting.y, d))
+
+    def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None) -> FixationRecord:
+        fixation = self.fixation.fixate(target, reference_pose)
+        record.fixations.append(fixation)
+        if self.on_fixation is not None:
+            self.on_fixation(fixation)
+        return fixation
+
+    def _depth_mismatch(self, record: LookRecord, fixation: FixationRecord) -> str:
+        """Why the eyes' final vergence cannot be the target's ('' if it can): converged, it
+        differs from the vergence the map gave the first saccade for the target's d by more
+        than `max_vergence_mismatch_deg`."""
+        first = record.fixations[0]
+        if not fixation.converged or fixation.pose_after is None or first.pose_before is None or first.planned is None:
+            return ""
+        head = self.fixation.head
+        meant = float(np.clip(first.pose_before[2] + first.planned[2], head.pose_low[2], head.pose_high[2]))
+        off = abs(float(fixation.pose_after[2]) - meant)
+        if off <= self.params.max_vergence_mismatch_deg:
+            return ""
+        return (f"the eyes converged {off:.1f} deg away from the vergence the map gives the target's d "
+                f"(max_vergence_mismatch_deg {self.params.max_vergence_mismatch_deg}): another thing at another "
+                "depth looks like the target")
+
+    def _beyond_limits(self, fixation: FixationRecord) -> str:
+        """Why the fixation's saccade could not go where the map sent it ('' if it could): its
+        pan or tilt goal lay beyond the joint limits, so the head stopped at them."""
+        if fixation.pose_before is None or fixation.planned is None:
+            return ""
+        head = self.fixation.head
+        goal = fixation.pose_before + fixation.planned
+        beyond = [f"{name} {goal[i]:.1f} outside [{head.pose_low[i]:g}, {head.pose_high[i]:g}] deg"
+                  for i, name in enumerate(("pan", "tilt"))
+                  if not head.pose_low[i] - 0.05 <= goal[i] <= head.pose_high[i] + 0.05]
+        return "; ".join(beyond)
+
+    def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
+        """d at the target's new position, measured between the final left and right images as
+        fine vergence measures it at the fovea; else what fine vergence left (0 once converged)."""
+        left, right = fixation.final_left_image, fixation.final_right_image
+        assert left is not None and right is not None
+        fp = self.fixation.params
+        search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
+        d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search))
+        if ncc >= fp.min_vergence_ncc:
+            return d
+        if fixation.outcome is FixationOutcome.NOT_CONVERGED and fixation.vergence_disparities_px:
+            return fixation.vergence_disparities_px[-1]
+        return 0.0

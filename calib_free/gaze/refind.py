@@ -1,0 +1,234 @@
+"""Finding a look's target again: where the patch it was chosen by is after a fixation.
+
+The head turned, so the patch is seen through another part of the lens: a fish-eye lens
+magnifies a patch brought from the periphery to the fovea, along the radius from the image
+centre more than across it. The patch is therefore resampled at a few radial and tangential
+scales (about the image centre, the one point the method assumes; no calibration), each
+searched for by NCC near the fovea first, then farther (`find_target`); the best candidate's
+warp is fitted by ECC (an affine fit of the patch, `cv2.findTransformECC`), the region
+scored again with it, and the position taken from ECC, to sub-pixel. Later steps start from
+the warp found before. A patch too flat or repetitive to identify the target in its own view
+is refused before it is used (`patch_problem`, `target_patch_problem`). A best match below
+`min_target_ncc` (occluded, out of view) or a second place nearly as good
+(`ambiguity_ncc_margin`: repetitive texture) is refused: the target is not found.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
+from calib_free.gaze.fixation import LookParams
+
+MIN_PATCH_STD = 2.0  # grey levels: a flatter patch has nothing to be found by
+REFINE_BELOW_NCC = 0.2  # a best match this far below min_target_ncc is still refined before judged
+
+
+@dataclass(frozen=True)
+class TargetSighting:
+    """Where the target's patch is in an image, how well it matched, and the linear part of the
+    warp from the image the patch was taken in to this one."""
+
+    x: float
+    y: float
+    ncc: float
+    warp: np.ndarray  # 2 x 2
+
+    def distance_px(self, point: tuple[float, float]) -> float:
+        return float(np.hypot(self.x - point[0], self.y - point[1]))
+
+
+def fovea(image: np.ndarray) -> tuple[float, float]:
+    """The left fovea: the image centre ((w - 1) / 2, (h - 1) / 2)."""
+    h, w = image.shape[:2]
+    return (w - 1) / 2.0, (h - 1) / 2.0
+
+
+def candidate_warps(source_xy: tuple[float, float], centre: tuple[float, float], max_scale: float) -> list[np.ndarray]:
+    """Linear warps a patch at `source_xy` may undergo on its way to the fovea: radial scales
+    (along the line from the image centre) from 0.85 to `max_scale` in steps of 1.2, and two
+    tangential ones."""
+    dx, dy = source_xy[0] - centre[0], source_xy[1] - centre[1]
+    norm = float(np.hypot(dx, dy))
+    radial = np.array([dx, dy]) / norm if norm > 1.0 else np.array([1.0, 0.0])
+    rotation = np.column_stack([radial, [-radial[1], radial[0]]])
+    scales = [0.85]
+    while scales[-1] * 1.2 <= max_scale * 1.0001:
+        scales.append(scales[-1] * 1.2)
+    warps = []
+    for s_radial in scales:
+        for s_tangential in (1.0, 1.15):
+            if s_radial < 1.0 and s_tangential > 1.0:
+                continue
+            warps.append(rotation @ np.diag([s_radial, s_tangential]) @ rotation.T)
+    return warps
+
+
+def warped_patch(source: np.ndarray, source_xy: tuple[float, float], warp: np.ndarray,
+                 size: tuple[int, int]) -> np.ndarray | None:
+    """The patch of `size` (w, h) around `source_xy` as `warp` shows it; None when it reaches
+    beyond the image."""
+    w, h = size
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    inverse = np.linalg.inv(warp)
+    corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=float) - c
+    reach = corners @ inverse.T + np.asarray(source_xy)
+    if reach.min() < 0 or np.any(reach[:, 0] > source.shape[1] - 1) or np.any(reach[:, 1] > source.shape[0] - 1):
+        return None
+    # dst q -> src inverse (q - c) + source_xy
+    matrix = np.hstack([inverse, (np.asarray(source_xy) - inverse @ c)[:, None]]).astype(np.float64)
+    patch: np.ndarray = cv2.warpAffine(source, matrix, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                       borderMode=cv2.BORDER_REPLICATE)
+    return patch
+
+
+def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
+                warps: list[np.ndarray] | None = None) -> tuple[TargetSighting | None, str]:
+    """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
+    `params.search_radius_px` of the fovea; (sighting, '') or (None, why not).
+
+    `warps`: the linear warps to try (default: `candidate_warps`, for a patch brought from
+    wherever it was to near the fovea)."""
+    source, image = as_grey_float(source), as_grey_float(image)
+    w, h = params.target_patch_size
+    height, width = image.shape
+    centre = fovea(image)
+    if warps is None:
+        warps = candidate_warps(source_xy, fovea(source), params.max_target_scale)
+    radius = params.search_radius_px if params.search_radius_px is not None else width // 3
+    x0 = int(max(0, np.floor(centre[0] - radius - w / 2)))
+    y0 = int(max(0, np.floor(centre[1] - radius - h / 2)))
+    x1 = int(min(width, np.ceil(centre[0] + radius + w / 2) + 1))
+    y1 = int(min(height, np.ceil(centre[1] + radius + h / 2) + 1))
+    window = image[y0:y1, x0:x1]
+    if window.shape[0] < h + 2 or window.shape[1] < w + 2:
+        return None, f"the search window {window.shape[1]} x {window.shape[0]} px is smaller than the patch"
+    tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (scores, template, warp)
+    for warp in warps:
+        template = warped_patch(source, source_xy, warp, (w, h))
+        if template is None:
+            continue
+        if float(template.std()) < MIN_PATCH_STD:
+            continue  # magnified this much, the patch shows too little to find it by
+        scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED), nan=0.0,
+                               posinf=0.0, neginf=0.0)
+        tried.append((scores, template, warp))
+    if not tried:
+        return None, (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image "
+                      "or is too flat to find it by")
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    # Near the fovea first, where the saccade meant to bring the target: a repeat of its texture
+    # farther away does not make it ambiguous there. Else the whole search window.
+    near = max(radius // 3, 4)
+    u0 = int(max(0, np.floor(centre[0] - near - x0 - c[0])))
+    v0 = int(max(0, np.floor(centre[1] - near - y0 - c[1])))
+    why = ""
+    for (a, b) in (((v0, int(np.ceil(centre[1] + near - y0 - c[1])) + 1), (u0, int(np.ceil(centre[0] + near - x0 - c[0])) + 1)),
+                   ((0, tried[0][0].shape[0]), (0, tried[0][0].shape[1]))):
+        peak, index = max((float(t[0][a[0]:a[1], b[0]:b[1]].max()), i) for i, t in enumerate(tried))
+        scores, template, warp = tried[index]
+        region = scores[a[0]:a[1], b[0]:b[1]]
+        _, _, _, (ix, iy) = cv2.minMaxLoc(region)
+        position: tuple[float, float] | None = None
+        if peak >= params.min_target_ncc - REFINE_BELOW_NCC:
+            # The warp fitted (ECC) where the best candidate matched, and the whole region
+            # scored again with the patch so warped: the grid's nearest warp can fall short
+            # of the view's, which lowers the true match more than the others.
+            u, v = subpixel_peak(region, iy, ix)
+            refined = _refine(template, image, x0 + b[0] + u, y0 + a[0] + v)
+            if refined is not None and np.hypot(refined[0][0] - (x0 + b[0] + u + c[0]),
+                                                refined[0][1] - (y0 + a[0] + v + c[1])) > 2.0:
+                refined = None  # ECC wandered off to something else
+            better = None if refined is None else warped_patch(source, source_xy, refined[1] @ warp, (w, h))
+            if refined is not None and better is not None and float(better.std()) >= MIN_PATCH_STD:
+                rescored = np.nan_to_num(cv2.matchTemplate(window, better, cv2.TM_CCOEFF_NORMED), nan=0.0,
+                                         posinf=0.0, neginf=0.0)[a[0]:a[1], b[0]:b[1]]
+                _, repeak, _, (jx, jy) = cv2.minMaxLoc(rescored)
+                if np.hypot(jx - ix, jy - iy) <= 2.0:
+                    region, peak, (ix, iy) = rescored, float(repeak), (jx, jy)
+                    position, warp = refined[0], refined[1] @ warp
+        if peak < params.min_target_ncc:
+            why = why or f"the best match of the target's patch scores NCC {peak:.2f} < {params.min_target_ncc}"
+            continue
+        second = second_peak(region, ix, iy, max(w, h) / 2)
+        if second > peak - params.ambiguity_ncc_margin:
+            why = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
+                   f"(margin {params.ambiguity_ncc_margin})")
+            continue
+        if position is None:
+            u, v = subpixel_peak(region, iy, ix)
+            position = (x0 + b[0] + u + c[0], y0 + a[0] + v + c[1])
+        return TargetSighting(float(position[0]), float(position[1]), peak, warp), ""
+    return None, why
+
+
+def second_peak(scores: np.ndarray, ix: int, iy: int, min_distance_px: float) -> float:
+    """The best local maximum of `scores` farther than `min_distance_px` (half the patch) from
+    the peak at (ix, iy), -1 if none: another place matching nearly as well means repetitive
+    texture. The peak's own shoulders are no local maxima, and the ripples of a broad peak (a
+    smooth patch) lie within half a patch of it, so neither is taken for another place."""
+    maxima = (scores >= cv2.dilate(scores, np.ones((3, 3), np.uint8))) & (scores > -1.0)
+    ys, xs = np.nonzero(maxima)
+    far = np.hypot(xs - ix, ys - iy) > min_distance_px
+    return float(scores[ys[far], xs[far]].max()) if np.any(far) else -1.0
+
+
+def patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: LookParams) -> str:
+    """Why the patch around `source_xy` cannot identify the target ('' if it can): beyond the
+    image, too flat, or matching another place of its own image within the search radius
+    nearly as well (repetitive texture)."""
+    source = as_grey_float(source)
+    identity = np.eye(2)
+    template = warped_patch(source, source_xy, identity, params.target_patch_size)
+    if template is None:
+        return f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image"
+    if float(template.std()) < MIN_PATCH_STD:
+        return f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it by"
+    w, h = params.target_patch_size
+    radius = params.search_radius_px if params.search_radius_px is not None else source.shape[1] // 3
+    x0 = int(max(0, np.floor(source_xy[0] - radius - w / 2)))
+    y0 = int(max(0, np.floor(source_xy[1] - radius - h / 2)))
+    window = source[y0:int(np.ceil(source_xy[1] + radius + h / 2)) + 1, x0:int(np.ceil(source_xy[0] + radius + w / 2)) + 1]
+    scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0, neginf=0.0)
+    _, peak, _, (ix, iy) = cv2.minMaxLoc(scores)
+    second = second_peak(scores, ix, iy, max(w, h) / 2)
+    if second > peak - params.ambiguity_ncc_margin:
+        return (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) is ambiguous in its own view: "
+                f"another place matches it with NCC {second:.2f} (repetitive texture)")
+    return ""
+
+
+def patch_variants(params: LookParams) -> list[LookParams]:
+    """The target's patches a look tries: of `target_patch_size`, or twice it (more context: an
+    edge, another texture), whichever identify the target in its own view."""
+    w, h = params.target_patch_size
+    return [dataclasses.replace(params, target_patch_size=size) for size in ((w, h), (2 * w - 1, 2 * h - 1))]
+
+
+def target_patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: LookParams) -> str:
+    """Why a look cannot find the target at `source_xy` again ('' if it can): neither of its
+    patches (`patch_variants`) identifies the target in its own view (`patch_problem`)."""
+    problems = [patch_problem(source, source_xy, variant) for variant in patch_variants(params)]
+    return "" if "" in problems else problems[0]
+
+
+def _refine(template: np.ndarray, image: np.ndarray, u: float, v: float,
+            ) -> tuple[tuple[float, float], np.ndarray, float] | None:
+    """ECC's affine fit of `template` placed with its top-left at (u, v) in `image`: the
+    template centre's position, the linear part, the correlation; None if it did not converge."""
+    h, w = template.shape
+    matrix = np.array([[1.0, 0.0, u], [0.0, 1.0, v]], dtype=np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
+    try:
+        # gaussFiltSize 1: no blur, the patch and the image are sharp; typeshed lacks this overload.
+        ncc, fitted = cv2.findTransformECC(template.astype(np.float32), image.astype(np.float32), matrix,  # type: ignore[call-overload]
+                                           cv2.MOTION_AFFINE, criteria, None, 1)
+    except cv2.error:
+        return None
+    c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    fitted = np.asarray(fitted, dtype=float)
+    position = fitted[:, :2] @ c + fitted[:, 2]
+    return (float(position[0]), float(position[1])), fitted[:, :2], float(ncc)
