@@ -53,7 +53,7 @@ from calib_free.map.gaze_map import GazeMap  # noqa: E402
 from calib_free.correspondence import search as correspondence  # noqa: E402
 from calib_free.map.adapter import MapAdapter, Sample  # noqa: E402
 from calib_free.gaze.fixation import FixationController  # noqa: E402
-from calib_free.kinematics import joints_of  # noqa: E402
+from headctl.service.head import joints_of  # noqa: E402
 from calib_free.sim.head_model import HeadModel, JointLimits  # noqa: E402
 from drivers.sim.scene import StereoRenderer, shared_scene  # noqa: E402
 from headctl.experiments.online import SimulatedHeadRig  # noqa: E402

@@ -40,7 +40,7 @@ from calib_free.map.adapter import MapAdapter  # noqa: E402
 from calib_free.correspondence.search import CorrespondenceParams, match_fixation, stereo_inconsistency  # noqa: E402
 from calib_free.correspondence.disparity import as_grey_float  # noqa: E402
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams  # noqa: E402
-from calib_free.kinematics import JOINTS  # noqa: E402
+from drivers.servo.joints import JOINTS  # noqa: E402
 from calib_free.sim.head_model import HeadModel  # noqa: E402
 from drivers.sim.scene import Scene  # noqa: E402
 from headctl.experiments.online import SimulatedHeadRig, exploration_for  # noqa: E402

@@ -38,7 +38,8 @@ from calib_free.map.adapter import MapAdapter  # noqa: E402
 from calib_free.correspondence.search import CorrespondenceParams  # noqa: E402
 from calib_free.sim.experiments import landing_errors_px, landing_targets, map_predictor  # noqa: E402
 from calib_free.gaze.fixation import FixationController, FixationParams  # noqa: E402
-from calib_free.kinematics import JOINTS, pose_of  # noqa: E402
+from drivers.servo.joints import JOINTS  # noqa: E402
+from headctl.service.head import pose_of  # noqa: E402
 from calib_free.sim.head_model import FixationSampler, HeadModel  # noqa: E402
 from headctl.experiments.online import SimulatedHeadRig, exploration_for  # noqa: E402
 from tests.support.sim_truth import axis_point, hidden_from, radial_tangential_error  # noqa: E402

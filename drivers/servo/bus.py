@@ -2,10 +2,10 @@
 
 This module owns everything a servo backend shares:
 
-* the four joint names (`JOINTS`); vergence (left_eye = +v/2, right_eye = -v/2) is
+* the four joint names (`JOINTS`, from `drivers.servo.joints`); vergence (left_eye = +v/2, right_eye = -v/2) is
   composed above this layer;
-* the config a bus is built from (`ServoBusConfig`), defined and checked in
-  `drivers.servo.config`;
+* the config a bus is built from (`ServoBusConfig`), defined in `drivers.servo.config` and
+  checked against its backend by `drivers.backends`;
 * joint states (`JointState`, `BusState`) and the meaning of a servo's hardware error bits;
 * the abstract `ServoBus`, whose public methods are template methods working in joint
   units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
@@ -28,6 +28,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
+from drivers import backends
 from drivers.base import Device
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.servo.faults import (
@@ -45,8 +46,8 @@ from drivers.servo.faults import (
     FaultLog,
     HardwareErrorEpisode,
 )
-from drivers.servo.config import JOINTS as JOINTS
 from drivers.servo.config import ServoBusConfig as ServoBusConfig
+from drivers.servo.joints import JOINTS as JOINTS
 from drivers.servo.recovery import Fault, FaultRecovery
 from drivers.errors import (
     BusDownError,
@@ -150,8 +151,8 @@ class ServoBus(Device, abc.ABC):
 
     # What a backend offers, declared rather than discovered by exceptions.
     capabilities: ClassVar[frozenset[str]] = frozenset()
-    # Config keys this backend uses beyond the common ones (`drivers.servo.config.COMMON_KEYS`,
-    # `COMMON_JOINT_KEYS`); others set in a config are refused when it loads.
+    # Config keys this backend uses beyond the common ones (`drivers.backends.SERVO_BUS_COMMON_KEYS`,
+    # `SERVO_JOINT_COMMON_KEYS`); others set in a config are refused when it loads.
     CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
     JOINT_CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
     # The servo models (`joints.<joint>.model`) this backend drives; None: it does not check models.
@@ -533,9 +534,7 @@ def create_servo_bus(config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, **r
 
     `resources` are what a backend needs beyond its config and cannot read from YAML (the
     simulated head's starting pose); a backend not taking them refuses them."""
-    from drivers.backends import resolve
-
-    cls = resolve("servo_bus", config.backend)
+    cls = backends.backend_class("servo_bus", config.backend, config)
     if not (isinstance(cls, type) and issubclass(cls, ServoBus)):
         raise ServoConfigError(f"{config.key_path}.backend: {config.backend!r} is not a ServoBus backend")
     return cls(config, clock=clock, **resources)

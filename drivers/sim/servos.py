@@ -32,8 +32,9 @@ import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
-from drivers.servo.bus import JOINTS, JointState, ServoBus, decode_hardware_error
+from drivers.servo.bus import JointState, ServoBus, decode_hardware_error
 from drivers.servo.config import ServoBusConfig, WiredServo
+from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
 
 log = logging.getLogger(__name__)

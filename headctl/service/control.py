@@ -23,7 +23,7 @@ from calib_free.gaze.closed_loop import target_patch_problem
 from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
 from calib_free.errors import MapFileError
 from calib_free.gaze.fixation import FixationRecord, LookParams
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib_free.kinematics import joints_of as joints  # noqa: F401 (re-exported for the tests)
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import Scene
+from headctl.service.head import joints_of as joints  # noqa: F401 (re-exported for the tests)
 
 
 def first_surface(scene: Scene, origin: np.ndarray, direction: np.ndarray) -> np.ndarray:

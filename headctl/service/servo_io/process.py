@@ -42,7 +42,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (BusDownError, DriverError, JointLimitError, ServoCommError, ServoHardwareError,
                             ServoTimeoutError)
