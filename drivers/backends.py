@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 
 Kind = Literal["servo_bus", "camera", "servo_probe"]
 
-# name -> (module, class, what to install when the import fails)
+# name -> (module, class or factory (`backend_class`), what to install when the import fails)
 SERVO_BUS_BACKENDS: dict[str, tuple[str, str, str]] = {
     "dynamixel": ("drivers.dynamixel.factory", "dynamixel_bus_class", "pip install dynamixel-sdk pyserial"),
     "sim": ("drivers.sim.servos", "SimulatedServoBus", ""),
@@ -62,7 +62,6 @@ SERVO_BUS_COMMON_KEYS = frozenset({"backend", "port", "joints", "limit_policy", 
                                    "torque_on_close"})
 SERVO_JOINT_COMMON_KEYS = frozenset({"id", "direction", "zero_offset", "min_angle", "max_angle"})
 CAMERA_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
-
 
 
 class ServoBusBackend(Protocol):

@@ -7,13 +7,9 @@ X-series) and `drivers.dynamixel.bus_v1.Protocol1Bus` (Protocol 1.0: AX, RX, MX)
 servos of its own protocol only (`check_config`). The SDK's classes it talks through, with
 their pitfalls fixed, are in `drivers.dynamixel.sdk`.
 
-How the known pitfalls of dynamixel-sdk 4.1.0 are handled (here and in `drivers.dynamixel.sdk`):
+The pitfalls of dynamixel-sdk 4.1.0 both buses meet, handled here and in `drivers.dynamixel.sdk`
+(the Protocol 2.0 ones: `drivers.dynamixel.bus_v2`):
 
-* `GroupSyncRead` drops each servo's status error byte (the Alert bit). The sync-read
-  block is laid out with indirect addressing so Hardware Error Status (70), Torque
-  Enable, Bus Watchdog and the servo's own ID (a check that the mapping survived) come
-  back in the same transaction as position and velocity; `SyncRead` also keeps the error
-  byte.
 * `GroupSyncRead` waits for the servos' replies one id after another, throws away any
   other id's reply that comes while it waits, and stops at the first id that fails: the
   servo it names is whichever it was waiting for when time ran out, often one held up
@@ -47,6 +43,7 @@ from dynamixel_sdk import (
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.dynamixel.tables.v1 import P1_MODELS
+from drivers.dynamixel.tables import x_series
 from drivers.dynamixel.tables.x_series import KNOWN_MODEL_NAMES, X_MODELS
 from drivers.dynamixel.sdk import (
     PORT_ERRORS,
@@ -95,6 +92,11 @@ class DynamixelBusBase(ServoBus):
     # 2-core machine can be late by a couple of milliseconds.
     REPLY_SLACK_MS = 3.0
     REBOOT_POLL_S = 0.05
+
+    @classmethod
+    def decode_hardware_error(cls, bits: int) -> tuple[str, ...]:
+        """The X-series Hardware Error Status meanings, which Protocol 1.0 servos share."""
+        return x_series.decode_hardware_error(bits)
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
         super().__init__(config, clock=clock, name=name)

@@ -47,7 +47,7 @@ from drivers.dynamixel.tables.v1 import (
 from drivers.dynamixel.sdk import BlockingPortHandler, BulkRead1
 from drivers.dynamixel.bus_base import DynamixelBusBase
 from drivers.errors import ServoCommError, ServoConfigError, ServoHardwareError
-from drivers.servo.bus import JointState, ServoBusConfig, decode_hardware_error
+from drivers.servo.bus import JointState, ServoBusConfig
 from drivers.servo.joints import JOINTS
 
 log = logging.getLogger(__name__)
@@ -195,7 +195,7 @@ class Protocol1Bus(DynamixelBusBase):
                     # In shutdown: the servo took the write and stays limp.
                     bits = error & HARDWARE_ERROR_BITS
                     raise ServoHardwareError(f"{self.describe(joint)}: torque refused, hardware error 0x{bits:02x}: "
-                                             + "; ".join(decode_hardware_error(bits)))
+                                             + "; ".join(self.decode_hardware_error(bits)))
 
     def _reboot_servo(self, joint: str) -> None:
         """Take the servo out of shutdown: Torque Limit back to Max Torque (no Reboot on 1.0)."""

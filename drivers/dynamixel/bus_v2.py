@@ -52,7 +52,7 @@ from drivers.dynamixel.bus_base import DynamixelBusBase
 from drivers.dynamixel.protocol.v2 import ERRBIT_ALERT
 from drivers.dynamixel.sdk import PORT_ERRORS, BlockingPortHandler, FastSyncRead, SyncRead
 from drivers.errors import BusDownError, ServoCommError, ServoConfigError, ServoHardwareError, ServoTimeoutError
-from drivers.servo.bus import JointState, ServoBusConfig, decode_hardware_error
+from drivers.servo.bus import JointState, ServoBusConfig
 
 log = logging.getLogger(__name__)
 
@@ -169,7 +169,7 @@ class DynamixelBus(DynamixelBusBase):
                     bits = self._read(joint, XAddr.HARDWARE_ERROR_STATUS, 1)
                     raise ServoHardwareError(
                         f"{self.describe(joint)}: torque refused, hardware error 0x{bits:02x}: "
-                        + "; ".join(decode_hardware_error(bits))
+                        + "; ".join(self.decode_hardware_error(bits))
                     )
                 if watchdog_units:
                     self._write(joint, XAddr.BUS_WATCHDOG, 1, watchdog_units)
