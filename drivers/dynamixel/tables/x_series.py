@@ -129,6 +129,8 @@ HARDWARE_ERROR_BITS: dict[int, str] = {
 
 def decode_hardware_error(bits: int) -> tuple[str, ...]:
     """The meanings of the bits of a Hardware Error Status byte."""
+    if not bits:
+        return ()  # every state read decodes its bits: the usual case stays cheap
     meanings = [meaning for bit, meaning in HARDWARE_ERROR_BITS.items() if bits & (1 << bit)]
     known_mask = sum(1 << bit for bit in HARDWARE_ERROR_BITS)
     if bits & ~known_mask:
