@@ -51,7 +51,7 @@ from calib_free.map.gaze_map import GazeMap
 from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
 from calib_free.gaze.fixation import FixationController
-from calib_free.kinematics import joints_of
+from headctl.service.head import joints_of
 from calib_free.sim.head_model import HeadModel, JointLimits
 from drivers.sim.scene import StereoRenderer, shared_scene
 from headctl.experiments.online import SimulatedHeadRig

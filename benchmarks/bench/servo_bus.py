@@ -1,7 +1,7 @@
 """Servo bus speed: read + goal-write cycles per second for 4 servos through the emulator.
 
 Runs the emulator in a child process (so its CPU is not counted as the host's), then times
-`DynamixelBus.read_state()` + `write_goals()` cycles for each way the bus reads: Protocol
+`create_dynamixel_bus(...).read_state()` + `write_goals()` cycles for each way the bus reads: Protocol
 2.0 Fast Sync Read and Sync Read (X-series), Protocol 1.0 Bulk Read (MX-28) and per-servo
 Reads (AX-12A); beside them the same cycle with the stock dynamixel-sdk `PortHandler`
 (busy-waiting reads) as a baseline. Each is measured with the servos' Return Delay Time at
@@ -26,7 +26,7 @@ import dynamixel_sdk as sdk
 
 from drivers.dynamixel.tables.x_series import READ_BLOCK_SIZE, XAddr
 from drivers.dynamixel.tables.v1 import READ_SIZE as P1_READ_SIZE
-from drivers.dynamixel.bus_v2 import DynamixelBus
+from drivers.dynamixel.factory import create_dynamixel_bus
 from drivers.servo.bus import JOINTS
 from drivers.servo.config import ServoBusConfig
 
@@ -99,7 +99,7 @@ def run_headctl(port: str, cycles: int, return_delay_us: int, *, protocol: float
         "joints": {j: {"id": i, "model": model, "profile_velocity": 0, "profile_acceleration": 0}
                    for j, i in zip(JOINTS, IDS)},
     })
-    with DynamixelBus(config, fast_sync_read=fast_sync_read) as bus:
+    with create_dynamixel_bus(config, fast_sync_read=fast_sync_read) as bus:
         if bus.read_method != method:
             raise RuntimeError(f"the bus reads by {bus.read_method}, not {method}")
         bus.enable()

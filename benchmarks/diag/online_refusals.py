@@ -38,7 +38,7 @@ from calib_free.map.adapter import MapAdapter
 from calib_free.correspondence.search import CorrespondenceParams, match_fixation, stereo_inconsistency
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import Scene
 from drivers.sim.truth import axis_point, hidden_from, texture_at

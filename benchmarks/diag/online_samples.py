@@ -37,7 +37,8 @@ from calib_free.map.adapter import MapAdapter
 from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.sim.experiments import landing_errors_px, landing_targets, map_predictor
 from calib_free.gaze.fixation import FixationController, FixationParams
-from calib_free.kinematics import JOINTS, pose_of
+from drivers.servo.joints import JOINTS
+from headctl.service.head import pose_of
 from calib_free.sim.head_model import FixationSampler, HeadModel
 from drivers.sim.truth import axis_point, hidden_from
 from headctl.experiments.online import SimulatedHeadRig, exploration_for

@@ -27,6 +27,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from calib_free.kinematics import eye_angles
 from calib_free.lens import FisheyeLens
 
 # Camera (x right, y down, z forward) from eye (x forward, y left, z up).
@@ -137,7 +138,7 @@ class HeadModel:
 
     def eye_frames(self, pose: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """[(R, c)] for the left and right eye at a symmetric pose (pan, tilt, vergence)."""
-        return self.eye_frames_from_joints(pose[0], pose[1], pose[2] / 2, -pose[2] / 2)
+        return self.eye_frames_from_joints(pose[0], pose[1], *eye_angles(pose[2]))
 
     def eye_frames_from_joints(self, pan: float, tilt: float, left_eye: float,
                                right_eye: float) -> list[tuple[np.ndarray, np.ndarray]]:

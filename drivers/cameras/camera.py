@@ -474,8 +474,8 @@ def create_camera(config: CameraConfig, *, name: str | None = None, clock: Clock
     `resources` are what a backend needs beyond its config and cannot read from YAML (the
     simulated camera's head model and pose source); a backend not taking them refuses them.
     """
-    cls = backends.resolve("camera", config.backend)
+    cls = backends.backend_class("camera", config.backend, config)
     if not (isinstance(cls, type) and issubclass(cls, Camera)):
         raise CameraConfigError(f"{key_path}.backend: {config.backend!r} is {cls!r}, not a Camera class")
-    config.check_applies_to(cls, key_path)
+    backends.check_camera_config(config, cls, key_path)
     return cls(config, name=name, clock=clock, on_error=on_error, **resources)

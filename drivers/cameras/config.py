@@ -1,9 +1,10 @@
 """The typed settings of a camera and of a head's pair of cameras (the `cameras:` section).
 
 `CameraConfig` is read from a plain mapping (what YAML gives) by `drivers.config.reader`: errors are
-`CameraConfigError`s naming the key path, the value and what was expected. A config is checked
-against the backend it names (`backend_class`, `check_applies_to`): a key the backend does not
-use is refused rather than ignored. Sizes are bounded before anything is allocated.
+`CameraConfigError`s naming the key path, the value and what was expected. This is plain data:
+whether the backend a config names uses the keys it gives (`CameraConfig.set_keys`) is
+checked by the backend table (`drivers.backends.check_camera_config`): a key the backend does
+not use is refused rather than ignored. Sizes are bounded before anything is allocated.
 """
 from __future__ import annotations
 
@@ -11,14 +12,10 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
-from drivers import backends
 from drivers.config.reader import check_settings, read_config, setting
 from drivers.errors import CameraConfigError
-
-if TYPE_CHECKING:
-    from drivers.cameras.camera import Camera
 
 ImageMode = Literal["grey", "colour"]
 
@@ -102,33 +99,12 @@ class CameraConfig:
     def from_mapping(cls, data: Any, key_path: str = "camera") -> "CameraConfig":
         return read_config(cls, data, key_path)
 
-    def backend_class(self, key_path: str = "camera") -> type["Camera"]:
-        """The `Camera` class `backend` names (imported now); a `CameraConfigError` naming
-        `<key_path>.backend` for an unknown name, a module that does not import, or a class
-        that is not a `Camera`."""
-        from drivers.cameras.camera import Camera  # the interface imports this module
-
-        cls: type[Camera] = backends.resolve_for_config("camera", self.backend, Camera, f"{key_path}.backend",
-                                                        CameraConfigError)
-        return cls
-
     def set_keys(self) -> set[str]:
         """Keys given in the mapping, or whose value differs from the default."""
         return set(self.given_keys) | {f.name for f in dataclasses.fields(self)
                                        if f.init and getattr(self, f.name) != f.default}
 
-    def check_applies_to(self, backend_class: type["Camera"], key_path: str = "camera") -> None:
-        """Refuse keys the backend does not use, rather than ignore them silently."""
-        unused = sorted(self.set_keys() - backend_class.CONFIG_KEYS - _COMMON_KEYS)
-        if unused:
-            raise CameraConfigError(
-                key_path=f"{key_path}.{unused[0]}", value=getattr(self, unused[0]),
-                expected=f"nothing: {unused[0]} is not used by the {self.backend!r} backend, which uses "
-                         f"{', '.join(sorted(backend_class.CONFIG_KEYS | _COMMON_KEYS))}",
-            )
 
-
-_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
 _PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")  # as drivers.sim.textures reads them
 
 

@@ -1,9 +1,9 @@
 """The Dynamixel backend on Protocol 1.0: AX, RX and MX servos through dynamixel-sdk 4.1.0.
 
-`Protocol1Bus` is what the `dynamixel` backend (`drivers.dynamixel.bus_v2.DynamixelBus`) becomes
-for a config with `protocol: 1.0`; it shares the port, the transactions with retries and
-the per-servo blame of failed group reads, and drives the control table of
-`drivers.dynamixel.tables.v1`.
+`Protocol1Bus` is what the `dynamixel` backend builds for a config with `protocol: 1.0`
+(`drivers.dynamixel.factory`); it shares the port, the transactions with retries and the
+per-servo blame of failed group reads with the Protocol 2.0 bus (`drivers.dynamixel.bus_base`),
+and drives the control table of `drivers.dynamixel.tables.v1`.
 
 Protocol 1.0 has no Sync Read, so every cycle reads each servo's block (Torque Enable up
 to Moving, 23 bytes) either with one Bulk Read, when every servo is an MX (which the SDK's
@@ -45,9 +45,10 @@ from drivers.dynamixel.tables.v1 import (
     P1Model,
 )
 from drivers.dynamixel.sdk import BlockingPortHandler, BulkRead1
-from drivers.dynamixel.bus_v2 import DynamixelBus
+from drivers.dynamixel.bus_base import DynamixelBusBase
 from drivers.errors import ServoCommError, ServoConfigError, ServoHardwareError
-from drivers.servo.bus import JOINTS, JointState, ServoBusConfig, decode_hardware_error
+from drivers.servo.bus import JointState, ServoBusConfig
+from drivers.servo.joints import JOINTS
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,7 @@ def check_protocol1_config(config: ServoBusConfig) -> None:
                                    f"no key): the {model.name} has no acceleration control")
 
 
-class Protocol1Bus(DynamixelBus):
+class Protocol1Bus(DynamixelBusBase):
     """Four Protocol 1.0 servos on one port; see the module docstring. `read_method` says
     how the state is read: "bulk read" or "per-servo reads"."""
 
@@ -104,7 +105,7 @@ class Protocol1Bus(DynamixelBus):
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
                  fast_sync_read: bool = False) -> None:
-        super().__init__(config, clock=clock, name=name, fast_sync_read=False)
+        super().__init__(config, clock=clock, name=name)
         self._models: dict[str, P1Model] = {j: P1_MODELS[config.joints[j].model] for j in JOINTS}
         self._bulk_read: BulkRead1 | None = None
         self.read_method = "bulk read" if self._all_bulk_read else "per-servo reads"
@@ -112,6 +113,10 @@ class Protocol1Bus(DynamixelBus):
     @property
     def _all_bulk_read(self) -> bool:
         return all(model.bulk_read for model in self._models.values())
+
+    @classmethod
+    def _check_protocol_config(cls, config: ServoBusConfig) -> None:
+        check_protocol1_config(config)
 
     def _model_number(self, name: str) -> int:
         return P1_MODELS[name].number
@@ -190,7 +195,7 @@ class Protocol1Bus(DynamixelBus):
                     # In shutdown: the servo took the write and stays limp.
                     bits = error & HARDWARE_ERROR_BITS
                     raise ServoHardwareError(f"{self.describe(joint)}: torque refused, hardware error 0x{bits:02x}: "
-                                             + "; ".join(decode_hardware_error(bits)))
+                                             + "; ".join(self.decode_hardware_error(bits)))
 
     def _reboot_servo(self, joint: str) -> None:
         """Take the servo out of shutdown: Torque Limit back to Max Torque (no Reboot on 1.0)."""

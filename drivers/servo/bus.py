@@ -2,11 +2,12 @@
 
 This module owns everything a servo backend shares:
 
-* the four joint names (`JOINTS`); vergence (left_eye = +v/2, right_eye = -v/2) is
+* the four joint names (`JOINTS`, from `drivers.servo.joints`); vergence (left_eye = +v/2, right_eye = -v/2) is
   composed above this layer;
-* the config a bus is built from (`ServoBusConfig`), defined and checked in
-  `drivers.servo.config`;
-* joint states (`JointState`, `BusState`) and the meaning of a servo's hardware error bits;
+* the config a bus is built from (`ServoBusConfig`), defined in `drivers.servo.config` and
+  checked against its backend by `drivers.backends`;
+* joint states (`JointState`, `BusState`), with the meanings of a servo's hardware error
+  bits as its backend decodes them (`ServoBus.decode_hardware_error`);
 * the abstract `ServoBus`, whose public methods are template methods working in joint
   units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
   zero offset), limits (clamp or refuse), logging, the lifecycle, reboot recovery and
@@ -28,6 +29,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
+from drivers import backends
 from drivers.base import Device
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.servo.faults import (
@@ -45,8 +47,8 @@ from drivers.servo.faults import (
     FaultLog,
     HardwareErrorEpisode,
 )
-from drivers.servo.config import JOINTS as JOINTS
 from drivers.servo.config import ServoBusConfig as ServoBusConfig
+from drivers.servo.joints import JOINTS as JOINTS
 from drivers.servo.recovery import Fault, FaultRecovery
 from drivers.errors import (
     BusDownError,
@@ -61,15 +63,6 @@ log = logging.getLogger(__name__)
 # Per-packet traffic is logged below DEBUG (docs/development.md, "Code conventions").
 TRACE = 5
 
-# Hardware Error Status (X-series address 70): bit -> meaning.
-HARDWARE_ERROR_BITS: dict[int, str] = {
-    0: "input voltage out of range",
-    2: "overheating",
-    3: "motor encoder error",
-    4: "electrical shock (motor circuit)",
-    5: "overload",
-}
-
 # Reopening a bus that went down: first retry after this, doubling up to the maximum.
 REOPEN_BACKOFF_FIRST_S = 0.1
 REOPEN_BACKOFF_MAX_S = 5.0
@@ -77,20 +70,13 @@ REOPEN_BACKOFF_MAX_S = 5.0
 T = TypeVar("T")
 
 
-def decode_hardware_error(bits: int) -> tuple[str, ...]:
-    """The meanings of the bits of a Hardware Error Status byte."""
-    meanings = [meaning for bit, meaning in HARDWARE_ERROR_BITS.items() if bits & (1 << bit)]
-    known_mask = sum(1 << bit for bit in HARDWARE_ERROR_BITS)
-    if bits & ~known_mask:
-        meanings.append(f"unknown bits 0x{bits & ~known_mask:02x}")
-    return tuple(meanings)
-
-
 # --- state -----------------------------------------------------------------------------
 @dataclass(frozen=True)
 class JointState:
-    """One servo's state. From `ServoBus.read_state()` in joint units (degrees, deg/s);
-    from a backend's `_read_servos()` hook in the servo frame."""
+    """One servo's state. From `ServoBus.read_state()` in joint units (degrees, deg/s), with
+    `hardware_errors` the meanings of `hardware_error_bits` as the backend decodes them
+    (`ServoBus.decode_hardware_error`); from a backend's `_read_servos()` hook in the servo
+    frame, `hardware_errors` left empty."""
 
     position: float
     velocity: float
@@ -99,10 +85,7 @@ class JointState:
     hardware_error_bits: int
     temperature_c: float
     input_voltage_v: float
-
-    @property
-    def hardware_errors(self) -> tuple[str, ...]:
-        return decode_hardware_error(self.hardware_error_bits)
+    hardware_errors: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -150,12 +133,18 @@ class ServoBus(Device, abc.ABC):
 
     # What a backend offers, declared rather than discovered by exceptions.
     capabilities: ClassVar[frozenset[str]] = frozenset()
-    # Config keys this backend uses beyond the common ones (`drivers.servo.config.COMMON_KEYS`,
-    # `COMMON_JOINT_KEYS`); others set in a config are refused when it loads.
+    # Config keys this backend uses beyond the common ones (`drivers.backends.SERVO_BUS_COMMON_KEYS`,
+    # `SERVO_JOINT_COMMON_KEYS`); others set in a config are refused when it loads.
     CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
     JOINT_CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()
     # The servo models (`joints.<joint>.model`) this backend drives; None: it does not check models.
     MODELS: ClassVar[frozenset[str] | None] = None
+
+    @classmethod
+    def decode_hardware_error(cls, bits: int) -> tuple[str, ...]:
+        """The meanings of a servo's hardware error bits, as this backend's servos define them
+        (a backend overrides this; here the bits are only named)."""
+        return (f"hardware error bits 0x{bits:02x}",) if bits else ()
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None) -> None:
         super().__init__(name or config.port)
@@ -349,7 +338,8 @@ class ServoBus(Device, abc.ABC):
             jc = self.config.joints[joint]
             raw = servo_states[joint]
             joints[joint] = dataclasses.replace(
-                raw, position=jc.joint_angle(raw.position), velocity=jc.direction * raw.velocity
+                raw, position=jc.joint_angle(raw.position), velocity=jc.direction * raw.velocity,
+                hardware_errors=self.decode_hardware_error(raw.hardware_error_bits),
             )
         return BusState(time_s=(start_s + end_s) / 2.0, joints=joints)
 
@@ -365,7 +355,7 @@ class ServoBus(Device, abc.ABC):
                 log.info("%s: hardware error cleared", self.describe(joint))
         self._note_faults(state)
         now_s = self.clock.monotonic()
-        faults = {j: Fault(decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
+        faults = {j: Fault(self.decode_hardware_error(bits), state[j].torque_on) for j, bits in self._faults.items()}
         if self.config.reboot_on_hardware_error:
             verdicts = self.recovery.assess(faults, now_s)
         else:
@@ -429,7 +419,7 @@ class ServoBus(Device, abc.ABC):
             LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
                               "person (reboot it by hand once the cause is fixed)",
         }.get(recovery, recovery)
-        meanings = "; ".join(decode_hardware_error(bits))
+        meanings = "; ".join(self.decode_hardware_error(bits))
         torque = "torque on" if torque_on else "torque off"
         return f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), {torque}: {what}"
 
@@ -465,7 +455,7 @@ class ServoBus(Device, abc.ABC):
             raise ServoConfigError(f"{self.name}: no joint {joint!r}; expected one of {', '.join(JOINTS)}")
 
     def _hardware_error(self, joint: str, bits: int, what: str) -> ServoHardwareError:
-        meanings = "; ".join(decode_hardware_error(bits))
+        meanings = "; ".join(self.decode_hardware_error(bits))
         return ServoHardwareError(f"{self.describe(joint)}: hardware error 0x{bits:02x} {what}: {meanings}")
 
     def _check_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
@@ -533,9 +523,7 @@ def create_servo_bus(config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, **r
 
     `resources` are what a backend needs beyond its config and cannot read from YAML (the
     simulated head's starting pose); a backend not taking them refuses them."""
-    from drivers.backends import resolve
-
-    cls = resolve("servo_bus", config.backend)
+    cls = backends.backend_class("servo_bus", config.backend, config)
     if not (isinstance(cls, type) and issubclass(cls, ServoBus)):
         raise ServoConfigError(f"{config.key_path}.backend: {config.backend!r} is not a ServoBus backend")
     return cls(config, clock=clock, **resources)

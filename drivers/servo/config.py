@@ -2,28 +2,22 @@
 
 `JointConfig` and `ServoBusConfig` are read from plain mappings (what YAML gives) by
 `drivers.config.reader`: errors are `ServoConfigError`s naming the key path, the value and what was
-expected. `ServoBusConfig.backend_class()` and `check_applies_to()` check a config against
-the backend it names (keys the backend does not use, servo models it does not drive: the
-backend's `CONFIG_KEYS`, `JOINT_CONFIG_KEYS` and `MODELS`).
-
-Apart from the interface (`drivers.servo.bus`), which takes a `ServoBusConfig`: what a file
-may say about a bus is checked here, before any bus exists. The joint names (`JOINTS`) are
-defined here because a config must name all four; the interface exports them as its own.
+expected. This is plain data: what a file may say about a bus is checked here, before any
+bus exists; whether the backend it names uses those keys and drives those models is
+checked by the backend table (`drivers.backends.check_servo_bus_config`), from the
+keys a section gave (`set_keys`). A config names all four joints (`drivers.servo.joints`).
 """
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 from drivers.config.reader import check_settings, config_meta, read_config, setting
 from drivers.errors import ServoConfigError
+from drivers.servo.joints import JOINTS
 
-if TYPE_CHECKING:
-    from drivers.servo.bus import ServoBus
-
-JOINTS: tuple[str, ...] = ("pan", "tilt", "left_eye", "right_eye")
 LIMIT_POLICIES: tuple[str, ...] = ("clamp", "refuse")
 
 # Baud rates an X-series servo offers that dynamixel-sdk 4.1.0 also accepts (its
@@ -190,46 +184,6 @@ class ServoBusConfig:
     def joint_path(self, joint: str) -> str:
         return f"{self.key_path}.joints.{joint}"
 
-    def backend_class(self) -> type["ServoBus"]:
-        """The `ServoBus` class `backend` names (imported now); a `ServoConfigError` naming
-        `<key_path>.backend` for an unknown name, a module that does not import, or a class
-        that is not a `ServoBus`."""
-        from drivers.backends import resolve_for_config
-        from drivers.servo.bus import ServoBus
-
-        cls: type[ServoBus] = resolve_for_config("servo_bus", self.backend, ServoBus, f"{self.key_path}.backend",
-                                                 ServoConfigError)
-        return cls
-
-    def check_applies_to(self, backend_class: type["ServoBus"]) -> None:
-        """Refuse keys the backend does not use, rather than ignore them silently, and servo
-        models it does not drive."""
-        used = backend_class.CONFIG_KEYS | COMMON_KEYS
-        unused = sorted(_set_keys(self) - used)
-        if unused:
-            raise ServoConfigError(
-                key_path=f"{self.key_path}.{unused[0]}", value=getattr(self, unused[0]),
-                expected=f"nothing: {unused[0]} is not used by the {self.backend!r} backend, which uses "
-                         f"{', '.join(sorted(used))}")
-        joint_used = backend_class.JOINT_CONFIG_KEYS | COMMON_JOINT_KEYS
-        for joint, jc in self.joints.items():
-            joint_unused = sorted(_set_keys(jc) - joint_used)
-            if joint_unused:
-                key = joint_unused[0]
-                raise ServoConfigError(
-                    key_path=f"{self.joint_path(joint)}.{key}", value=getattr(jc, "servo_id" if key == "id" else key),
-                    expected=f"nothing: {key} is not used by the {self.backend!r} backend, which uses "
-                             f"{', '.join(sorted(joint_used))} for a joint")
-            models = backend_class.MODELS
-            if models is not None and jc.model not in models:
-                raise ServoConfigError(
-                    key_path=f"{self.joint_path(joint)}.model", value=jc.model,
-                    expected=f"one of {', '.join(sorted(models))} (the models the {self.backend!r} backend drives)")
-        # What only the backend can judge (models and settings of the protocol in use).
-        check_config = getattr(backend_class, "check_config", None)
-        if check_config is not None:
-            check_config(self)
-
 
 @dataclass(frozen=True)
 class PartialServoBusConfig(ServoBusConfig):
@@ -239,12 +193,7 @@ class PartialServoBusConfig(ServoBusConfig):
     joints: Mapping[str, JointConfig] = setting(default_factory=dict, keys=JOINTS)
 
 
-# The keys every backend uses: the base class (`drivers.servo.bus.ServoBus`) implements what they say.
-COMMON_KEYS = frozenset({"backend", "port", "joints", "limit_policy", "reboot_on_hardware_error", "torque_on_close"})
-COMMON_JOINT_KEYS = frozenset({"id", "direction", "zero_offset", "min_angle", "max_angle"})
-
-
-def _set_keys(section: JointConfig | ServoBusConfig) -> set[str]:
+def set_keys(section: JointConfig | ServoBusConfig) -> set[str]:
     """The YAML keys a section's mapping gave, or whose value differs from the default."""
     keys = set(section.given_keys)
     for f in dataclasses.fields(section):

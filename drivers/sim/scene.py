@@ -27,11 +27,11 @@ from typing import Literal, Protocol
 import cv2
 import numpy as np
 
+from drivers.servo.joints import JOINTS
 from drivers.sim.textures import PhotoSet, photo_set, photo_texture
 
 log = logging.getLogger(__name__)
 
-JOINTS = ("pan", "tilt", "left_eye", "right_eye")
 TextureKind = Literal["rich", "checker", "stripes", "uniform", "photo"]
 ROOMS = ("generated", "photos")  # the rooms `shared_scene` builds: `default_boxes`, `photo_boxes`
 _BORDER_PX = 2  # replicated texels around each face so bilinear sampling never bleeds

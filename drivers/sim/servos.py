@@ -32,8 +32,10 @@ import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
-from drivers.servo.bus import JOINTS, JointState, ServoBus, decode_hardware_error
+from drivers.dynamixel.tables import x_series
+from drivers.servo.bus import JointState, ServoBus
 from drivers.servo.config import ServoBusConfig, WiredServo
+from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
 
 log = logging.getLogger(__name__)
@@ -219,6 +221,11 @@ class SimulatedServoBus(ServoBus):
     CONFIG_KEYS = frozenset({"watchdog_ms", "wiring"})
     JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})
 
+    @classmethod
+    def decode_hardware_error(cls, bits: int) -> tuple[str, ...]:
+        """The simulated servos report hardware errors as X-series servos do."""
+        return x_series.decode_hardware_error(bits)
+
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
                  initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
         super().__init__(config, clock=clock, name=name or f"sim-servo-bus({config.port})")
@@ -268,7 +275,7 @@ class SimulatedServoBus(ServoBus):
                 servo.axis.hold()
                 self._sample(now, change=True)
         log.info("%s: injected hardware error 0x%02x on %s (%s)", self.name, bits, joint,
-                 "; ".join(decode_hardware_error(bits)))
+                 "; ".join(self.decode_hardware_error(bits)))
 
     def true_position(self, joint: str) -> float:
         """Where the simulated joint really is now (joint frame, degrees), bus or no bus: as
@@ -370,7 +377,7 @@ class SimulatedServoBus(ServoBus):
                     if on and servo.hardware_error_bits & DEFAULT_SHUTDOWN_BITS:
                         raise ServoHardwareError(
                             f"{self.describe(joint)}: torque refused, hardware error "
-                            f"0x{servo.hardware_error_bits:02x}: " + "; ".join(decode_hardware_error(
+                            f"0x{servo.hardware_error_bits:02x}: " + "; ".join(self.decode_hardware_error(
                                 servo.hardware_error_bits)))
                     servo.torque_on = on
                     if on:

@@ -218,7 +218,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
-    from drivers.servo.bus import JOINTS
+    from drivers.servo.joints import JOINTS
     from headctl.service.build import HeadDevices
 
     failures = 0

@@ -35,8 +35,9 @@ from drivers.cameras.camera import Camera, create_camera
 from drivers.cameras.config import StereoCamerasConfig
 from drivers.clock import SYSTEM_CLOCK
 from drivers.errors import DriverError
-from drivers.servo.bus import decode_hardware_error
-from drivers.servo.config import JOINTS, PartialServoBusConfig, ServoBusConfig
+from drivers.dynamixel.tables.x_series import decode_hardware_error
+from drivers.servo.config import PartialServoBusConfig, ServoBusConfig
+from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoProbe, create_servo_probe
 from drivers.sim.camera import fixed_pose
 from drivers.sim.servos import SimulatedServoProbe

@@ -37,9 +37,12 @@ from calib_free.gaze.exploration import EXPLORATION_KINDS
 from calib_free.gaze.fixation import FixationParams
 from calib_free.map.params import PROFILES, GazeMapParams
 from calib_free.correspondence.alignment import ALIGNMENT_WARPS
+from drivers.backends import camera_backend, check_camera_config, check_servo_bus_config, servo_bus_backend
+from drivers.cameras.camera import Camera
 from drivers.cameras.config import CameraConfig, MAX_IMAGE_SIDE, StereoCamerasConfig
 from drivers.config.reader import check_settings, config_error_from, config_meta, declare_settings, read_config, setting
 from drivers.config.file import read_yaml_file
+from drivers.servo.bus import ServoBus
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.motion import MovingObject
 from headctl.config.api import ApiChanges, ApiConfig, beside, resolve_api, scrub, secrets_in
@@ -326,11 +329,11 @@ def _correspondence_of_the_profile(config: HeadConfig, data: JSON) -> HeadConfig
 def resolve_backends(config: HeadConfig) -> dict[str, type]:
     """The backend classes the config names (imported now), by key path (`servo_bus`,
     `cameras.left`, `cameras.right`): what `headctl run` would fail to build refused here."""
-    classes: dict[str, type] = {"servo_bus": config.servo_bus.backend_class()}
+    classes: dict[str, type] = {"servo_bus": servo_bus_backend(config.servo_bus, ServoBus)}
     for side in ("left", "right"):
         camera: CameraConfig = getattr(config.cameras, side)
         key_path = f"cameras.{side}"
-        camera_class = camera.backend_class(key_path)
+        camera_class: type[Camera] = camera_backend(camera, Camera, key_path)
         if camera_class.capabilities.simulated and camera.backend != "sim":
             # The service gives a camera the simulated head (and the servos it renders) by this name.
             raise ConfigError(key_path=f"{key_path}.backend", value=camera.backend,
@@ -342,10 +345,10 @@ def resolve_backends(config: HeadConfig) -> dict[str, type]:
 def check_backends(config: HeadConfig, classes: Mapping[str, type]) -> None:
     """Refuse keys the backends (`resolve_backends`) do not use and servo models they do not
     drive, rather than ignore them."""
-    config.servo_bus.check_applies_to(classes["servo_bus"])
+    check_servo_bus_config(config.servo_bus, classes["servo_bus"])
     for side in ("left", "right"):
         key_path = f"cameras.{side}"
-        getattr(config.cameras, side).check_applies_to(classes[key_path], key_path)
+        check_camera_config(getattr(config.cameras, side), classes[key_path], key_path)
 
 
 def check_fixation(config: HeadConfig) -> None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib_free.correspondence.search import CorrespondenceParams, EyeMatch, foveal_patch, match_eye
-from calib_free.kinematics import joints_of
+from headctl.service.head import joints_of
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import Scene, StereoRenderer
 from drivers.sim.truth import axis_point, hidden_from, texture_at

@@ -15,7 +15,7 @@ import logging
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from calib_free.sim.head_model import HeadModel, JointLimits
 from drivers.cameras.camera import Camera, create_camera
 from drivers.cameras.config import CameraConfig

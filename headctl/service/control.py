@@ -26,7 +26,7 @@ from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
 from calib_free.gaze.look import TargetDisparity
 from calib_free.gaze.look import target_disparity as look_disparity
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError

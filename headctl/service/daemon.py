@@ -30,7 +30,7 @@ from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
 from calib_free.gaze.fixation import FixationController
 from calib_free.map.gaze_map import AdaptResult
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from drivers.cameras.stereo import StereoPair

@@ -3,7 +3,7 @@
 `Head` implements `calib_free.gaze.fixation.GazeHead` over anything that reads and writes joint
 angles (`JointBus`: a `drivers.servo.bus.ServoBus`, or the service's servo loop) and a source
 of stereo pairs (`PairSource`). It works in poses (pan, tilt, vergence) with symmetric eyes
-(`calib_free.kinematics`), clamps absolute moves to the joint and vergence limits, judges
+(`calib_free.kinematics`; `joints_of` and `pose_of` name the joints), clamps absolute moves to the joint and vergence limits, judges
 "at rest" from the servos' own moving flags and positions, and delivers pairs exposed after
 a given time.
 
@@ -32,17 +32,29 @@ from typing import Callable, Mapping, Protocol
 import numpy as np
 
 from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError, PairTimeoutError
-from calib_free.kinematics import joints_of, pose_of
+from calib_free.kinematics import eye_angles, vergence_of
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, CameraError, CameraTimeoutError, DeviceStateError, DriverError
 from drivers.servo.bus import BusState
 from drivers.servo.config import JointConfig
+from drivers.servo.joints import JOINTS
 from drivers.cameras.stereo import StereoPair
 from headctl.errors import ServoLoopStoppedError
 
 log = logging.getLogger(__name__)
 
 ImageTransform = Callable[[np.ndarray], np.ndarray]
+
+
+def joints_of(pose: np.ndarray) -> dict[str, float]:
+    """Joint angles {pan, tilt, left_eye, right_eye} of a pose (pan, tilt, vergence), eyes symmetric."""
+    left_eye, right_eye = eye_angles(float(pose[2]))
+    return {"pan": float(pose[0]), "tilt": float(pose[1]), "left_eye": left_eye, "right_eye": right_eye}
+
+
+def pose_of(joints: Mapping[str, float]) -> np.ndarray:
+    """The pose (pan, tilt, vergence) of joint angles."""
+    return np.array([joints["pan"], joints["tilt"], vergence_of(joints["left_eye"], joints["right_eye"])])
 
 
 class JointBus(Protocol):
@@ -176,13 +188,14 @@ class Head:
         """Move the eyes alone (symmetrically) to `vergence`, clamped; pan and tilt get no goal."""
         self.set_phase("fine vergence")
         v = float(np.clip(vergence, self.pose_low[2], self.pose_high[2]))
-        sent = self._write_goals({"left_eye": v / 2, "right_eye": -v / 2})
+        left_eye, right_eye = eye_angles(v)
+        sent = self._write_goals({"left_eye": left_eye, "right_eye": right_eye})
         exposed_s = self.pairs.last_exposure_s
         if self.observer is not None and exposed_s is not None:
             # From the exposure of the pair this step reacts to until its goal was on the bus.
             self.observer.vergence_commanded(self.clock.monotonic() - exposed_s)
         goal = self._goal if self._goal is not None else pose_of(self._read_state().positions)
-        self._goal = np.array([goal[0], goal[1], sent["left_eye"] - sent["right_eye"]])
+        self._goal = np.array([goal[0], goal[1], vergence_of(sent["left_eye"], sent["right_eye"])])
         return v
 
     def wait_settled(self, timeout_s: float) -> float:
@@ -193,7 +206,7 @@ class Head:
             # "At goal" means at the goals the bus really drives to: a goal no servo is driven
             # to (a joint held after a hardware error, a hold on stale input) is never reached.
             goals = self.goals_in_force()
-            self._goal = pose_of(goals) if all(j in goals for j in ("pan", "tilt", "left_eye", "right_eye")) \
+            self._goal = pose_of(goals) if all(j in goals for j in JOINTS) \
                 else None
         deadline = self.clock.monotonic() + timeout_s
         rest_since: float | None = None

@@ -24,7 +24,7 @@ from typing import Callable, Mapping, Protocol, TypedDict
 import numpy as np
 
 from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError
-from calib_free.kinematics import joints_of
+from headctl.service.head import joints_of
 from calib_free.gaze.pursuit import MapReader, PoseHistory, Pursuit, PursuitParams, PursuitStep, TrackOutcome
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError

@@ -26,7 +26,7 @@ from typing import Any
 import yaml
 
 from drivers.dynamixel.tables.x_series import X_MODELS
-from drivers.servo.config import JOINTS
+from drivers.servo.joints import JOINTS
 from headctl.setup.identify import PairSource, SafeProbing, ServoFinding, image_shift, pair_after
 
 log = logging.getLogger(__name__)

@@ -26,7 +26,7 @@ from drivers.clock import ManualClock, MonotonicClock
 from drivers.dynamixel.tables.x_series import DEG_PER_TICK, XAddr, ticks_to_deg
 from drivers.dynamixel.tables.v1 import P1_MODELS, P1Addr
 from drivers.dynamixel.emulator.server import DEFAULT_MODELS, DxlEmulator
-from drivers.dynamixel.bus_v2 import DynamixelBus
+from drivers.dynamixel.factory import create_dynamixel_bus
 from drivers.servo.bus import JOINTS
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.servos import SimulatedServoBus
@@ -119,7 +119,7 @@ class EmulatorRig:
         self.tick_deg = self.p1_model.deg_per_tick if self.p1_model else DEG_PER_TICK
         self.config = ServoBusConfig.from_mapping(config_mapping(port=self.link, backend="dynamixel",
                                                                  joint_defaults=defaults, **config))
-        self.bus = DynamixelBus(self.config, clock=self.clock, fast_sync_read=fast_sync_read)
+        self.bus = create_dynamixel_bus(self.config, clock=self.clock, fast_sync_read=fast_sync_read)
 
     def advance(self, seconds: float) -> None:
         self.emulator.wait_idle()
@@ -179,7 +179,7 @@ class HardwareRig:
             section["joints"][joint].update(values)
         self.clock = MonotonicClock()
         self.config = ServoBusConfig.from_mapping(section)
-        self.bus = DynamixelBus(self.config, clock=self.clock)
+        self.bus = create_dynamixel_bus(self.config, clock=self.clock)
         model = P1_MODELS.get(self.config.joints["pan"].model)
         self.tick_deg = model.deg_per_tick if model else DEG_PER_TICK
 

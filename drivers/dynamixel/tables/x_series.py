@@ -1,4 +1,5 @@
-"""The X-series control table (Dynamixel Protocol 2.0): addresses, models, baud codes, units.
+"""The X-series control table (Dynamixel Protocol 2.0): addresses, models, baud codes, units,
+and what the Hardware Error Status bits mean (`decode_hardware_error`).
 
 The backend (`drivers.dynamixel.bus_v2`) drives real servos by these addresses and units, and the
 emulator's servo model (`drivers.dynamixel.emulator.servo_v2`) serves the same table, so both sides of the
@@ -113,3 +114,25 @@ READ_BLOCK_SIZE = READ_BLOCK_FORMAT.size
 # Indirect Address n points at one byte each: the addresses the block's bytes come from.
 READ_BLOCK_ADDRESSES: tuple[int, ...] = tuple(addr + i for addr, size in READ_BLOCK for i in range(size))
 assert len(READ_BLOCK_ADDRESSES) == READ_BLOCK_SIZE <= XAddr.INDIRECT_COUNT
+
+
+# Hardware Error Status (address 70): bit -> meaning. Protocol 1.0 servos report the same
+# conditions on the same bits of their status error byte (`drivers.dynamixel.tables.v1`).
+HARDWARE_ERROR_BITS: dict[int, str] = {
+    0: "input voltage out of range",
+    2: "overheating",
+    3: "motor encoder error",
+    4: "electrical shock (motor circuit)",
+    5: "overload",
+}
+
+
+def decode_hardware_error(bits: int) -> tuple[str, ...]:
+    """The meanings of the bits of a Hardware Error Status byte."""
+    if not bits:
+        return ()  # every state read decodes its bits: the usual case stays cheap
+    meanings = [meaning for bit, meaning in HARDWARE_ERROR_BITS.items() if bits & (1 << bit)]
+    known_mask = sum(1 << bit for bit in HARDWARE_ERROR_BITS)
+    if bits & ~known_mask:
+        meanings.append(f"unknown bits 0x{bits & ~known_mask:02x}")
+    return tuple(meanings)

@@ -42,7 +42,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
+from drivers.backends import backend_class
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import (BusDownError, DriverError, JointLimitError, ServoCommError, ServoHardwareError,
                             ServoTimeoutError)
@@ -322,6 +323,9 @@ class ServoLoopProcess:
         self._reader = threading.Thread(target=self._read_forever, name="servo-link", daemon=True)
         self._stopping = False
         self.bus_name = config.servo_bus.port
+        # The child's bus decodes hardware error bits; the states read here are decoded alike.
+        bus_class = backend_class("servo_bus", config.servo_bus.backend, config.servo_bus)
+        self._decode_errors: Callable[[int], tuple[str, ...]] = bus_class.decode_hardware_error
         self.down_reason: str | None = None
         self.faults: dict[str, tuple[str, ...]] = {}
         self.last_read_error = ""
@@ -453,8 +457,7 @@ class ServoLoopProcess:
     def latest_state(self) -> BusState | None:
         return self._state(self._shared.read())
 
-    @staticmethod
-    def _state(v: np.ndarray) -> BusState | None:
+    def _state(self, v: np.ndarray) -> BusState | None:
         if v[_H["has_state"]] != 1.0:
             return None
         joints = {}
@@ -462,7 +465,8 @@ class ServoLoopProcess:
             b = _joint_base(j)
             joints[joint] = JointState(position=float(v[b]), velocity=float(v[b + 1]), moving=bool(v[b + 2]),
                                        torque_on=bool(v[b + 3]), hardware_error_bits=int(v[b + 4]),
-                                       temperature_c=float(v[b + 5]), input_voltage_v=float(v[b + 6]))
+                                       temperature_c=float(v[b + 5]), input_voltage_v=float(v[b + 6]),
+                                       hardware_errors=self._decode_errors(int(v[b + 4])))
         return BusState(time_s=float(v[_H["time_s"]]), joints=joints)
 
     def fresh_state(self, timeout_s: float = 1.0) -> BusState:

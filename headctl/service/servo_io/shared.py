@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from calib_free.kinematics import JOINTS
+from drivers.servo.joints import JOINTS
 from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH
 
 HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",

@@ -11,7 +11,7 @@ from calib_free.correspondence.search import (CorrespondenceError, Correspondenc
                                        _backward_distance, correspondence_map, foveal_patch, match_eye,
                                        stereo_inconsistency)
 from calib_free.correspondence.disparity import foveal_disparity
-from calib_free.kinematics import joints_of
+from headctl.service.head import joints_of
 from calib_free.sim.head_model import HeadModel, JointLimits
 from drivers.sim.scene import StereoRenderer, shared_scene
 from drivers.sim.truth import foveal_point, hidden_from, texture_at

@@ -16,7 +16,9 @@ import pytest
 from drivers.dynamixel.emulator.server import DxlEmulator
 from drivers.dynamixel.sdk import BlockingPortHandler, BulkRead1
 from drivers.dynamixel.scan import scan
-from drivers.dynamixel.bus_v2 import DynamixelBus
+from drivers.backends import check_servo_bus_config, servo_bus_backend
+from drivers.dynamixel.factory import create_dynamixel_bus
+from drivers.servo.bus import ServoBus
 from drivers.errors import ServoConfigError, ServoError
 from drivers.servo.config import ServoBusConfig
 from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping
@@ -83,7 +85,7 @@ def test_the_bus_uses_bulk_read_only_when_every_servo_has_it(tmp_path, models, m
     config = ServoBusConfig.from_mapping(config_mapping(port=emulator.link, backend="dynamixel", protocol=1.0,
                                                         joints=joints))
     try:
-        with DynamixelBus(config) as bus:
+        with create_dynamixel_bus(config) as bus:
             assert type(bus).__name__ == "Protocol1Bus" and bus.read_method == method
             emulator.wait_idle()
             before = emulator.packets_received
@@ -109,13 +111,13 @@ def test_the_config_refuses_what_protocol_1_servos_cannot_do(bus, joints, match)
         all_joints[joint].update(values)
     config = ServoBusConfig.from_mapping(config_mapping(backend="dynamixel", protocol=1.0, joints=all_joints, **bus))
     with pytest.raises(ServoConfigError, match=match):
-        config.check_applies_to(config.backend_class())
+        check_servo_bus_config(config, servo_bus_backend(config, ServoBus))
 
 
 def test_protocol_2_refuses_protocol_1_models():
     config = ServoBusConfig.from_mapping(config_mapping(backend="dynamixel", joints={"pan": {"model": "AX-12A"}}))
     with pytest.raises(ServoConfigError, match=r"joints\.pan\.model: got 'AX-12A'.*protocol: 1\.0"):
-        config.check_applies_to(config.backend_class())
+        check_servo_bus_config(config, servo_bus_backend(config, ServoBus))
 
 
 def test_a_power_cycled_servo_is_configured_again(tmp_path, caplog):

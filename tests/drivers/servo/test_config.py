@@ -4,7 +4,8 @@ from __future__ import annotations
 import pytest
 
 from drivers.errors import BackendNotFoundError, ServoConfigError
-from drivers.servo.bus import JOINTS, create_servo_bus, decode_hardware_error
+from drivers.dynamixel.tables.x_series import decode_hardware_error
+from drivers.servo.bus import JOINTS, create_servo_bus
 from drivers.servo.config import JointConfig, ServoBusConfig
 from tests.support.servo_rigs import config_mapping
 

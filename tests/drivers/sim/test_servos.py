@@ -125,6 +125,7 @@ def test_a_bus_drives_servos_by_id_and_the_wiring_decides_which_joint_moves():
 
 
 def test_wiring_is_checked_and_only_the_simulated_bus_takes_it():
+    from drivers.backends import check_servo_bus_config
     from drivers.dynamixel.bus_v2 import DynamixelBus
     from drivers.errors import ServoConfigError
     from drivers.servo.config import PartialServoBusConfig, ServoBusConfig
@@ -140,7 +141,7 @@ def test_wiring_is_checked_and_only_the_simulated_bus_takes_it():
         ServoBusConfig.from_mapping({"backend": "sim", "wiring": WIRING})  # a head to run needs its joints
     config = ServoBusConfig.from_mapping(config_mapping(backend="dynamixel", wiring=WIRING))
     with pytest.raises(ServoConfigError, match=r"servo_bus\.wiring: .*not used by the 'dynamixel' backend"):
-        config.check_applies_to(DynamixelBus)
+        check_servo_bus_config(config, DynamixelBus)
 
 
 def test_the_probe_moves_servos_by_id_safely():

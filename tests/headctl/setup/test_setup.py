@@ -15,7 +15,8 @@ import pytest
 from drivers.cameras.camera import create_camera
 from drivers.cameras.config import CameraConfig
 from drivers.clock import ManualClock
-from drivers.servo.config import JOINTS, PartialServoBusConfig
+from drivers.servo.config import PartialServoBusConfig
+from drivers.servo.joints import JOINTS
 from drivers.servo.probe import create_servo_probe
 from drivers.sim.servos import SimulatedServoProbe
 from headctl.cli.main import build_parser
