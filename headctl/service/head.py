@@ -42,6 +42,7 @@ from headctl.errors import ServoLoopStoppedError
 
 log = logging.getLogger(__name__)
 
+
 class JointBus(Protocol):
     """Joint angles in and out: a `ServoBus`, or the service's servo loop."""
 
