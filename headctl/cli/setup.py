@@ -3,49 +3,31 @@
 From a partial config (`servo_bus` without `joints`, and `cameras`): scan the bus and list
 each servo; with the person's confirmation (`--yes` for none) move each a few degrees and
 back, slowly, torque and velocity limited, while both cameras stream, and read off from the
-image motion which joint it turns and which way (`headctl.setup.identify`); propose zeros
-and conservative limits, widened by `--jog JOINT DEG` (`headctl.setup.config`); write the
-config with a comment per value and run `headctl check` on it.
+image motion which joint it turns and which way; propose zeros and conservative limits,
+widened by `--jog JOINT DEG`; write the config with a comment per value and run `headctl
+check` on it. The assistant is `headctl.setup.assistant`; this module asks and tells.
 
 Ctrl-C at any moment leaves every servo holding where it is, torque as it was, and exits 130.
-
-The simulated head stands in for an unknown one: with `servo_bus.backend: sim` the servos
-are wired as `servo_bus.wiring` says, which the assistant never reads: it sees the servos
-by id (`drivers.servo.probe`) and the cameras, which render from where the servos really
-are. Simulated cameras beside real (or emulated) servos see a still room: every servo is
-then reported as moving nothing visible, which is what a scan of `headctl emulate-servos`
-gives.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import signal
 import sys
 import threading
-import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from drivers.cameras.camera import Camera, create_camera
-from drivers.cameras.config import StereoCamerasConfig
-from drivers.clock import SYSTEM_CLOCK
 from drivers.errors import DriverError
-from drivers.dynamixel.tables.x_series import decode_hardware_error
-from drivers.servo.config import PartialServoBusConfig, ServoBusConfig
-from drivers.servo.joints import JOINTS
-from drivers.servo.probe import FoundServo, MotionSafety, ServoProbe, create_servo_probe
-from drivers.sim.camera import fixed_pose
-from drivers.sim.servos import SimulatedServoProbe
-from drivers.cameras.stereo import StereoPair
-from headctl.config.head import check_cameras, read_yaml
 from headctl.errors import ConfigError, HeadctlError
-from headctl.setup.config import eye_zeros, jog, propose, write_config
-from headctl.setup.identify import Finding, Identification, Interrupted, SafeProbing, identify
+from headctl.setup.assistant import SetupOutcome, SetupRequest, assist, read_partial
+from headctl.setup.identify import Interrupted
+
+# Exit status of each way the assistant ends short of a written config.
+EXIT_STATUS = {SetupOutcome.PROPOSED: 0, SetupOutcome.NO_SERVOS: 1, SetupOutcome.DECLINED: 1,
+               SetupOutcome.JOINTS_MISSING: 1, SetupOutcome.UNKNOWN_JOG: 2, SetupOutcome.MIXED_BUS_SETTINGS: 1}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -75,190 +57,77 @@ def register(sub: argparse._SubParsersAction) -> None:
     setup.set_defaults(func=_setup)
 
 
-def _say(text: str) -> None:
-    print(text, flush=True)
+class _Terminal:
+    """The person at the terminal, as `headctl.setup.assistant.Person`."""
+
+    def say(self, text: str) -> None:
+        print(text, flush=True)
+
+    def confirm(self, question: str) -> bool:
+        return input(question).strip().lower() in ("y", "yes")
+
+    @contextlib.contextmanager
+    def stopping(self, stop: threading.Event) -> Iterator[None]:
+        """Ctrl-C sets `stop` (the probing stops at its next check, servos held); a second one
+        interrupts at once."""
+        def handler(signum: int, frame: Any) -> None:
+            if stop.is_set():
+                raise KeyboardInterrupt
+            stop.set()
+
+        previous = signal.signal(signal.SIGINT, handler)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, previous)
 
 
-class _CameraPairs:
-    """Pairs from two streaming cameras, as `setup_identify.PairSource`."""
-
-    def __init__(self, stereo: StereoPair) -> None:
-        self.stereo = stereo
-
-    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
-        frames = self.stereo.wait_pair(after_s, timeout_s)
-        return frames.left.image, frames.right.image
-
-
-@contextlib.contextmanager
-def _sigint_sets(event: threading.Event) -> Iterator[None]:
-    """Ctrl-C sets `event` (the probing stops at its next check, servos held); a second one
-    interrupts at once."""
-    def handler(signum: int, frame: Any) -> None:
-        if event.is_set():
-            raise KeyboardInterrupt
-        event.set()
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _parse(args: argparse.Namespace) -> tuple[Any, ServoBusConfig, StereoCamerasConfig]:
-    path = Path(args.config)
-    try:
-        document = read_yaml(path)
-        if not isinstance(document, dict):
-            raise ConfigError(key_path="", value=document, expected="a mapping with servo_bus and cameras")
-        bus: ServoBusConfig = PartialServoBusConfig.from_mapping(document.get("servo_bus"), "servo_bus")
-        if args.port:
-            bus = dataclasses.replace(bus, port=args.port)
-        cameras = StereoCamerasConfig.from_mapping(document.get("cameras"), "cameras")
-        check_cameras(cameras)
-    except ConfigError as err:
-        if err.file is None:
-            err.file = path
-        raise
-    return document, bus, cameras
-
-
-def _build_cameras(cameras: StereoCamerasConfig, probe: ServoProbe) -> dict[str, Camera]:
-    from headctl.service.build import SIM_START_JOINTS, sim_head_model
-
-    built: dict[str, Camera] = {}
-    for side in ("left", "right"):
-        config = getattr(cameras, side)
-        resources: dict[str, Any] = {}
-        if config.backend == "sim":
-            pose: Callable[[], Mapping[str, float]]
-            if isinstance(probe, SimulatedServoProbe):
-                sim = probe
-
-                def pose() -> Mapping[str, float]:
-                    return {joint: sim.true_position(joint) for joint in JOINTS}
-            else:  # emulated or real servos: nothing in the simulated room moves
-                pose = fixed_pose(**SIM_START_JOINTS)
-            resources = {"head": sim_head_model(config), "pose_source": pose}
-        built[side] = create_camera(config, name=side, key_path=f"cameras.{side}", **resources)
-    return built
-
-
-def print_scan(probe: ServoProbe, found: list[FoundServo]) -> None:
-    _say(f"{'id':>3}  {'model':<11} {'fw':>3}  {'protocol':>8} {'baud':>8}  {'position':>9}  {'temp':>5}  "
-         f"{'voltage':>7}  hardware error")
-    for s in found:
-        st = probe.status(s.servo_id)
-        errors = ", ".join(decode_hardware_error(st.hardware_error_bits)) or "none"
-        _say(f"{s.servo_id:>3}  {s.model_name:<11} {s.firmware:>3}  {s.protocol:>8.1f} {s.baud:>8}  "
-             f"{st.position_deg:>+8.1f}°  {st.temperature_c:>4.0f}C  {st.input_voltage_v:>6.1f}V  {errors}")
-
-
-def print_findings(result: Identification) -> None:
-    for f in result.findings:
-        if f.outcome is Finding.IDENTIFIED:
-            _say(f"  id {f.servo.servo_id}: {f.joint}, direction {f.direction:+d} ({f.detail})")
-        else:
-            _say(f"  id {f.servo.servo_id}: NOT ATTRIBUTED: {f.outcome.value} ({f.detail})")
+def _request(args: argparse.Namespace) -> SetupRequest:
+    return SetupRequest(
+        Path(args.config), port=args.port, write=Path(args.write) if args.write else None, yes=args.yes,
+        bauds=tuple(args.baud) if args.baud else None,
+        protocols=tuple(float(p) for p in args.protocol) if args.protocol else None, ids=args.ids,
+        step_deg=args.step, jogs=tuple((joint, float(deg)) for joint, deg in args.jog),
+        frame_timeout_s=args.frame_timeout)
 
 
 def _setup(args: argparse.Namespace) -> int:
+    person = _Terminal()
     try:
-        document, bus, cameras = _parse(args)
+        request = _request(args)
+    except ValueError as err:
+        print(f"headctl setup: --jog: expected a joint and degrees ({err})", file=sys.stderr)
+        return 2
+    try:
+        partial = read_partial(request.config, request.port)
     except ConfigError as err:
         print(f"headctl setup: {err}", file=sys.stderr)
         return 2
-    resources: dict[str, Any] = {}
-    if bus.backend == "sim":
-        from headctl.service.build import SIM_START_JOINTS
-        resources["initial_positions"] = SIM_START_JOINTS
-    elif bus.backend == "dynamixel":
-        resources["bauds"] = args.baud
-        resources["protocols"] = [float(p) for p in args.protocol] if args.protocol else None
-    interrupt = threading.Event()
-    written: list[Path] = []
     try:
-        with contextlib.ExitStack() as stack:
-            probe = stack.enter_context(create_servo_probe(bus, clock=SYSTEM_CLOCK, ids=args.ids, **resources))
-            _say(f"scanning {bus.port} ({bus.backend}) ...")
-            found = probe.scan()
-            if not found:
-                _say(f"no servos found on {bus.port}; check power, wiring and the baud rate")
-                return 1
-            _say(f"{len(found)} servo(s) found:")
-            print_scan(probe, found)
-            if not args.yes:
-                answer = input(f"Move each servo by {args.step:g} deg and back, one at a time, slowly and torque "
-                               "limited? Keep clear of the head. [y/N] ")
-                if answer.strip().lower() not in ("y", "yes"):
-                    _say("nothing moved")
-                    return 1
-            built = _build_cameras(cameras, probe)
-            for camera in built.values():
-                stack.enter_context(camera)
-                camera.enable()
-            stereo = stack.enter_context(StereoPair(built["left"], built["right"], cameras.tolerance_s))
-            stack.enter_context(_sigint_sets(interrupt))
-            probing = stack.enter_context(SafeProbing(probe, SYSTEM_CLOCK, MotionSafety(), interrupt))
-            status = _assist(args, document, bus, probing, _CameraPairs(stereo), found, written)
+        result = assist(request, partial, person)
     except Interrupted:
-        _say("interrupted: every servo moved was left holding where it is, torque as it was; nothing written")
+        person.say("interrupted: every servo moved was left holding where it is, torque as it was; nothing written")
         return 130
     except (DriverError, HeadctlError, OSError) as err:
         print(f"headctl setup: {err}", file=sys.stderr)
         return 1
-    if status or not written:
-        return status
-    _say(f"wrote {written[0]}; checking it:")  # the bus is closed now, for check to open
-    return _check(written[0])
-
-
-def _assist(args: argparse.Namespace, document: Any, bus: ServoBusConfig, probing: SafeProbing,
-            pairs: _CameraPairs, found: list[FoundServo], written: list[Path]) -> int:
-    _say("probing each servo (the cameras watch):")
-    started = time.monotonic()
-    result = identify(probing, pairs, found, step_deg=args.step, frame_timeout_s=args.frame_timeout, say=_say)
-    print_findings(result)
-    missing = result.missing(JOINTS)
-    if missing:
-        _say(f"not every joint found ({', '.join(missing)} missing): nothing written. Check that each servo turns "
-             "something the cameras see, and that the cameras face a textured scene.")
-        return 1
-    joints = result.joints
-    eyes = eye_zeros(probing, pairs, joints["left_eye"], joints["right_eye"], frame_timeout_s=args.frame_timeout,
-                     say=_say)
-    proposals = propose(joints, eyes)
-    for joint, deg in args.jog:
-        if joint not in proposals:
-            print(f"headctl setup: --jog {joint}: expected one of {', '.join(JOINTS)}", file=sys.stderr)
-            return 2
-        jog(probing, proposals[joint], float(deg), say=_say)
-    _say(f"proposed joints ({time.monotonic() - started:.1f} s of probing):")
-    for joint, p in proposals.items():
-        _say(f"  {joint:<9} id {p.servo_id:>3}  direction {p.direction:+d}  zero_offset {p.zero_offset:+7.2f}  "
-             f"limits [{p.min_angle:+.1f}, {p.max_angle:+.1f}]")
-    if not args.write:
-        _say("(no --write: nothing written)")
-        return 0
-    bauds = {f.servo.baud for f in joints.values()}
-    protocols = {f.servo.protocol for f in joints.values()}
-    if len(bauds) > 1 or len(protocols) > 1:
-        _say(f"the four servos answer at different baud rates or protocols ({sorted(bauds)}, {sorted(protocols)}): "
-             "set them alike (DYNAMIXEL Wizard) and run setup again; nothing written")
-        return 1
-    settings: dict[str, Any] = {"backend": bus.backend, "port": bus.port}
-    if bus.backend == "dynamixel":
-        settings |= {"baud": bauds.pop(), "protocol": protocols.pop()}
-    out = Path(args.write)
-    write_config(document, Path(args.config), settings, proposals, out)
-    written.append(out)
-    return 0
+    if result.outcome is SetupOutcome.UNKNOWN_JOG:
+        print(f"headctl setup: {result.detail}", file=sys.stderr)
+    if result.outcome is not SetupOutcome.WRITTEN or result.written is None:
+        return EXIT_STATUS.get(result.outcome, 1)
+    person.say(f"wrote {result.written}; checking it:")  # the bus is closed now, for check to open
+    return _check(result.written)
 
 
 def _check(path: Path) -> int:
-    from headctl.cli.main import build_parser
+    """`headctl check --config PATH`: the written config validated, connected and reported."""
+    from headctl.cli import service
 
-    check_args = build_parser().parse_args(["check", "--config", str(path)])
-    status: int = check_args.func(check_args)
+    parser = argparse.ArgumentParser(prog="headctl")
+    service.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["check", "--config", str(path)])
+    status: int = args.func(args)
     return status
+
+
+__all__ = ["register"]

@@ -42,6 +42,7 @@ from drivers.sim.camera import SimulatedCamera
 from drivers.sim.scene import Scene, shared_scene
 from headctl.config.head import HeadConfig, load_config
 from headctl.errors import HeadctlError
+from headctl.experiments.perturbations import perturb
 from headctl.service.head import RenderedPairSource
 from headctl.service.build import HeadDevices, build_head
 
@@ -213,13 +214,9 @@ class SimulatedHeadRig:
 
 
 def apply_change(change: Change, rig: SimulatedHeadRig, model: HeadModel) -> HeadModel:
-    """Switch a perturbation on in the rig (images or controller) and in the geometric model."""
-    if change.vertical_prism:
-        rig.head.image_transform = np.flipud
-    if change.motor_offset_deg is not None:
-        rig.head.pan_reading_offset_deg = change.motor_offset_deg[0]
-    if change.swap_eyes or change.baseline_delta_m or change.motor_gain:
-        raise ValueError(f"the online experiments do not model {change}")
+    """Switch a perturbation on in the rig's head (its pairs or its bus wrapped,
+    `headctl.experiments.perturbations`) and in the geometric model."""
+    perturb(rig.head, change)
     return change.apply(model)
 
 

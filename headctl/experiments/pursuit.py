@@ -189,40 +189,71 @@ def run_speed(speed_deg_s: float, gm: GazeMap, *, duration_s: float = 6.0, settl
     return run
 
 
-def run_pursuit(out_dir: Path, speeds: tuple[float, ...] = SPEEDS_DEG_S, *, duration_s: float = 6.0,
-                latency_s: float = 0.04, map_path: Path | None = None, fixations: int = 3000, seed: int = 0,
-                profile: str = "default") -> dict[str, Any]:
-    """Every speed in turn; writes `pursuit-<profile>.csv`, `.png` and `.json` to `out_dir`."""
-    if map_path is not None:
-        gm = read_map(map_path)
-        map_source = str(map_path)
+@dataclass(frozen=True)
+class PursuitSpec:
+    """A pursuit experiment: the speeds in turn, each for `duration_s`, with the modelled
+    frame-to-command latency; the map from `map_path`, or learned from `fixations` fixations
+    of the geometric head model. `profile` names the files."""
+
+    speeds_deg_s: tuple[float, ...] = SPEEDS_DEG_S
+    duration_s: float = 6.0
+    latency_s: float = 0.04
+    map_path: Path | None = None
+    fixations: int = 3000
+    seed: int = 0
+    profile: str = "default"
+
+
+@dataclass(frozen=True)
+class PursuitResult:
+    spec: PursuitSpec
+    map_source: str  # where the map came from, as the summary tells it
+    runs: tuple[SpeedRun, ...]
+
+    def summary(self) -> dict[str, Any]:
+        """The figures per speed, as the JSON gives them."""
+        summaries = [r.summary() for r in self.runs]
+        return {"experiment": "pursuit", "map": self.map_source, "duration_s": self.spec.duration_s,
+                "modelled_latency_ms": self.spec.latency_s * 1e3,
+                "speeds_deg_s": [s["speed_deg_s"] for s in summaries],
+                "rms_px": [s["rms_px"] for s in summaries], "p95_px": [s["p95_px"] for s in summaries],
+                "max_px": [s["max_px"] for s in summaries], "lost": [s["lost"] for s in summaries],
+                "frame_to_command_p50_ms": [s["latency_p50_ms"] for s in summaries],
+                "goals_rms_px": {str(k): v for k, v in GOALS_RMS_PX.items()}}
+
+
+def run_pursuit(spec: PursuitSpec) -> PursuitResult:
+    """Every speed of `spec` in turn (see the module docstring)."""
+    if spec.map_path is not None:
+        gm = read_map(spec.map_path)
+        map_source = str(spec.map_path)
     else:
-        with SimulatedHeadRig(seed=seed) as rig:
-            gm = learned_map(rig, fixations, seed)
-        map_source = f"learned from {fixations} fixations of the geometric head model"
+        with SimulatedHeadRig(seed=spec.seed) as rig:
+            gm = learned_map(rig, spec.fixations, spec.seed)
+        map_source = f"learned from {spec.fixations} fixations of the geometric head model"
     runs = []
-    for speed in speeds:
-        run = run_speed(speed, gm, duration_s=duration_s, latency_s=latency_s, seed=seed)
+    for speed in spec.speeds_deg_s:
+        run = run_speed(speed, gm, duration_s=spec.duration_s, latency_s=spec.latency_s, seed=spec.seed)
         log.info("pursuit at %g deg/s: %s", speed, run.summary())
         runs.append(run)
-    summaries = [r.summary() for r in runs]
+    return PursuitResult(spec, map_source, tuple(runs))
+
+
+def write_pursuit(result: PursuitResult, out_dir: Path) -> dict[str, Any]:
+    """Write `pursuit-<profile>.csv`, `.png` and `.json` to `out_dir`; returns the summary."""
+    summaries = [r.summary() for r in result.runs]
     out_dir.mkdir(parents=True, exist_ok=True)
-    stem = out_dir / f"pursuit-{profile}"
+    stem = out_dir / f"pursuit-{result.spec.profile}"
     with open(stem.with_suffix(".csv"), "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["speed_deg_s", "frames", "rms_px", "p95_px", "max_px", "lost", "latency_p50_ms"])
         for s in summaries:
             writer.writerow([s["speed_deg_s"], s["frames"], s["rms_px"], s["p95_px"], s["max_px"], s["lost"],
                              s["latency_p50_ms"]])
-    result = {"experiment": "pursuit", "map": map_source, "duration_s": duration_s,
-              "modelled_latency_ms": latency_s * 1e3, "speeds_deg_s": [s["speed_deg_s"] for s in summaries],
-              "rms_px": [s["rms_px"] for s in summaries], "p95_px": [s["p95_px"] for s in summaries],
-              "max_px": [s["max_px"] for s in summaries], "lost": [s["lost"] for s in summaries],
-              "frame_to_command_p50_ms": [s["latency_p50_ms"] for s in summaries],
-              "goals_rms_px": {str(k): v for k, v in GOALS_RMS_PX.items()}}
-    stem.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
-    plot_pursuit(runs, stem.with_suffix(".png"))
-    return result
+    summary = result.summary()
+    stem.with_suffix(".json").write_text(json.dumps(summary, indent=2) + "\n")
+    plot_pursuit(list(result.runs), stem.with_suffix(".png"))
+    return summary
 
 
 def plot_pursuit(runs: list[SpeedRun], path: Path) -> None:

@@ -17,12 +17,11 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from headctl.experiments.sweep import RunSpec
+from headctl.experiments.runs import RunSpec, result_json, run_dir
 
 log = logging.getLogger(__name__)
 
@@ -130,10 +129,8 @@ class SweepSummary:
         return "\n".join(lines)
 
 
-def summarise_sweep(runs: Sequence["RunSpec"], out: Path) -> SweepSummary:
+def summarise_sweep(runs: Sequence[RunSpec], out: Path) -> SweepSummary:
     """Read the finished runs' JSON; write summary.csv, summary.json and summary.png into `out`."""
-    from headctl.experiments.sweep import result_json, run_dir
-
     settings: dict[str, SettingSummary] = {}
     experiment = runs[0].experiment if runs else ""
     for run in runs:

@@ -2,12 +2,13 @@
 
 Runs from one seed differ from those of the next by more than many of the differences worth
 measuring, so results are stated over several seeds with their spread. Each run of the grid
-(one seed, one profile, one value of each `--set` key) is one task: a worker runs
-`headctl experiment NAME ...` in a scratch directory and sends back the files it wrote (CSV,
-JSON, PNG and its printed summary), which this process keeps under `<out>/runs/<run>/`; the
-workers need the project installed, not a shared folder. Tasks go to a `dask.distributed`
-cluster: by default a local one on this machine (`--workers` processes of one thread each),
-or an existing one (`--scheduler tcp://host:8786`).
+(one seed, one profile, one value of each `--set` key) is one `ExperimentRequest`
+(`headctl.experiments.paper`) and one task: a worker runs it into a scratch directory, as
+`headctl experiment NAME ...` with the same options would, and sends back the files it wrote
+(CSV, JSON, PNG and its printed summary), which this process keeps under `<out>/runs/<run>/`
+(`headctl.experiments.runs`); the workers need the project installed, not a shared folder.
+Tasks go to a `dask.distributed` cluster: by default a local one on this machine
+(`--workers` processes of one thread each), or an existing one (`--scheduler tcp://host:8786`).
 
 A run's folder appears only once the run is complete (written beside it, then renamed), so
 a sweep that is killed keeps every finished run, and run again it skips them. At the end
@@ -17,7 +18,6 @@ interquartile range and extremes across the seeds (`headctl.experiments.summary`
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import itertools
@@ -31,19 +31,19 @@ import tempfile
 import time
 import uuid
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Mapping, Sequence
 
 from tqdm import tqdm
 
 from headctl.errors import HeadctlError
+from headctl.experiments.paper import ExperimentError, ExperimentRequest, run as run_experiment
+from headctl.experiments.report import write_outputs
+from headctl.experiments.runs import LOG_FILE, RUN_FILE, RUNS_DIR, RunSpec, result_json, run_dir
 
 log = logging.getLogger(__name__)
 
-RUNS_DIR = "runs"
-RUN_FILE = "run.json"  # what the run was: its argv and settings, written with its results
-LOG_FILE = "output.txt"  # what the run printed
 # `headctl experiment` options a sweep may vary with --set (their argparse names).
 SETTABLE = ("fixations", "exploration", "room", "width", "height", "lens", "landing_every", "floor_samples")
 # What a sweep decides for its runs itself.
@@ -55,24 +55,13 @@ class SweepError(HeadctlError, ValueError):
 
 
 @dataclass(frozen=True)
-class RunSpec:
-    """One run of a sweep: the experiment's command line and the settings it stands for."""
+class RunResult:
+    """What one run gave back: its exit status (0, 1 failed, 2 refused), seconds, and the
+    files it wrote (name -> content; `LOG_FILE`: what it printed)."""
 
-    experiment: str
-    profile: str
-    seed: int
-    settings: tuple[tuple[str, str], ...]  # (--set key, value), in the order given
-    argv: tuple[str, ...]  # the `headctl experiment` arguments
-
-    @property
-    def run_id(self) -> str:
-        parts = [self.experiment, self.profile, *(f"{k}={v}" for k, v in self.settings), f"seed{self.seed}"]
-        return re.sub(r"[^A-Za-z0-9_.=+-]", "_", "-".join(parts))
-
-    @property
-    def setting_id(self) -> str:
-        """The run's setting without its seed: runs with the same one are aggregated."""
-        return ", ".join([f"profile={self.profile}", *(f"{k}={v}" for k, v in self.settings)])
+    code: int
+    seconds: float
+    files: Mapping[str, bytes] = field(default_factory=dict)
 
 
 # -- the grid -------------------------------------------------------------------------------
@@ -109,12 +98,29 @@ def parse_set(items: Sequence[str]) -> list[tuple[str, list[str]]]:
     return grid
 
 
+def parse_options(argv: Sequence[str]) -> tuple[dict[str, str], bool]:
+    """`headctl experiment` options as text (['--fixations', '20', '--no-pose']) -> (option ->
+    value, pose)."""
+    options: dict[str, str] = {}
+    pose = True
+    items = list(argv)
+    while items:
+        item = items.pop(0)
+        if item in ("--pose", "--no-pose"):
+            pose = item == "--pose"
+            continue
+        flag, sep, value = item.partition("=")
+        if not flag.startswith("--") or not (sep or items):
+            raise SweepError(f"{' '.join(argv)}: expected --option value, got {item!r}")
+        options[flag[2:].replace("-", "_")] = value if sep else items.pop(0)
+    return options, pose
+
+
 def build_runs(experiment: str, seeds: Sequence[int], profiles: Sequence[str],
                grid: Sequence[tuple[str, Sequence[str]]], base: Sequence[str] = ()) -> list[RunSpec]:
-    """Every run of the grid, each checked by the experiment command's own parser."""
-    from headctl.cli.main import build_parser  # the cli imports this module through cmd_experiment
-
-    parser = build_parser()
+    """Every run of the grid, each read into its `ExperimentRequest` (SweepError if one does
+    not read); `base`: the experiment options every run shares, as on the command line."""
+    base_options, pose = parse_options(base)
     runs = []
     keys = [k for k, _ in grid]
     for profile in profiles:
@@ -125,43 +131,44 @@ def build_runs(experiment: str, seeds: Sequence[int], profiles: Sequence[str],
                 for key, value in settings:
                     argv += [f"--{key.replace('_', '-')}", value]
                 try:
-                    with contextlib.redirect_stderr(io.StringIO()) as err:
-                        parser.parse_args(argv)
-                except SystemExit:
-                    raise SweepError(f"run {' '.join(argv)}: {err.getvalue().strip().splitlines()[-1]}") from None
-                runs.append(RunSpec(experiment, profile, seed, settings, tuple(argv)))
+                    request = ExperimentRequest.from_options(experiment, profile, seed,
+                                                             {**base_options, **dict(settings)}, pose)
+                except ExperimentError as err:
+                    raise SweepError(f"run {' '.join(argv)}: {err}") from None
+                runs.append(RunSpec(experiment, profile, seed, settings, tuple(argv), request))
     return runs
 
 
 # -- one run, on a worker -------------------------------------------------------------------
-def run_task(argv: Sequence[str]) -> dict[str, Any]:
-    """Run `headctl <argv>` (an experiment, its `--out` added here) in a scratch directory;
-    returns {"code": exit code, "seconds": ..., "files": {name: bytes}}."""
+def run_task(run: RunSpec) -> RunResult:
+    """Run the experiment of `run` into a scratch directory; returns its exit status, time and
+    files (CSV, JSON, PNG and what it printed)."""
     import cv2
-
-    from headctl.cli.main import main
 
     cv2.setNumThreads(1)  # one worker, one core: OpenCV's own threads would crowd the others
     started = time.monotonic()
+    printed = io.StringIO()
+
+    def say(text: str) -> None:
+        printed.write(text + "\n")
+
     with tempfile.TemporaryDirectory(prefix="headctl-sweep-") as scratch:
-        printed = io.StringIO()
-        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
-            try:
-                code = main(["--log-level", "WARNING", *argv, "--out", scratch])
-            except Exception as err:  # the run's failure is its result; the sweep goes on
-                log.exception("sweep run %s failed", " ".join(argv))
-                printed.write(f"\n{type(err).__name__}: {err}\n")
-                code = 1
+        try:
+            say(write_outputs(run_experiment(run.request, say=say), Path(scratch)))
+            code = 0
+        except ExperimentError as err:
+            say(str(err))
+            code = 2
+        except Exception as err:  # the run's failure is its result; the sweep goes on
+            log.exception("sweep run %s failed", " ".join(run.argv))
+            printed.write(f"\n{type(err).__name__}: {err}\n")
+            code = 1
         files = {p.name: p.read_bytes() for p in Path(scratch).iterdir() if p.is_file()}
     files[LOG_FILE] = printed.getvalue().encode()
-    return {"code": code, "seconds": time.monotonic() - started, "files": files}
+    return RunResult(code, time.monotonic() - started, files)
 
 
 # -- keeping runs ---------------------------------------------------------------------------
-def run_dir(out: Path, run: RunSpec) -> Path:
-    return out / RUNS_DIR / run.run_id
-
-
 def finished(out: Path, run: RunSpec) -> bool:
     """Whether `run` has a complete folder: the run's record and its summary JSON parse, and
     the record is of this run (the same command line: a sweep with other options redoes it)."""
@@ -174,22 +181,17 @@ def finished(out: Path, run: RunSpec) -> bool:
     return bool(record.get("code") == 0 and record.get("argv") == list(run.argv))
 
 
-def result_json(folder: Path) -> Path:
-    """The experiment's own summary JSON in a run's folder."""
-    return next(p for p in sorted(folder.glob("*.json")) if p.name != RUN_FILE)
-
-
-def keep(out: Path, run: RunSpec, result: Mapping[str, Any]) -> Path:
+def keep(out: Path, run: RunSpec, result: RunResult) -> Path:
     """Write a run's files into its folder: beside it first, then renamed into place."""
     folder = run_dir(out, run)
     folder.parent.mkdir(parents=True, exist_ok=True)
     scratch = folder.parent / f".{folder.name}.{uuid.uuid4().hex[:8]}.tmp"
     scratch.mkdir()
-    for name, data in result["files"].items():
+    for name, data in result.files.items():
         (scratch / Path(name).name).write_bytes(data)
     record = {"experiment": run.experiment, "profile": run.profile, "seed": run.seed,
-              "settings": dict(run.settings), "argv": list(run.argv), "code": result["code"],
-              "seconds": round(float(result["seconds"]), 2)}
+              "settings": dict(run.settings), "argv": list(run.argv), "code": result.code,
+              "seconds": round(float(result.seconds), 2)}
     (scratch / RUN_FILE).write_text(json.dumps(record, indent=2) + "\n")
     if folder.exists():  # a failed run's folder, run again
         shutil.rmtree(folder)
@@ -243,7 +245,7 @@ def run_sweep(runs: Sequence[RunSpec], out: Path, scheduler: str | None = None, 
     if not todo:
         return done, failed
     with dask_client(scheduler, workers) as client:
-        futures = {client.submit(run_task, list(r.argv), key=f"headctl-run-{r.run_id}-{uuid.uuid4().hex[:6]}",
+        futures = {client.submit(run_task, r, key=f"headctl-run-{r.run_id}-{uuid.uuid4().hex[:6]}",
                                  pure=False): r for r in todo}
         with tqdm(total=len(runs), initial=len(done), desc="sweep", unit="run", disable=not progress,
                   file=sys.stderr) as bar:
@@ -253,63 +255,17 @@ def run_sweep(runs: Sequence[RunSpec], out: Path, scheduler: str | None = None, 
                     result = future.result()
                 except Exception as err:  # the task itself failed (a worker died): keep going
                     log.error("run %s failed on its worker: %s", run.run_id, err)
-                    result = {"code": 1, "seconds": 0.0,
-                              "files": {LOG_FILE: f"{type(err).__name__}: {err}\n".encode()}}
+                    result = RunResult(1, 0.0, {LOG_FILE: f"{type(err).__name__}: {err}\n".encode()})
                 keep(out, run, result)
-                if result["code"] != 0:
+                if result.code != 0:
                     failed.append(run)
-                    log.error("run %s failed (exit %s); its output is in %s", run.run_id, result["code"],
+                    log.error("run %s failed (exit %s); its output is in %s", run.run_id, result.code,
                               run_dir(out, run) / LOG_FILE)
                 bar.update(1)
                 bar.set_postfix(failed=len(failed), refresh=False)
     return done, failed
 
 
-# -- the command ----------------------------------------------------------------------------
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The sweep's options on `headctl experiment`'s parser."""
-    group = p.add_argument_group("sweep (headctl experiment sweep NAME ...)")
-    group.add_argument("swept", nargs="?", metavar="NAME", help="with sweep: the experiment to run over the grid")
-    group.add_argument("--seeds", default="0-4", help="seeds, such as 0-4 or 0,1,5 (default 0-4)")
-    group.add_argument("--profiles", default="default", help="gaze map profiles, comma-separated (default: default)")
-    group.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
-                       help=f"one more axis of the grid; KEY one of {', '.join(SETTABLE)} (repeatable)")
-    group.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
-                       help="an existing Dask scheduler (the project installed on its workers); "
-                            "default: a local cluster")
-    group.add_argument("--workers", type=int, default=2,
-                       help="processes of the local cluster, one thread each (default 2)")
-
-
-def run(args: argparse.Namespace, base: Sequence[str]) -> int:
-    """`headctl experiment sweep`: `base` holds the experiment options every run shares."""
-    from headctl.experiments.summary import summarise_sweep
-
-    if not args.swept:
-        print("sweep: name the experiment to sweep (headctl experiment sweep online ...)", file=sys.stderr)
-        return 2
-    if args.workers < 1:
-        print(f"--workers must be at least 1, got {args.workers}", file=sys.stderr)
-        return 2
-    try:
-        runs = build_runs(args.swept, parse_seeds(args.seeds),
-                          [p.strip() for p in args.profiles.split(",") if p.strip()], parse_set(args.set), base)
-    except SweepError as err:
-        print(err, file=sys.stderr)
-        return 2
-    out: Path = args.out
-    print(f"sweep: {len(runs)} runs of {args.swept} into {out / RUNS_DIR}", file=sys.stderr)
-    done, failed = run_sweep(runs, out, args.scheduler, args.workers)
-    if done:
-        print(f"sweep: {len(done)} runs were already finished and are kept", file=sys.stderr)
-    summary = summarise_sweep([r for r in runs if r not in failed], out)
-    print(summary.table())
-    print(f"wrote {out / 'summary.csv'}, {out / 'summary.json'}, {out / 'summary.png'}")
-    if failed:
-        print(f"sweep: {len(failed)} runs failed: " + ", ".join(r.run_id for r in failed), file=sys.stderr)
-        return 1
-    return 0
-
-
-__all__ = ["RunSpec", "SweepError", "add_arguments", "build_runs", "parse_seeds", "parse_set", "pending", "run",
-           "run_sweep", "run_task"]
+__all__ = ["LOG_FILE", "RUNS_DIR", "RUN_FILE", "RunResult", "RunSpec", "SETTABLE", "SweepError", "build_runs",
+           "finished", "parse_options", "parse_seeds", "parse_set", "pending", "result_json", "run_dir", "run_sweep",
+           "run_task"]

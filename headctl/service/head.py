@@ -43,8 +43,6 @@ from headctl.errors import ServoLoopStoppedError
 
 log = logging.getLogger(__name__)
 
-ImageTransform = Callable[[np.ndarray], np.ndarray]
-
 
 def joints_of(pose: np.ndarray) -> dict[str, float]:
     """Joint angles {pan, tilt, left_eye, right_eye} of a pose (pan, tilt, vergence), eyes symmetric."""
@@ -115,7 +113,7 @@ class Head:
                  interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
                  goals_in_force: Callable[[], Mapping[str, float]] | None = None,
                  settle_s: float = 0.05, tolerance_deg: float = 0.3, poll_s: float = 0.01) -> None:
-        self.bus = bus
+        self._bus = bus
         self.pairs = pairs
         self.clock = clock
         self.interrupt = interrupt
@@ -124,16 +122,23 @@ class Head:
         self.settle_s = settle_s
         self.tolerance_deg = tolerance_deg
         self.poll_s = poll_s
-        self.image_transform: ImageTransform | None = None  # e.g. a prism: np.flipud
-        # The paper's fig. 9 defect: added to the pan angle read (not to the goals written), so
-        # every pan goal computed from a reading lands that much further.
-        self.pan_reading_offset_deg = 0.0
         v_low, v_high = vergence_limits(joints, vergence_range)
         self.pose_low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle, v_low])
         self.pose_high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle, v_high])
         self._goal: np.ndarray | None = None
         self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
         self.phase = "idle"
+
+    @property
+    def bus(self) -> JointBus:
+        return self._bus
+
+    @bus.setter
+    def bus(self, bus: JointBus) -> None:
+        """Drive another bus (one wrapping this, say): the goal written to the old one is
+        forgotten, its readings may not be this one's."""
+        self._bus = bus
+        self._goal = None
 
     # -- the bus, interruptible ------------------------------------------------------------
     def _check(self) -> None:
@@ -165,10 +170,8 @@ class Head:
         return self.pose_from(self._read_state().positions)
 
     def pose_from(self, positions: Mapping[str, float]) -> np.ndarray:
-        """(pan, tilt, vergence) as this head reads joint positions (with the pan reading offset)."""
-        pose = pose_of(positions)
-        pose[0] += self.pan_reading_offset_deg
-        return pose
+        """(pan, tilt, vergence) as this head reads joint positions."""
+        return pose_of(positions)
 
     def move_to(self, pose: np.ndarray) -> np.ndarray:
         """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits."""
@@ -176,7 +179,7 @@ class Head:
         before = self.read_pose() if self.observer is not None else None
         goal = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
-        # (with a pan reading offset the goal computed from the reading may lie beyond).
+        # (a bus whose readings are off may be sent a goal beyond them).
         sent = self._write_goals(joints_of(goal))
         self._goal = pose_of(sent)
         self._saccade = (self.clock.monotonic(), goal)
@@ -241,8 +244,6 @@ class Head:
             left, right = self.pairs.wait_pair(after_s, timeout_s)
         finally:
             self.set_phase(phase)
-        if self.image_transform is not None:
-            left, right = self.image_transform(left), self.image_transform(right)
         return left, right
 
 

@@ -12,6 +12,7 @@ from calib_free.map.adapter import MapAdapter, Sample
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, HeadTimeoutError
 from headctl.cli.main import main
 from headctl.experiments.online import SimulatedHeadRig
+from headctl.experiments.perturbations import PanReadingOffset
 
 
 class FrozenEyesHead:
@@ -169,7 +170,7 @@ def test_the_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
                                    atol=0.3)
         head.move_to(np.array([0.0, 0.0, 6.0]))
         head.wait_settled(5.0)
-        head.pan_reading_offset_deg = 10.0  # the paper's fig. 9 defect
+        head.bus = PanReadingOffset(head.bus, 10.0)  # the paper's fig. 9 defect
         before = head.read_pose()
         assert before[0] == pytest.approx(10.0, abs=0.3)
         head.move_to(before + np.array([5.0, 0.0, 0.0]))
@@ -186,7 +187,7 @@ def test_with_the_pan_reading_offset_no_goal_is_clamped_by_the_bus_and_moves_sta
         controller = FixationController(head, GazeMap.for_image(320, 240, seed=0), seed=3)
         head.move_to(np.array([32.0, 0.0, 6.0]))
         head.wait_settled(5.0)
-        head.pan_reading_offset_deg = 10.0
+        head.bus = PanReadingOffset(head.bus, 10.0)
         asked_goals, sent_goals = [], []
         write_goals = rig.bus.write_goals
 

@@ -7,7 +7,9 @@ import pytest
 
 from headctl.cli import experiment as cmd_experiment
 from headctl.cli.main import build_parser, main
+from headctl.experiments import paper
 from headctl.experiments.online import ONLINE_EXPERIMENTS, OnlineResult
+from headctl.experiments.report import online_summary
 from headctl.experiments.sweep import build_runs
 
 
@@ -23,7 +25,7 @@ def run_online_calls(monkeypatch) -> list[dict[str, Any]]:
         calls.append({"spec": spec, "profile": profile, **kwargs})
         raise _Stop
 
-    monkeypatch.setattr(cmd_experiment, "run_online", fake_run_online)
+    monkeypatch.setattr(paper, "run_online", fake_run_online)
     return calls
 
 
@@ -56,10 +58,10 @@ def test_a_sweep_varies_the_room_of_its_runs():
 
 def test_the_online_summary_gives_the_joint_range_landing_error_beside_the_rooms():
     result = OnlineResult(ONLINE_EXPERIMENTS["online"])
-    assert cmd_experiment.online_summary(result)["landing_joint_range_px"] is None  # no landing checks
+    assert online_summary(result)["landing_joint_range_px"] is None  # no landing checks
     result.landing = [(40, 9.0), (80, 3.0)]
     result.landing_joint_range = [(40, 20.0), (80, 6.5)]
-    assert cmd_experiment.online_summary(result)["landing_joint_range_px"] == 6.5  # the last check's
+    assert online_summary(result)["landing_joint_range_px"] == 6.5  # the last check's
 
 
 def test_a_sweep_without_the_pose_passes_no_pose_to_every_run(monkeypatch):
@@ -69,7 +71,7 @@ def test_a_sweep_without_the_pose_passes_no_pose_to_every_run(monkeypatch):
         seen.append(list(base))
         return 0
 
-    monkeypatch.setattr(cmd_experiment.sweep, "run", fake_sweep_run)
+    monkeypatch.setattr(cmd_experiment, "run_sweep_command", fake_sweep_run)
     assert main(["experiment", "sweep", "online", "--no-pose", "--room", "photos", "--fixations", "50"]) == 0
     assert main(["experiment", "sweep", "online", "--fixations", "50"]) == 0
     with_pose_off, default = seen
