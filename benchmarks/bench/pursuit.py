@@ -41,7 +41,7 @@ from headctl.api.client import ApiClient  # noqa: E402
 from headctl.config.head import load_config  # noqa: E402
 from headctl.experiments.online import SimulatedHeadRig  # noqa: E402
 from headctl.experiments.pursuit import learned_map  # noqa: E402
-from headctl.service.daemon import Daemon  # noqa: E402
+from headctl.api.compose import serve  # noqa: E402
 
 TRUTH_DELAY_S = 0.02  # the truth is taken this far in the past: inside the joints' trace, never extrapolated
 
@@ -96,7 +96,7 @@ def main() -> int:
                 params = dataclasses.replace(config.tracking.params, lead_s=args.lead_ms / 1000.0)
                 config = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, params=params))
             load_before = os.getloadavg()[0]
-            with Daemon(config) as daemon:
+            with serve(config) as daemon:
                 client = ApiClient(daemon.api_url)
                 world = daemon.parts.devices.world
                 time.sleep(0.5)

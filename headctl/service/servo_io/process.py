@@ -18,8 +18,9 @@ tens of milliseconds, and the servo loop's period with it. So the service runs t
   log records (re-emitted in the service's log), each a typed message (`messages`). The
   child writes without blocking, so a service slow to read never blocks the loop.
 
-The child's side is `child`; `ServoLoopProcess`, here, is the service's side: the same interface as `ServoLoop` (the `Head` uses
-it as its bus; the status and the control read it). The child stops when asked, leaving the
+The child's side is `child`; `ServoLoopProcess`, here, is the service's side: the same
+interface as `ServoLoop` (the `Head` uses it as its bus; the status and the control read
+it). The child stops when asked, leaving the
 servos in the configured safe state, and also when the service's end of the pipe closes (the
 service died): the bus's own watchdog and the stale-input hold cover the time between.
 """
