@@ -16,6 +16,7 @@ import pytest
 
 from drivers.clock import ManualClock
 from headctl.config.head import HeadConfig, load_config
+from headctl.api.compose import serve
 from headctl.service.daemon import Daemon
 from tests.support.daemon_proc import DaemonProcess
 
@@ -65,12 +66,12 @@ def wait_until_fixture() -> Callable[..., Any]:
 
 @pytest.fixture
 def start_service() -> Iterator[Callable[[HeadConfig], Daemon]]:
-    """Start a service in this process (`start_service(config)`: running when it returns);
+    """Start a service with its HTTP API in this process (`start_service(config)`: running when it returns);
     every one started is stopped at the end of the test."""
     started: list[Daemon] = []
 
     def start(config: HeadConfig) -> Daemon:
-        daemon = Daemon(config).start()
+        daemon = serve(config).start()
         started.append(daemon)
         return daemon
 

@@ -36,10 +36,10 @@ import numpy as np
 from calib_free.map.file import write_map
 from drivers.sim.motion import MovingObject
 from headctl.api.client import ApiClient
+from headctl.api.compose import serve
 from headctl.config.head import load_config
 from headctl.experiments.online import SimulatedHeadRig
 from headctl.experiments.pursuit import learned_map
-from headctl.service.daemon import Daemon
 
 TRUTH_DELAY_S = 0.02  # the truth is taken this far in the past: inside the joints' trace, never extrapolated
 
@@ -94,7 +94,7 @@ def main() -> int:
                 params = dataclasses.replace(config.tracking.params, lead_s=args.lead_ms / 1000.0)
                 config = dataclasses.replace(config, tracking=dataclasses.replace(config.tracking, params=params))
             load_before = os.getloadavg()[0]
-            with Daemon(config) as daemon:
+            with serve(config) as daemon:
                 client = ApiClient(daemon.api_url)
                 world = daemon.parts.devices.world
                 time.sleep(0.5)

@@ -461,7 +461,7 @@ class NotStarted:
 
     reached = 0
 
-    def __init__(self, config: Any) -> None:
+    def __init__(self, config: Any, **composed: Any) -> None:
         NotStarted.reached += 1
 
     def run(self) -> int:

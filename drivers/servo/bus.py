@@ -133,6 +133,9 @@ class ServoBus(Device, abc.ABC):
 
     # What a backend offers, declared rather than discovered by exceptions.
     capabilities: ClassVar[frozenset[str]] = frozenset()
+    # True on a simulation that tells where its servos really are (`true_position`, and the
+    # trace of their motion, `true_trace`): what simulated cameras render from.
+    reports_true_motion: ClassVar[bool] = False
     # Config keys this backend uses beyond the common ones (`drivers.backends.SERVO_BUS_COMMON_KEYS`,
     # `SERVO_JOINT_COMMON_KEYS`); others set in a config are refused when it loads.
     CONFIG_KEYS: ClassVar[frozenset[str]] = frozenset()

@@ -217,6 +217,7 @@ class SimulatedServoBus(ServoBus):
 
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
                               "fault_injection"})
+    reports_true_motion = True
     # No wire and no servo models: the simulation has no use for baud, retries, latency or model.
     CONFIG_KEYS = frozenset({"watchdog_ms", "wiring"})
     JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})

@@ -1,8 +1,9 @@
 """Subcommands of `headctl` for the service: `run` (the daemon), `check` (a config), `status`.
 
-`run [--config F]` runs the daemon (`headctl.service.daemon.Daemon`) until SIGTERM/SIGINT; without
-`--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a
-config and connects to the servos and cameras it names, reporting each. Both prepare the
+`run [--config F]` runs the daemon (`headctl.service.daemon.Daemon`), its front end the HTTP
+API (`headctl.api.compose`), until SIGTERM/SIGINT; without `--config` it runs the simulated
+head of `configs/sim.yaml`. `check --config F` validates a config and connects to the servos
+and cameras it names, reporting each. Both prepare the
 config in one way (`_prepare`), so `check`, with or without `--no-connect`, refuses a config
 exactly where `run` would: exit 2 naming the file, the key path, the value and what was
 expected. `status`, `look` and `track` are clients of the running daemon's HTTP API
@@ -179,6 +180,7 @@ def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
 
 # --- run -------------------------------------------------------------------------------------
 def _run(args: argparse.Namespace) -> int:
+    from headctl.api.compose import api_front_end
     from headctl.service.daemon import Daemon
 
     config, status = _prepare(args, "run")
@@ -191,7 +193,7 @@ def _run(args: argparse.Namespace) -> int:
               f"written ({err.strerror})", file=sys.stderr)
         return 2
     try:
-        return Daemon(config).run()
+        return Daemon(config, front_end=api_front_end(config.api)).run()
     except (HeadctlError, DriverError, OSError) as err:
         log.error("headctl run: %s", err)
         print(f"headctl run: {err}", file=sys.stderr)

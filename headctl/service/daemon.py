@@ -1,4 +1,5 @@
-"""The service for one head: `Daemon(config).run()` is `headctl run`.
+"""The service for one head: `Daemon(config, front_end=...).run()`, its front end the HTTP API, is
+`headctl run`.
 
 `start()` builds the head from its config and starts its threads, each with one job:
 
@@ -8,8 +9,9 @@
   on the `Head` (whose bus is the servo loop and whose pairs come from the capture threads);
 - `gaze-adapter` (`calib_free.map.adapter.MapAdapter`): learns from the taught fixations, with
   atomic checkpoints (`persistence.Checkpointer`);
-- `api-server` (`headctl.api.server.ApiServer`): the HTTP control API and dashboard, over
-  `control.ServiceControl`;
+- the front end, when one is given (`FrontEnd`; `headctl run` gives the HTTP control API and
+  dashboard): serving `control.ServiceControl` from before the head starts until after it
+  stopped;
 - `supervisor` (`supervisor.Supervisor`): systemd's status and watchdog, fault events,
   stalled cameras.
 
@@ -24,7 +26,8 @@ import logging
 import sys
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Protocol
 
 from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
@@ -35,11 +38,10 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from drivers.cameras.stereo import StereoPair
 from headctl.config.head import HeadConfig
-from headctl.config.api import is_loopback
 from headctl.errors import HeadctlError
 from headctl.service.head import StereoPairSource
 from headctl.service.build import HeadDevices, build_head
-from headctl.service.control import ServiceControl
+from headctl.service.control import HeadService, ServiceControl
 from headctl.service.events import EventHub, EventLog
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
 from headctl.service.servo_io.hardware_faults import HardwareFaults
@@ -56,10 +58,30 @@ from headctl.service.systemd import SystemdNotifier
 log = logging.getLogger(__name__)
 
 
-class Daemon:
-    """The service for one head; see the module docstring."""
+class FrontEnd(Protocol):
+    """A way in to the running service (the HTTP control API), serving while its context is
+    entered: `url` is where clients reach it; a front end that stopped on its own (`error`,
+    or not `is_alive()`) is the service's `api` fault."""
 
-    def __init__(self, config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> None:
+    @property
+    def url(self) -> str: ...
+
+    @property
+    def error(self) -> BaseException | None: ...
+
+    def is_alive(self) -> bool: ...
+
+
+# Makes the front end over the service's control facade; entering the context starts serving.
+FrontEndFactory = Callable[[HeadService], contextlib.AbstractContextManager[FrontEnd]]
+
+
+class Daemon:
+    """The service for one head; see the module docstring. `front_end`: how to make its front
+    end (None: the service has none, as with `api.enabled: false`)."""
+
+    def __init__(self, config: HeadConfig, clock: Clock = SYSTEM_CLOCK, *,
+                 front_end: FrontEndFactory | None = None) -> None:
         self.config = config
         self.clock = clock
         hub = EventHub()
@@ -67,9 +89,10 @@ class Daemon:
                                   looks=LookQueue(config.api.max_queued_looks), learning=LearningLog(clock),
                                   started_s=clock.monotonic(), hardware=HardwareFaults(hub))
         self.notifier = SystemdNotifier()
-        self.api_server: Any = None  # headctl.api.server.ApiServer once listening
-        self.control = ServiceControl(self.parts, self._api_faults)
-        self.faults = FaultWatcher(self.parts, self.parts.hub, self._api_faults)
+        self._make_front_end = front_end
+        self.front_end: FrontEnd | None = None  # once serving
+        self.control = ServiceControl(self.parts, self._front_end_faults)
+        self.faults = FaultWatcher(self.parts, self.parts.hub, self._front_end_faults)
         self.stop_requested = threading.Event()
         self._abort = threading.Event()  # stops the fixation in progress, for good
         self._stack = contextlib.ExitStack()
@@ -87,11 +110,11 @@ class Daemon:
     def api_url(self) -> str | None:
         return self.parts.api_url
 
-    def _api_faults(self) -> dict[str, str]:
-        api = self.api_server
-        if api is not None and self.parts.phase is ServicePhase.RUNNING and (api.error is not None
-                                                                            or not api.is_alive()):
-            return {"api": f"control API stopped: {api.error!r}"}
+    def _front_end_faults(self) -> dict[str, str]:
+        front = self.front_end
+        if front is not None and self.parts.phase is ServicePhase.RUNNING and (front.error is not None
+                                                                              or not front.is_alive()):
+            return {"api": f"control API stopped: {front.error!r}"}
         return {}
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -125,8 +148,8 @@ class Daemon:
         logging.getLogger().addHandler(parts.warnings)
         stack.callback(logging.getLogger().removeHandler, parts.warnings)
         stack.enter_context(StateDirLock(cfg.lock_path))
-        if cfg.api.enabled:
-            self._start_api()
+        if self._make_front_end is not None:
+            self._start_front_end(self._make_front_end)
         self.notifier.notify(status="starting: restoring the gaze map")
         gm, source, problems = restore_map(cfg)
         parts.map_origin = MapOrigin(source, problems, gm.adaptations, list(gm.recent_errors))
@@ -187,18 +210,12 @@ class Daemon:
                  parts.api_url or "off (api.enabled: false)")
         self.notifier.notify(ready=1, status=status_line(parts, self.faults.check()))
 
-    def _start_api(self) -> None:
-        from headctl.api.server import ApiServer  # FastAPI and uvicorn: only when the API is on
-
-        cfg, api = self.config, self.config.api
-        self.api_server = self._stack.enter_context(ApiServer(
-            self.control, api.host, api.port, api.token, api.stream_fps, api.jpeg_quality, api.tls_cert,
-            api.tls_key))
-        if not api.tls_cert and not is_loopback(api.host):
-            log.warning("api: %s is served without TLS: the token crosses the network in clear text "
-                        "(set api.tls_cert and api.tls_key, or reach it through an SSH tunnel)", api.host)
-        self.parts.api_url = self.api_server.url
-        write_atomically(cfg.api_url_path, self.api_server.url + "\n")
+    def _start_front_end(self, make: FrontEndFactory) -> None:
+        """Serve from now on; its URL in the status and in `api_url_path` (for local clients)."""
+        cfg = self.config
+        front = self.front_end = self._stack.enter_context(make(self.control))
+        self.parts.api_url = front.url
+        write_atomically(cfg.api_url_path, front.url + "\n")
         self._stack.callback(cfg.api_url_path.unlink, missing_ok=True)
 
     def _fault_changed(self) -> None:

@@ -25,6 +25,9 @@ _H = {name: i for i, name in enumerate(HEAD_FIELDS)}
 _J = {name: i for i, name in enumerate(JOINT_FIELDS)}
 TRACE_BASE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)
 SIZE = TRACE_BASE + TRACE_SAMPLES * TRACE_WIDTH
+# The loop's counters in the block, by their `ServoLoop` attribute names.
+COUNTERS = ("cycles", "overruns", "long_periods", "read_errors", "write_errors", "bus_down_count")
+HISTORY = 6000  # periods in the ring beside the block, for the quantiles (as ServoLoop keeps them)
 
 
 def _joint_base(j: int) -> int:

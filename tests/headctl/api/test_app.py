@@ -32,7 +32,7 @@ from headctl.api.server import ApiServer
 from headctl.cli.main import main
 from headctl.api.client import ApiClient, ApiError
 from headctl.config.head import load_config
-from headctl.service.daemon import Daemon
+from headctl.api.compose import serve
 from tests.conftest import sim_head_config, wait_until
 from headctl.errors import HeadctlError
 from tests.support import TLS
@@ -46,7 +46,7 @@ TOKEN = "s3cret-token-for-the-tests"
 def head(tmp_path_factory):
     # A look waiting for frames from a stalled camera lasts 10 s (not 2): long enough for a test
     # to catch it running on a loaded machine, however slowly its client starts.
-    with Daemon(sim_head_config(tmp_path_factory.mktemp("api-state"), frame_timeout_s=10.0,
+    with serve(sim_head_config(tmp_path_factory.mktemp("api-state"), frame_timeout_s=10.0,
                                 max_queued_looks=3)) as daemon:
         yield daemon, ApiClient(daemon.api_url, timeout_s=10.0)
 
@@ -914,7 +914,7 @@ def test_concurrent_clients_while_the_head_learns(head):
     after = wait_state(client, lambda s: s["fixation"]["done"] > before["fixation"]["done"], 30, "fixations")
     # The servo loop ran at its rate throughout (cycles ~ 100 per second).
     assert after["servo_loop"]["cycles"] > before["servo_loop"]["cycles"]
-    assert after["state"] == "running" and not daemon.api_server.error
+    assert after["state"] == "running" and not daemon.front_end.error
 
 
 # --- the command line as a client --------------------------------------------------------------
@@ -1044,4 +1044,4 @@ def test_a_certificate_the_server_cannot_use_is_an_error_at_start(tmp_path):
         port=0, tls_cert=str(TLS / "head-cert.pem"), tls_key=str(TLS / "other-key.pem"))
     with pytest.raises(HeadctlError, match="api.tls_cert .*head-cert.pem, api.tls_key .*other-key.pem: "
                                             "cannot serve HTTPS"):
-        Daemon(config).run(install_signals=False)
+        serve(config).run(install_signals=False)

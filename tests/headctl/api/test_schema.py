@@ -30,7 +30,7 @@ from schemathesis import GenerationMode
 from schemathesis.specs.openapi.checks import (content_type_conformance, negative_data_rejection,
                                                response_schema_conformance, status_code_conformance)
 
-from headctl.service.daemon import Daemon
+from headctl.api.compose import serve
 from tests.conftest import sim_head_config
 
 pytestmark = pytest.mark.timeout(120)
@@ -50,7 +50,7 @@ OPERATIONS = [
 
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory):
-    with Daemon(sim_head_config(tmp_path_factory.mktemp("api-schema-state"))) as running:
+    with serve(sim_head_config(tmp_path_factory.mktemp("api-schema-state"))) as running:
         yield running
 
 

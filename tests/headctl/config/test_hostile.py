@@ -256,7 +256,7 @@ def test_check_no_connect_and_run_refuse_the_same_configs(tmp_path, monkeypatch,
     started: list[Any] = []
 
     class NotStarted:  # `run` goes as far as starting the service, and no further
-        def __init__(self, config: Any) -> None:
+        def __init__(self, config: Any, **composed: Any) -> None:
             started.append(config)
 
         def run(self) -> int:

@@ -12,7 +12,7 @@ from calib_free.gaze.pursuit import DEFAULT_JACOBIAN
 from drivers.sim.motion import MovingObject
 from headctl.api.client import ApiClient
 from headctl.experiments.pursuit import run_speed
-from headctl.service.daemon import Daemon
+from headctl.api.compose import serve
 from tests.conftest import sim_head_config, wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -25,7 +25,7 @@ def head(tmp_path_factory):
     config = sim_head_config(tmp_path_factory.mktemp("track-state"))
     config = dataclasses.replace(config, sim_objects=(CUBE,),
                                  fixation=dataclasses.replace(config.fixation, explore=False))
-    with Daemon(config) as daemon:
+    with serve(config) as daemon:
         yield daemon, ApiClient(daemon.api_url, timeout_s=10.0)
 
 

@@ -13,7 +13,8 @@ import pytest
 
 from drivers.errors import DriverError, JointLimitError, ServoHardwareError
 from headctl.config.head import load_config
-from headctl.service.servo_io.process import SIZE, ServoLoopProcess, SharedState
+from headctl.service.servo_io.process import ServoLoopProcess
+from headctl.service.servo_io.shared import SIZE, SharedState
 from tests.conftest import wait_until
 from tests.support import ROOT
 
