@@ -33,7 +33,7 @@ log = logging.getLogger(__name__)
 SWEEP_BASE_OPTIONS = ("fixations", "width", "height", "lens", "floor_samples", "landing_every", "exploration", "room")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "experiment", help="run one of the paper's simulated experiments (learning curves, plot, summary)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

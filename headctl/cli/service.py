@@ -17,16 +17,20 @@ import json
 import logging
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from drivers.errors import DriverError
 from headctl.config.head import HeadConfig, check_runtime, load_config
 from headctl.errors import ConfigError, HeadctlError
+from headctl.json_types import JSONObject
+
+if TYPE_CHECKING:
+    from headctl.api.client import ApiClient
 
 log = logging.getLogger(__name__)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add this module's subcommands to `sub`."""
     run = sub.add_parser(
         "run", help="run the service (default: the simulated head of configs/sim.yaml)",
@@ -104,7 +108,7 @@ def _client_args(parser: argparse.ArgumentParser) -> None:
                              "(default: the config's api.tls_cert, pinned; else the system's CAs)")
 
 
-def _client(args: argparse.Namespace, command: str) -> Any:
+def _client(args: argparse.Namespace, command: str) -> ApiClient | None:
     from headctl.api.client import ApiClient, ApiError
 
     config = _load(args, command)
@@ -288,7 +292,7 @@ def _status(args: argparse.Namespace) -> int:
     return 0 if status["state"] == "running" else 3
 
 
-def format_status(s: dict[str, Any]) -> str:
+def format_status(s: JSONObject) -> str:
     """The daemon's state for people."""
     lines = [f"{s['state']}  (pid {s['pid']}, up {s['uptime_s']:.0f} s, {s['config']})"]
     if s.get("api"):
@@ -344,7 +348,7 @@ def _look(args: argparse.Namespace) -> int:
     if client is None:
         return 2
     a, b, c = (*args.values, None)[:3]
-    job: dict[str, Any] | None = None
+    job: JSONObject | None = None
     try:
         # Queued first, then waited on by id: Ctrl-C while waiting can then cancel it.
         if args.angles:
@@ -390,7 +394,7 @@ def _track(args: argparse.Namespace) -> int:
     client = _client(args, "track")
     if client is None:
         return 2
-    job: dict[str, Any] | None = None
+    job: JSONObject | None = None
     try:
         if args.stop:
             job = client.stop_track()
@@ -416,7 +420,7 @@ def _track(args: argparse.Namespace) -> int:
     return 1 if job["state"] == "failed" else 0
 
 
-def format_track(job: dict[str, Any]) -> str:
+def format_track(job: JSONObject) -> str:
     request = job["request"]
     line = f"track {job['id']} at x {request['x']:.1f}, y {request['y']:.1f}: {job['state']}"
     if job["outcome"]:
@@ -437,7 +441,7 @@ def format_track(job: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def format_look(job: dict[str, Any]) -> str:
+def format_look(job: JSONObject) -> str:
     request, result = job["request"], job["result"]
     if request.get("d_measured"):
         d = f"{request['d']:.2f} px (measured, NCC {request['d_ncc']:.2f})"

@@ -18,7 +18,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from types import FrameType
 
 from drivers.errors import DriverError
 from headctl.errors import ConfigError, HeadctlError
@@ -30,7 +30,7 @@ EXIT_STATUS = {SetupOutcome.PROPOSED: 0, SetupOutcome.NO_SERVOS: 1, SetupOutcome
                SetupOutcome.JOINTS_MISSING: 1, SetupOutcome.UNKNOWN_JOG: 2, SetupOutcome.MIXED_BUS_SETTINGS: 1}
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add `setup` to `sub`."""
     setup = sub.add_parser(
         "setup", help="set a new head up: find each servo's joint, direction, zero and limits from the images",
@@ -70,7 +70,7 @@ class _Terminal:
     def stopping(self, stop: threading.Event) -> Iterator[None]:
         """Ctrl-C sets `stop` (the probing stops at its next check, servos held); a second one
         interrupts at once."""
-        def handler(signum: int, frame: Any) -> None:
+        def handler(signum: int, frame: FrameType | None) -> None:
             if stop.is_set():
                 raise KeyboardInterrupt
             stop.set()

@@ -24,7 +24,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping, TypedDict
 
 import numpy as np
 
@@ -32,10 +32,11 @@ from calib_free.map.file import read_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.sim.experiments import EXPERIMENTS, run_experiment
 from calib_free.gaze.pursuit import PursuitParams, TrackOutcome
+from drivers.servo.bus import BusState
 from drivers.sim.motion import MovingObject, SceneMotion
 from headctl.experiments.online import SimulatedHeadRig, sim_config
 from headctl.service.build import build_head
-from headctl.service.tracking import Tracking
+from headctl.service.tracking import Publish, Tracking
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +98,7 @@ class GridPairs:
         return left, right
 
     # -- JointBus (the servo loop's timing) -------------------------------------------------
-    def read_state(self) -> Any:
+    def read_state(self) -> BusState:
         return self.rig.bus.read_state()
 
     def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
@@ -116,6 +117,32 @@ class GridPairs:
         pass
 
 
+class SpeedSummary(TypedDict):
+    """One speed's figures (a row of the CSV)."""
+    speed_deg_s: float
+    frames: int
+    lost: int
+    rms_px: float | None
+    p95_px: float | None
+    max_px: float | None
+    latency_p50_ms: float | None
+
+
+class PursuitSummary(TypedDict):
+    """The pursuit JSON: the figures of every speed, one list per figure."""
+    experiment: str
+    map: str
+    duration_s: float
+    modelled_latency_ms: float
+    speeds_deg_s: list[float]
+    rms_px: list[float | None]
+    p95_px: list[float | None]
+    max_px: list[float | None]
+    lost: list[int]
+    frame_to_command_p50_ms: list[float | None]
+    goals_rms_px: dict[str, float]
+
+
 @dataclass
 class SpeedRun:
     speed_deg_s: float
@@ -125,7 +152,7 @@ class SpeedRun:
     frames: int = 0
     outcomes: list[str] = field(default_factory=list)
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> SpeedSummary:
         e = np.asarray(self.errors_px)
         lat = np.asarray(self.latency_s) * 1e3
         return {"speed_deg_s": self.speed_deg_s, "frames": self.frames, "lost": self.lost,
@@ -137,7 +164,7 @@ class SpeedRun:
 
 def run_speed(speed_deg_s: float, gm: GazeMap, *, duration_s: float = 6.0, settle_s: float = 1.0,
               latency_s: float = 0.04, fps: float = 30.0, params: PursuitParams | None = None,
-              obj: MovingObject | None = None, seed: int = 0, publish: Callable[..., Any] | None = None) -> SpeedRun:
+              obj: MovingObject | None = None, seed: int = 0, publish: Publish | None = None) -> SpeedRun:
     """Pursue the cube sweeping at `speed_deg_s` for `duration_s` (see the module docstring)."""
     obj = dataclasses.replace(obj or MovingObject(), speed_deg_s=speed_deg_s)
     config = dataclasses.replace(sim_config(seed=seed), sim_objects=(obj,))
@@ -210,7 +237,7 @@ class PursuitResult:
     map_source: str  # where the map came from, as the summary tells it
     runs: tuple[SpeedRun, ...]
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> PursuitSummary:
         """The figures per speed, as the JSON gives them."""
         summaries = [r.summary() for r in self.runs]
         return {"experiment": "pursuit", "map": self.map_source, "duration_s": self.spec.duration_s,
@@ -239,7 +266,7 @@ def run_pursuit(spec: PursuitSpec) -> PursuitResult:
     return PursuitResult(spec, map_source, tuple(runs))
 
 
-def write_pursuit(result: PursuitResult, out_dir: Path) -> dict[str, Any]:
+def write_pursuit(result: PursuitResult, out_dir: Path) -> PursuitSummary:
     """Write `pursuit-<profile>.csv`, `.png` and `.json` to `out_dir`; returns the summary."""
     summaries = [r.summary() for r in result.runs]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -265,8 +292,9 @@ def plot_pursuit(runs: list[SpeedRun], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     speeds = [r.speed_deg_s for r in runs]
     summaries = [r.summary() for r in runs]
-    ax.plot(speeds, [s["rms_px"] for s in summaries], "o-", label="RMS")
-    ax.plot(speeds, [s["p95_px"] for s in summaries], "s--", label="p95")
+    # A speed without frames after settling has no figures: NaN, a gap in the line.
+    ax.plot(speeds, np.array([s["rms_px"] for s in summaries], dtype=float), "o-", label="RMS")
+    ax.plot(speeds, np.array([s["p95_px"] for s in summaries], dtype=float), "s--", label="p95")
     for speed, goal in GOALS_RMS_PX.items():
         ax.plot([speed], [goal], "rv", label="goal (RMS)" if speed == min(GOALS_RMS_PX) else None)
     ax.set_xlabel("target angular speed, deg/s")
@@ -279,7 +307,7 @@ def plot_pursuit(runs: list[SpeedRun], path: Path) -> None:
     plt.close(fig)
 
 
-def format_result(result: dict[str, Any]) -> str:
+def format_result(result: PursuitSummary) -> str:
     lines = [f"pursuit ({result['map']}; {result['duration_s']:g} s a speed, "
              f"{result['modelled_latency_ms']:.0f} ms frame-to-command modelled)",
              "  speed deg/s   RMS px   p95 px   max px   lost   latency p50 ms   goal"]

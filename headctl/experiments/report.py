@@ -11,7 +11,7 @@ import csv
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from typing import NotRequired, TypedDict, cast
 
 import numpy as np
 
@@ -28,12 +28,76 @@ RECOVERY_GOAL = {"baseline": 500, "prism": 700, "pan-defect": 700, "swap": 700}
 STEADY_OVER = 200  # fixations in the steadier "mean of the last 200" figure
 
 
+class ChangeSummary(TypedDict):
+    """One change of the experiment (prism, defect, swap) and how the run recovered from it."""
+    at: int
+    recovery_fixations: int | None
+    goal_fixations: int | None
+    before: dict[str, float]
+    landing_before_px: float | None
+    landing_worst_after_px: float | None
+    landing_700_after_px: float | None
+
+
+class OnlineFigures(TypedDict):
+    """The online run's own figures: its fixations, their outcomes, fine vergence, landing checks."""
+    fixations: int
+    taught: int
+    outcomes: dict[str, int]
+    fixations_per_s: float | None
+    median_confidence_taught: float | None
+    vergence: dict[str, float]
+    landing_at_fixations: list[int]
+    landing_start_px: float | None
+    exploration: str
+    exploration_stats: dict[str, dict[str, int]]
+    room: NotRequired[str]
+
+
+class OnlineSummary(TypedDict):
+    """What an online run adds to its `RunSummary`."""
+    landing_joint_range_px: float | None
+    online: OnlineFigures
+
+
+class _OverFloor(TypedDict, total=False):
+    landing_over_floor: float  # with a floor: the landing error over it
+
+
+class RunFigures(TypedDict):
+    """A run's figures (`summarise`), in the order its keys are written."""
+    experiment: str
+    profile: str
+    fixations: int
+    seconds: float
+    final: dict[str, float]
+    steady: dict[str, float]
+    landing_error_px: float | None
+    floor_px: float | None
+    refused: int
+    landing_over_floor: NotRequired[float]
+    changes: list[ChangeSummary]
+    landing_curve_px: list[tuple[int, float]]
+
+
+class _OnlinePart(TypedDict, total=False):
+    landing_joint_range_px: float | None
+    online: OnlineFigures
+
+
+class RunSummary(RunFigures):
+    """A run's summary JSON (`summary_of`): its figures, an online run's own, and the pose flag."""
+    landing_joint_range_px: NotRequired[float | None]
+    online: NotRequired[OnlineFigures]
+    pose: bool
+
+
 def output_stem(request: ExperimentRequest, out: Path) -> Path:
     """Where a run's files go, without their suffix."""
     return out / f"{request.spec().name}-{request.profile}{'' if request.pose else '-nopose'}"
 
 
-def online_summary(result: OnlineResult) -> dict:
+def online_summary(result: OnlineResult) -> OnlineSummary:
     records = result.records
     confidences = [r.confidence for r in records if r.taught]
     return {
@@ -69,42 +133,44 @@ def write_csv(result: ExperimentResult, path: Path) -> None:
                         f"{landing[n + 1]:.3f}" if n + 1 in landing else ""])
 
 
-def summarise(result: ExperimentResult, floor_px: float | None, profile: str, learn_s: float) -> dict:
+def change_summaries(result: ExperimentResult) -> list[ChangeSummary]:
+    """Per change of the run's experiment: when the retinal error recovered, and the landing error around it."""
     spec = result.spec
-    summary: dict = {"experiment": spec.name, "profile": profile, "fixations": spec.fixations,
-                     "seconds": round(learn_s, 2), "final": result.final(),
-                     "steady": result.final(over=STEADY_OVER),
-                     "landing_error_px": result.landing[-1][1] if result.landing else None,
-                     "floor_px": floor_px, "refused": result.refused}
-    if floor_px:
-        summary["landing_over_floor"] = summary["landing_error_px"] / floor_px
-    changes = []
+    changes: list[ChangeSummary] = []
     for change in spec.changes:
-        entry: dict[str, Any] = {"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
-                                 "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at)}
         before = [px for at, px in result.landing if at <= change.at]
         after = [px for at, px in result.landing if change.at < at <= change.at + 700]
-        entry["landing_before_px"] = before[-1] if before else None
-        entry["landing_worst_after_px"] = max(after) if after else None
-        entry["landing_700_after_px"] = after[-1] if after else None
-        changes.append(entry)
-    summary["changes"] = changes
-    summary["landing_curve_px"] = result.landing
-    return summary
+        changes.append({"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
+                        "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at),
+                        "landing_before_px": before[-1] if before else None,
+                        "landing_worst_after_px": max(after) if after else None,
+                        "landing_700_after_px": after[-1] if after else None})
+    return changes
 
 
-def summary_of(report: ExperimentReport) -> dict:
+def summarise(result: ExperimentResult, floor_px: float | None, profile: str, learn_s: float) -> RunFigures:
+    spec = result.spec
+    landing_px = result.landing[-1][1] if result.landing else None
+    # A run without landing checks has no landing error to divide by the floor (a TypeError).
+    over_floor: _OverFloor = {"landing_over_floor": cast(float, landing_px) / floor_px} if floor_px else {}
+    return {"experiment": spec.name, "profile": profile, "fixations": spec.fixations,
+            "seconds": round(learn_s, 2), "final": result.final(), "steady": result.final(over=STEADY_OVER),
+            "landing_error_px": landing_px, "floor_px": floor_px, "refused": result.refused, **over_floor,
+            "changes": change_summaries(result), "landing_curve_px": result.landing}
+
+
+def summary_of(report: ExperimentReport) -> RunSummary:
     """The run's summary JSON: the figures, online the fixations' outcomes, and the pose flag."""
-    summary = summarise(report.result, report.floor_px, report.request.profile, report.seconds)
+    figures = summarise(report.result, report.floor_px, report.request.profile, report.seconds)
+    online: _OnlinePart = {}
     if report.online is not None:
         extra = online_summary(report.online)
         extra["online"]["room"] = report.request.room or "generated"
-        summary.update(extra)
-    summary["pose"] = report.request.pose
-    return summary
+        online = {"landing_joint_range_px": extra["landing_joint_range_px"], "online": extra["online"]}
+    return {**figures, **online, "pose": report.request.pose}
 
 
-def format_summary(s: dict) -> str:
+def format_summary(s: RunSummary) -> str:
     f, st = s["final"], s["steady"]
     counted = "adaptations (taught fixations)" if "online" in s else "fixations"
     lines = [f"{s['experiment']} ({s['profile']} profile), {s['fixations']} {counted} in {s['seconds']:.1f} s",
@@ -162,5 +228,6 @@ def write_outputs(report: ExperimentReport, out: Path) -> str:
     return f"{format_summary(summary)}\nwrote {stem}.csv, {stem}.png, {stem}.json"
 
 
-__all__ = ["PAPER_LEARN", "RECOVERY_GOAL", "STEADY_OVER", "format_summary", "online_summary", "output_stem",
+__all__ = ["PAPER_LEARN", "RECOVERY_GOAL", "STEADY_OVER", "ChangeSummary", "OnlineFigures", "OnlineSummary",
+           "RunFigures", "RunSummary", "change_summaries", "format_summary", "online_summary", "output_stem",
            "summarise", "summary_of", "write_csv", "write_outputs"]

@@ -17,11 +17,12 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence, TypedDict
 
 import numpy as np
 
 from headctl.experiments.runs import RunSpec, result_json, run_dir
+from headctl.json_types import JSONObject
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +43,7 @@ def fixations_to_share(curve: Sequence[tuple[float, float]], share: float = IMPR
     return next(float(x) for x, px in curve if px <= bar)
 
 
-def run_figures(summary: dict[str, Any]) -> tuple[dict[str, float | None], list[tuple[float, float]]]:
+def run_figures(summary: JSONObject) -> tuple[dict[str, float | None], list[tuple[float, float]]]:
     """The figures of one run and its landing curve in fixations (from the untrained map when known)."""
     figures: dict[str, float | None] = {
         "landing_error_px": summary.get("landing_error_px"),
@@ -104,12 +105,25 @@ class SettingSummary:
         return {name: spread(values) for name, values in self.figures.items()}
 
 
+class SettingFigures(TypedDict):
+    """One setting in summary.json: its seeds, each figure's spread and its value per seed."""
+    seeds: list[int]
+    figures: dict[str, dict[str, float | int | None]]
+    per_seed: dict[str, list[float | None]]
+
+
+class SweepSummaryDict(TypedDict):
+    """summary.json: the sweep's experiment and its settings."""
+    experiment: str
+    settings: dict[str, SettingFigures]
+
+
 @dataclass
 class SweepSummary:
     experiment: str
     settings: dict[str, SettingSummary]
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> SweepSummaryDict:
         return {"experiment": self.experiment,
                 "settings": {k: {"seeds": s.seeds, "figures": s.spreads(), "per_seed": s.figures}
                              for k, s in self.settings.items()}}
@@ -195,4 +209,5 @@ def plot_curves(summary: SweepSummary, path: Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["SweepSummary", "fixations_to_share", "median_band", "run_figures", "spread", "summarise_sweep"]
+__all__ = ["SettingFigures", "SweepSummary", "SweepSummaryDict", "fixations_to_share", "median_band", "run_figures",
+           "spread", "summarise_sweep"]

@@ -33,7 +33,7 @@ import uuid
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Iterator, Mapping, Sequence
 
 from tqdm import tqdm
 
@@ -41,6 +41,9 @@ from headctl.errors import HeadctlError
 from headctl.experiments.paper import ExperimentError, ExperimentRequest, run as run_experiment
 from headctl.experiments.report import write_outputs
 from headctl.experiments.runs import LOG_FILE, RUN_FILE, RUNS_DIR, RunSpec, result_json, run_dir
+
+if TYPE_CHECKING:
+    from distributed import Client
 
 log = logging.getLogger(__name__)
 
@@ -207,7 +210,7 @@ def clean_scratch(out: Path) -> None:
 
 # -- the cluster ----------------------------------------------------------------------------
 @contextlib.contextmanager
-def dask_client(scheduler: str | None, workers: int) -> Iterator[Any]:
+def dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
     """A `distributed.Client`: of an existing cluster, or of a local one of `workers`
     single-threaded processes (closed on exit)."""
     from distributed import Client, LocalCluster

@@ -13,7 +13,7 @@ import contextlib
 import dataclasses
 import logging
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol
+from typing import Protocol, TypedDict
 
 from drivers.servo.joints import JOINTS
 from calib_free.sim.head_model import HeadModel, JointLimits
@@ -22,6 +22,7 @@ from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraError
 from drivers.servo.bus import ServoBus, create_servo_bus
+from drivers.sim.camera import PoseSource
 from drivers.sim.motion import moving_scene
 from drivers.sim.scene import Scene, shared_scene
 from drivers.sim.servos import SimulatedServoBus
@@ -111,10 +112,17 @@ def sim_head_model(camera: CameraConfig, vergence_range: tuple[float, float] | N
 
 def build_servo_bus(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> ServoBus:
     """The servo bus the config names (not opened)."""
-    resources: dict[str, Any] = {}
+    resources: dict[str, object] = {}
     if config.simulated:
         resources["initial_positions"] = SIM_START_JOINTS
     return create_servo_bus(config.servo_bus, clock=clock, **resources)
+
+
+class SimCameraResources(TypedDict, total=False):
+    """What a simulated camera takes beside its config (`drivers.sim.camera.SimulatedCamera`)."""
+    head: HeadModel
+    pose_source: PoseSource
+    scene: Scene
 
 
 def build_cameras(config: HeadConfig, world: SimulatedWorld | None, clock: Clock = SYSTEM_CLOCK,
@@ -123,7 +131,7 @@ def build_cameras(config: HeadConfig, world: SimulatedWorld | None, clock: Clock
     cameras: dict[str, Camera] = {}
     for side in SIDES:
         camera_config: CameraConfig = getattr(config.cameras, side)
-        resources: dict[str, Any] = {}
+        resources: SimCameraResources = {}
         if camera_config.backend == "sim":
             if world is None:
                 raise CameraError(f"camera {side}: a simulated camera needs the simulated servo bus")

@@ -27,7 +27,8 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, Protocol
+from types import FrameType
+from typing import Protocol
 
 from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
@@ -289,7 +290,7 @@ class Daemon:
                 log.warning("could not turn torque off at shutdown: %s", err)
 
     # -- running as a process -------------------------------------------------------------------
-    def request_stop(self, signum: int | None = None, frame: Any = None) -> None:
+    def request_stop(self, signum: int | None = None, frame: FrameType | None = None) -> None:
         if signum is not None:
             log.info("signal %d: stopping", signum)
         self.stop_requested.set()

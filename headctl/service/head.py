@@ -177,7 +177,7 @@ class Head:
         """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits."""
         self.set_phase("saccade")
         before = self.read_pose() if self.observer is not None else None
-        goal = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
+        goal: np.ndarray = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
         # (a bus whose readings are off may be sent a goal beyond them).
         sent = self._write_goals(joints_of(goal))

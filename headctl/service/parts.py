@@ -10,7 +10,7 @@ import collections
 import dataclasses
 import enum
 import threading
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from calib_free.map.gaze_map import AdaptResult
 from drivers.clock import Clock
 from drivers.cameras.stereo import StereoPair
 from headctl.config.head import HeadConfig
+from headctl.json_types import JSONObject
 from headctl.service.build import HeadDevices
 from headctl.service.events import EventHub, EventLog, plain
 from headctl.service.fixation_thread import FixationThread, HeadEvents
@@ -47,12 +48,22 @@ class MapOrigin:
     recent_retinal_errors: list[float] = dataclasses.field(default_factory=list)
 
 
+class LearningPoint(TypedDict):
+    """One accepted adaptation on the learning curve, JSON-ready (`plain`: NaN as None)."""
+    n: int  # the point's index in the log
+    adaptations: int
+    t: float  # wall time, s
+    retinal_error: float | None
+    output_error_deg: list[float | None] | None
+    confidence: float | None
+
+
 class LearningLog:
     """The learning curves, one point an adaptation (`on_adapted` runs on the adapter thread)."""
 
     def __init__(self, clock: Clock, size: int = 5000) -> None:
         self.clock = clock
-        self.points: collections.deque[dict[str, Any]] = collections.deque(maxlen=size)
+        self.points: collections.deque[LearningPoint] = collections.deque(maxlen=size)
         self.adaptations_run = 0
         self.recent_output_errors: collections.deque[np.ndarray] = collections.deque(maxlen=10)
         self._lock = threading.Lock()
@@ -70,7 +81,7 @@ class LearningLog:
                 "retinal_error": result.retinal_error,
                 "output_error_deg": result.output_error, "confidence": sample.confidence}))
 
-    def since(self, since: int = 0, limit: int = 5000) -> dict[str, Any]:
+    def since(self, since: int = 0, limit: int = 5000) -> JSONObject:
         """The points after point `since` (at most `limit`, the newest) and the `since` to ask
         with next time."""
         with self._lock:
@@ -78,7 +89,7 @@ class LearningLog:
             newest = self._seq
         return {"next": newest, "points": points[-limit:] if limit > 0 else []}
 
-    def recent(self, count: int) -> list[dict[str, Any]]:
+    def recent(self, count: int) -> list[LearningPoint]:
         with self._lock:
             return list(self.points)[-count:]
 

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ContextManager, Protocol
+from typing import TYPE_CHECKING, ContextManager, Protocol
 
 import numpy as np
 
@@ -47,8 +47,12 @@ from drivers.sim.camera import fixed_pose
 from drivers.sim.servos import SimulatedServoProbe
 from headctl.config.head import check_cameras, read_yaml
 from headctl.errors import ConfigError
+from headctl.json_types import JSONObject
 from headctl.setup.config import JointProposal, eye_zeros, jog, propose, write_config
 from headctl.setup.identify import Finding, Identification, SafeProbing, identify
+
+if TYPE_CHECKING:
+    from headctl.service.build import SimCameraResources
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +112,7 @@ class SetupResult:
 class PartialConfig:
     """The partial config as read: the YAML document and its servo bus and cameras."""
 
-    document: Any
+    document: JSONObject
     bus: ServoBusConfig
     cameras: StereoCamerasConfig
 
@@ -150,7 +154,7 @@ def build_cameras(cameras: StereoCamerasConfig, probe: ServoProbe) -> dict[str, 
     built: dict[str, Camera] = {}
     for side in ("left", "right"):
         config = getattr(cameras, side)
-        resources: dict[str, Any] = {}
+        resources: SimCameraResources = {}
         if config.backend == "sim":
             pose: Callable[[], Mapping[str, float]]
             if isinstance(probe, SimulatedServoProbe):
@@ -195,7 +199,7 @@ def assist(request: SetupRequest, partial: PartialConfig, person: Person) -> Set
     Raises `Interrupted` when the person stops the probing, and DriverError, HeadctlError or
     OSError as the devices fail."""
     bus = partial.bus
-    resources: dict[str, Any] = {}
+    resources: dict[str, object] = {}
     if bus.backend == "sim":
         from headctl.service.build import SIM_START_JOINTS
         resources["initial_positions"] = SIM_START_JOINTS
@@ -264,7 +268,7 @@ def _probe_and_propose(request: SetupRequest, partial: PartialConfig, probing: S
                    f"{sorted(protocols)}): set them alike (DYNAMIXEL Wizard) and run setup again; nothing written")
         return SetupResult(SetupOutcome.MIXED_BUS_SETTINGS, tuple(found), result, proposals)
     bus = partial.bus
-    settings: dict[str, Any] = {"backend": bus.backend, "port": bus.port}
+    settings: dict[str, str | int | float] = {"backend": bus.backend, "port": bus.port}
     if bus.backend == "dynamixel":
         settings |= {"baud": bauds.pop(), "protocol": protocols.pop()}
     write_config(partial.document, request.config, settings, proposals, request.write)

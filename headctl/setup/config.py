@@ -21,12 +21,12 @@ import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import yaml
 
 from drivers.dynamixel.tables.x_series import X_MODELS
 from drivers.servo.joints import JOINTS
+from headctl.json_types import JSONObject
 from headctl.setup.identify import PairSource, SafeProbing, ServoFinding, image_shift, pair_after
 
 log = logging.getLogger(__name__)
@@ -199,7 +199,7 @@ def joints_yaml(proposals: Mapping[str, JointProposal], indent: str = "  ", mode
     return "\n".join(lines) + "\n"
 
 
-def write_config(source: Any, source_path: Path | None, bus_settings: Mapping[str, Any],
+def write_config(source: JSONObject | None, source_path: Path | None, bus_settings: Mapping[str, str | int | float],
                  proposals: Mapping[str, JointProposal], out: Path) -> None:
     """Write the head's config to `out` (atomically): the partial config's document with
     `servo_bus` set from `bus_settings` (port, baud, ...) and the joints filled in."""

@@ -14,9 +14,9 @@ from __future__ import annotations
 import collections
 import threading
 from collections.abc import Iterable
-from typing import Any
 
 from drivers.servo.faults import CLEARED, REBOOTED, RECOVERY_CHANGED, SEEN, HardwareErrorEpisode
+from headctl.json_types import JSONObject
 from headctl.service.events import EventHub
 
 
@@ -59,7 +59,7 @@ class HardwareFaults:
         with self._lock:
             return dict(self._reboots)
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> JSONObject:
         with self._lock:
             return {"open": [r.as_dict() for r in self._open.values()],
                     "ended": [r.as_dict() for r in self._ended],

@@ -13,7 +13,7 @@ import collections
 import logging
 import os
 import threading
-from typing import Any, Callable, Mapping, Protocol
+from typing import Callable, Mapping, Protocol, Self, TypeVar, cast
 
 import numpy as np
 
@@ -24,6 +24,8 @@ from drivers.servo.faults import HardwareErrorEpisode
 from headctl.errors import ServoLoopStoppedError, StaleStateError
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 # A period longer than this many nominal periods counts as long (12 ms at 100 Hz): a goal written
 # that much late is a servo holding a stale goal while the controller thinks it moved.
@@ -71,7 +73,7 @@ class ServoIO(Protocol):
 
     def set_torque(self, on: bool, timeout_s: float = 2.0) -> None: ...
 
-    def timing(self) -> dict[str, Any]: ...
+    def timing(self) -> dict[str, float | None]: ...
 
     def describe(self, joint: str) -> str: ...
 
@@ -101,12 +103,12 @@ class _Pending:
     """Something waiting for the loop's thread: done once it ran (`error` if it failed), then
     `callback(self)` on that thread."""
 
-    def __init__(self, callback: Callable[[Any], None] | None) -> None:
+    def __init__(self, callback: Callable[[Self], None] | None) -> None:
         self.done = threading.Event()
         self.error: BaseException | None = None
-        self.callback = callback
+        self.callback: Callable[[Self], None] | None = callback
 
-    def finish(self) -> None:
+    def finish(self: Self) -> None:
         self.done.set()
         if self.callback is not None:
             self.callback(self)
@@ -125,10 +127,11 @@ class _WriteRequest(_Pending):
 class _LoopAction(_Pending):
     """A call to run on the loop thread between two cycles (the bus has one user)."""
 
-    def __init__(self, fn: Callable[[ServoBus], Any], callback: Callable[["_LoopAction"], None] | None = None) -> None:
+    def __init__(self, fn: Callable[[ServoBus], object], callback: Callable[[_LoopAction], None] | None = None,
+                 ) -> None:
         super().__init__(callback)
         self.fn = fn
-        self.result: Any = None
+        self.result: object = None  # fn's, once done without error
 
 
 class ServoLoop(threading.Thread):
@@ -244,7 +247,7 @@ class ServoLoop(threading.Thread):
         request.error = BusDownError(f"{self.bus.name}: {self.down_reason}")
         request.finish()
 
-    def post_call(self, fn: Callable[[ServoBus], Any], callback: Callable[[_LoopAction], None]) -> None:
+    def post_call(self, fn: Callable[[ServoBus], object], callback: Callable[[_LoopAction], None]) -> None:
         """Run `fn(bus)` before the next cycle without waiting: `callback(action)` once done."""
         with self._cond:
             self._actions.append(_LoopAction(fn, callback))
@@ -259,7 +262,7 @@ class ServoLoop(threading.Thread):
         with self._cond:
             return dict(self._goals)
 
-    def call(self, fn: Callable[[ServoBus], Any], timeout_s: float = 2.0) -> Any:
+    def call(self, fn: Callable[[ServoBus], T], timeout_s: float = 2.0) -> T:
         """Run `fn(bus)` on the loop thread before its next cycle; its result, or its error."""
         action = _LoopAction(fn)
         with self._cond:
@@ -270,7 +273,7 @@ class ServoLoop(threading.Thread):
             raise StaleStateError(f"{self.bus.name}: the servo loop did not get to it within {timeout_s} s")
         if action.error is not None:
             raise action.error
-        return action.result
+        return cast(T, action.result)
 
     def torque_switch(self, on: bool) -> Callable[[ServoBus], None]:
         """The action that switches torque on (each goal set to the present position first: no
@@ -485,7 +488,7 @@ class ServoLoop(threading.Thread):
 
     TIMING_MAX_AGE_S = 0.25
 
-    def timing(self) -> dict[str, Any]:
+    def timing(self) -> dict[str, float | None]:
         """Counters, and the period and |period - nominal| quantiles (p50, p99, max) of the last
         cycles. The quantiles cost a millisecond over 6,000 periods: computed at most every
         `TIMING_MAX_AGE_S`, however many clients ask."""

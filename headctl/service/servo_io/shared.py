@@ -8,9 +8,9 @@ the simulated cameras render a frame's exposure.
 """
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import time
-from typing import Any
 
 import numpy as np
 
@@ -40,9 +40,9 @@ class SharedState:
     `seq` odd while it writes; a reader retries until it copied the block between two equal,
     even values of `seq`). One writer (the child), any number of readers."""
 
-    def __init__(self, raw: Any) -> None:
+    def __init__(self, raw: ctypes.Array[ctypes.c_double]) -> None:
         self.raw = raw
-        self.values = np.frombuffer(raw, dtype=np.float64)
+        self.values = np.frombuffer(memoryview(raw), dtype=np.float64)
 
     @classmethod
     def create(cls, size: int = SIZE) -> "SharedState":
