@@ -4,7 +4,7 @@ it holds per interval: resident memory, threads, open files, CPU, the map file, 
 `headctl run --config configs/sim.yaml` runs in a child process (a temporary state directory,
 the API on 127.0.0.1, its log beside the state directory), in real time: the manual clock
 cannot drive a daemon in another process. Through the run, after random gaps (exponential,
-mean `--fault-every` seconds), one fault of the table `FAULTS` is injected: each is an
+mean `--fault-every` seconds), one fault of the table `FAULTS` (soak_faults.py) is injected: each is an
 injection, the soak's own part in ending it (a restored bus, a camera resumed; none where the
 service must heal alone, as after a `kill -9` of its servo process), how the status shows it
 and how to tell it healed. A fault the service being measured does not offer (not among the
@@ -38,13 +38,12 @@ import csv
 import json
 import os
 import random
-import signal
 import statistics
 import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -123,6 +122,7 @@ class Soak:
         self.file_adaptations = 0  # what the map file last held
         self.status_adaptations = 0  # what the status last showed
         self.last_row: dict[str, Any] | None = None
+        self.final_map_adaptations: int | None = None  # the file after the final SIGTERM
         self.next_row_s = args.report_every
         self.daemon = self.start_daemon()
 
@@ -284,12 +284,13 @@ class Soak:
             if self.now_s() >= end_s or not choices:
                 continue
             self.episode(self.rng.choices(choices, [FAULTS[n].weight for n in choices])[0])
-        self.take_row(self.daemon.status())
+        if not self.rows or self.now_s() - self.rows[-1]["t_s"] > 1.0:
+            self.take_row(self.daemon.status())
         code = self.daemon.stop()
         if code != 0:
             self.map_problems.append(f"the daemon exited with {code} on SIGTERM")
-        final = self.read_map_file()
-        if final is None or final < self.status_adaptations:
+        final = self.final_map_adaptations = self.read_map_file()
+        if (final or 0) < self.status_adaptations:  # no file at all: fine only for a map never adapted
             self.map_problems.append(f"the map file at the end holds {final} adaptations, the status last showed "
                                      f"{self.status_adaptations}")
 
@@ -346,7 +347,7 @@ def verdict(soak: Soak) -> dict[str, Any]:
     return {"flat": not growing, "growing": growing, "trends": trends, "faults": faults,
             "all_reported": not unreported, "unreported": unreported, "all_healed": not unhealed,
             "unhealed": unhealed, "all_answered": not unanswered, "unanswered": unanswered, "map_kept": not soak.map_problems, "map_problems": soak.map_problems,
-            "restarts_by_the_soak": soak.generation,
+            "restarts_by_the_soak": soak.generation, "final_map_adaptations": soak.final_map_adaptations,
             "passed": not (growing or unreported or unhealed or unanswered or soak.map_problems)}
 
 
