@@ -4,15 +4,15 @@ it holds per interval: resident memory, threads, open files, CPU, the map file, 
 `headctl run --config configs/sim.yaml` runs in a child process (a temporary state directory,
 the API on 127.0.0.1, its log beside the state directory), in real time: the manual clock
 cannot drive a daemon in another process. Through the run, after random gaps (exponential,
-mean `--fault-every` seconds), one fault of the table `FAULTS` (soak_faults.py) is injected: each is an
-injection, the soak's own part in ending it (a restored bus, a camera resumed; none where the
-service must heal alone, as after a `kill -9` of its servo process), how the status shows it
-and how to tell it healed. A fault the service being measured does not offer (not among the
-simulated faults its API schema lists, or refused with 404/422) is marked unsupported and
-not injected again. Healed means: the service `running` with no fault listed, and the fault's
-own check (a new servo process, no open hardware-error episode), within `--heal-timeout-s`;
-one that did not heal leaves the service restarted by the soak, as a person would, and the run
-goes on (each restart starts a new generation of samples).
+mean `--fault-every` seconds), one fault of the table `FAULTS` (soak_faults.py) is injected:
+each is an injection, the soak's own part in ending it (a restored bus, a camera resumed; none
+where the service must heal alone, as after a `kill -9` of its servo process), how the status
+shows it and how to tell it healed. A fault the service being measured does not offer (not
+among the simulated faults its API schema lists, or refused with 404/422) is marked
+unsupported and not injected again. Healed means: the service `running` with no fault listed,
+and the fault's own check (a new servo process, no open hardware-error episode), within
+`--heal-timeout-s`; one that did not heal leaves the service restarted by the soak, as a
+person would, and the run goes on (each restart starts a new generation of samples).
 
 Every `--report-every` seconds (the "hour" of a short run) a row: the service's and its
 servo process's resident memory, threads and open files (/proc), the service's CPU share, the
@@ -346,7 +346,8 @@ def verdict(soak: Soak) -> dict[str, Any]:
     unanswered = [n for n, f in faults.items() if f["failures"]]
     return {"flat": not growing, "growing": growing, "trends": trends, "faults": faults,
             "all_reported": not unreported, "unreported": unreported, "all_healed": not unhealed,
-            "unhealed": unhealed, "all_answered": not unanswered, "unanswered": unanswered, "map_kept": not soak.map_problems, "map_problems": soak.map_problems,
+            "unhealed": unhealed, "all_answered": not unanswered, "unanswered": unanswered,
+            "map_kept": not soak.map_problems, "map_problems": soak.map_problems,
             "restarts_by_the_soak": soak.generation, "final_map_adaptations": soak.final_map_adaptations,
             "passed": not (growing or unreported or unhealed or unanswered or soak.map_problems)}
 
