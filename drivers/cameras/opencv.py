@@ -14,6 +14,12 @@ decoding: the frame held is the newest the driver has.
 
 A regular file (a recorded or generated video) opens as a camera too: its frames are
 delivered at its frame rate on the camera's clock and it loops at the end. Tests use it.
+
+Unplugged and plugged back: a configured path (device node or udev symlink, or a file) that
+no longer exists makes the next grab fail as lost (`CameraLostError`), as does a grab the
+driver fails; the base class then reopens with back-off, each attempt resolving the path
+afresh, so the camera comes back under its udev name whatever /dev/videoN it got, with its
+config applied again (FourCC, size, rate, and exposure and gain, the exposure set manual).
 """
 from __future__ import annotations
 
@@ -168,10 +174,11 @@ class OpenCVCamera(Camera):
         self._exposure_s = (config.exposure_us or 0.0) * 1e-6
         self._next_due_s = 0.0
         self._stale_dropped = 0
-        # Declared per instance: a file has no exposure or gain; a device has both.
+        # Declared per instance: a file has no exposure or gain; a device has both. Both are
+        # reopened when their path vanishes and comes back.
         is_file = isinstance(config.device, str) and os.path.isfile(config.device)
         self.capabilities = Capabilities(device_timestamps=not is_file, exposure=not is_file, gain=not is_file,
-                                         frame_rate=True, colour=True, reconnect=not is_file)
+                                         frame_rate=True, colour=True, reconnect=True)
 
     # -- hooks --------------------------------------------------------------------------------
     def _open_device(self) -> None:
@@ -256,6 +263,11 @@ class OpenCVCamera(Camera):
         cap = self._require_cap()
         source = self._source
         assert source is not None
+        device = self.config.device
+        # One stat a frame: an open capture (a file's descriptor above all) may go on reading
+        # after its node or udev link vanished; the camera is lost all the same.
+        if isinstance(device, str) and not os.path.exists(device):
+            raise CameraLostError(f"{self.name}: {device} vanished (unplugged?)")
         if source.is_file:
             return self._grab_file(cap, source, timeout_s)
         return self._grab_device(cap, source)

@@ -17,6 +17,10 @@ Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the
 (real time with the system clock; a `ManualClock` then advances as fast as frames render).
 Without it the thread only watches the clock, and frames appear as someone else (a test,
 the simulated servo loop) advances it.
+
+Unplugging (`unplug()`, `replug()`): the camera behaves as a USB camera whose device node
+vanished: grabs fail as lost and every reopen fails until it is plugged back, when the base
+class's reopen opens it again and applies its config afresh (`opens` counts the opens).
 """
 from __future__ import annotations
 
@@ -32,7 +36,7 @@ import numpy as np
 from drivers.cameras.camera import Camera, Capabilities, ErrorCallback, Grab
 from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import CameraConfigError, CameraError, DeviceStateError
+from drivers.errors import CameraConfigError, CameraError, CameraLostError, DeviceStateError
 from drivers.sim.scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene
 
 log = logging.getLogger(__name__)
@@ -63,8 +67,9 @@ class SimulatedCamera(Camera):
     """One eye of a simulated head (config `eye: left|right`), rendered from the pose source."""
 
     backend_name = "sim"
-    capabilities = Capabilities(frame_rate=True, colour=True, simulated=True)
-    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std"})
+    capabilities = Capabilities(frame_rate=True, colour=True, reconnect=True, simulated=True)
+    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std",
+                             "reconnect_backoff_max_s", "reconnect_give_up_s"})
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
                  on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
@@ -98,6 +103,27 @@ class SimulatedCamera(Camera):
         # (frame time, render start, image ready) of the last frames, clock seconds.
         self._render_times: collections.deque[tuple[float, float, float]] = collections.deque(
             maxlen=RENDER_LAGS_KEPT)
+        self._unplugged = False
+        self.opens = 0  # times the device was opened (and its config applied)
+
+    # -- the unplug fault ---------------------------------------------------------------------
+    @property
+    def unplugged(self) -> bool:
+        return self._unplugged
+
+    def unplug(self) -> None:
+        """The device node vanishes: grabs fail as lost, reopens fail, until `replug()`."""
+        self._unplugged = True
+        log.warning("%s: simulated camera unplugged", self.name)
+
+    def replug(self) -> None:
+        """The device node is back: the next reopen attempt opens it and applies its config."""
+        self._unplugged = False
+        log.warning("%s: simulated camera plugged back", self.name)
+
+    def _device_gone(self, what: str) -> CameraLostError:
+        return CameraLostError(f"{self.name}: {what}: the simulated {self.config.eye} eye's device node is gone "
+                               "(unplugged)")
 
     def render_lags_s(self) -> list[tuple[float, float, float]]:
         """The last frames' (timestamp, lag of the render's start, lag of the image ready),
@@ -116,6 +142,9 @@ class SimulatedCamera(Camera):
 
     # -- hooks --------------------------------------------------------------------------------
     def _open_device(self) -> None:
+        if self._unplugged:
+            raise self._device_gone("cannot open")
+        self.opens += 1
         scene = self._scene or shared_scene(self.config.seed, self.config.image == "colour")
         self._renderer = EyeRenderer(self.lens, scene)
         log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
@@ -128,6 +157,10 @@ class SimulatedCamera(Camera):
         self._last_index = None
 
     def _grab(self, timeout_s: float) -> Grab | None:
+        if self._unplugged:
+            raise self._device_gone("no frame")
+        if self._renderer is None:  # closed by a reopen that failed: the base class reopens it
+            raise CameraLostError(f"{self.name}: not open (its last reopen failed)")
         deadline_s = time.monotonic() + timeout_s
         while True:
             now_s = self.clock.monotonic()

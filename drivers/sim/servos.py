@@ -4,7 +4,7 @@ This module owns `ProfileAxis`, the motion model shared with the Dynamixel emula
 trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
 velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
 backend built on it. The simulated head and the daemon use it; its fault-injection hooks
-(`inject_bus_down`, `restore_bus`, `inject_hardware_error`) let their tests exercise the
+(`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`) let their tests exercise the
 recovery paths of `drivers.servo.bus` without hardware.
 
 Which servo turns which joint, which way and from where (`servo_bus.wiring`, else as
@@ -246,6 +246,7 @@ class SimulatedServoBus(ServoBus):
         self._sim_lock = threading.Lock()
         self._linked = False
         self._adapter_present = True
+        self._absent: set[str] = set()  # joints whose servo is off the bus: it answers nothing
         self._last_contact_s = now
         self._trace = JointTrace()
         self._sample(now, change=True)
@@ -263,6 +264,38 @@ class SimulatedServoBus(ServoBus):
         with self._sim_lock:
             self._adapter_present = True
         log.info("%s: injected fault cleared: adapter back", self.name)
+
+    def remove_servo(self, joint: str) -> None:
+        """`joint`'s servo leaves the bus (its cable unplugged, its power gone; called before
+        `open()`, missing at start): it stops where it is and every transaction that needs
+        its reply fails with `ServoTimeoutError` naming it, until `add_servo(joint)`."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            servo = self._servos[joint]
+            servo.axis.advance_to(now)
+            servo.torque_on = False
+            servo.axis.hold()
+            self._absent.add(joint)
+            self._sample(now, change=True)
+        log.info("%s: injected fault: %s off the bus", self.name, self.describe(joint))
+
+    def add_servo(self, joint: str) -> None:
+        """`joint`'s servo is back, just powered up: RAM defaults (torque off, goal at the
+        present position, no hardware error)."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            servo = self._servos[joint]
+            servo.axis.advance_to(now)
+            servo.goal_deg = servo.axis.position
+            servo.hardware_error_bits = 0
+            self._absent.discard(joint)
+        log.info("%s: injected fault cleared: %s back on the bus", self.name, self.describe(joint))
+
+    def _require_present(self, joints: Iterable[str]) -> None:
+        """As a servo that does not answer: the first absent one of `joints` times out."""
+        for joint in joints:
+            if joint in self._absent:
+                raise ServoTimeoutError(f"{self.describe(joint)}: no reply (the simulated servo is off the bus)")
 
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
@@ -323,6 +356,7 @@ class SimulatedServoBus(ServoBus):
                 raise BusDownError(f"{self.name}: simulated adapter is unplugged")
             self._linked = True
             self._last_contact_s = self.clock.monotonic()
+            self._require_present(JOINTS)  # the servos are pinged
 
     def _disconnect(self) -> None:
         with self._sim_lock:
@@ -331,6 +365,8 @@ class SimulatedServoBus(ServoBus):
     def _configure(self, joints: Iterable[str]) -> None:
         with self._sim_lock:
             now = self._contact()
+            joints = list(joints)
+            self._require_present(joints)
             for joint in joints:
                 jc = self.config.joints[joint]
                 servo = self._servos[joint]
@@ -342,6 +378,7 @@ class SimulatedServoBus(ServoBus):
     def _read_servos(self) -> dict[str, JointState]:
         with self._sim_lock:
             now = self._contact()
+            self._require_present(self._servos)
             self._sample(now)
             states = {}
             for joint, servo in self._servos.items():
@@ -361,6 +398,8 @@ class SimulatedServoBus(ServoBus):
         with self._sim_lock:
             now = self._contact()
             for joint, goal in goals_deg.items():
+                if joint in self._absent:  # a write expects no reply: it is lost, as on a real bus
+                    continue
                 servo = self._servos[joint]
                 servo.axis.advance_to(now)
                 servo.goal_deg = goal
@@ -371,6 +410,8 @@ class SimulatedServoBus(ServoBus):
     def _set_torque(self, joints: Iterable[str], on: bool) -> None:
         with self._sim_lock:
             now = self._contact()
+            joints = list(joints)
+            self._require_present(joints)
             try:
                 for joint in joints:
                     servo = self._servos[joint]
@@ -392,6 +433,7 @@ class SimulatedServoBus(ServoBus):
     def _reboot_servo(self, joint: str) -> None:
         with self._sim_lock:
             now = self._contact()
+            self._require_present([joint])
             servo = self._servos[joint]
             servo.axis.advance_to(now)
             servo.axis.hold()

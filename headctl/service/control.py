@@ -29,6 +29,7 @@ from calib_free.gaze.look import target_disparity as look_disparity
 from drivers.servo.joints import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
+from drivers.sim.camera import SimulatedCamera
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
 from headctl.json_types import JSONObject
 from headctl.service.events import EventHub
@@ -72,6 +73,8 @@ class SimFault(enum.StrEnum):
     HARDWARE_ERROR = "hardware_error"
     CAMERA_STALL = "camera_stall"
     CAMERA_RESUME = "camera_resume"
+    CAMERA_UNPLUG = "camera_unplug"  # the device node vanishes: reads and reopens fail
+    CAMERA_REPLUG = "camera_replug"  # it is back: the camera reopens with its config
 
 
 class MapAnswer(TypedDict):
@@ -374,7 +377,16 @@ class ServiceControl:
             raise InvalidRequestError(f"{fault} needs camera: left or right, got {camera!r}", "camera")
         elif fault is SimFault.CAMERA_STALL:
             world.stalled.add(camera)
-        else:
+        elif fault is SimFault.CAMERA_RESUME:
             world.stalled.discard(camera)
+        else:
+            eye = devices.cameras[camera] if devices is not None else None
+            if not isinstance(eye, SimulatedCamera):
+                raise UnavailableError(f"{fault} needs a simulated camera {camera}, got {type(eye).__name__}",
+                                       "camera")
+            if fault is SimFault.CAMERA_UNPLUG:
+                eye.unplug()
+            else:
+                eye.replug()
         log.warning("injected fault: %s %s", fault, joint or camera or "")
         return str(fault)

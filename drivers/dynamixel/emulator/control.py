@@ -15,6 +15,10 @@ skipped. A bad command is answered with an error and changes nothing.
                            latched until the servo reboots, as on a real servo
     powercycle ID          ID loses power and comes back: RAM defaults (torque off, hardware
                            error cleared, indirect addresses gone), silent while it boots
+    remove ID              ID leaves the bus (cable unplugged, unpowered): it hears and answers
+                           nothing, as a servo missing at start
+    add ID                 ID is back on the bus, just powered up: RAM defaults (torque off),
+                           silent while it boots
     vanish [SECONDS]       the adapter is unplugged (the pty closes, the link goes); back by
                            itself after SECONDS (real time), else on `reappear`
     reappear               the adapter is back now (a new pty; the link follows it)
@@ -51,7 +55,7 @@ MAX_VANISH_S = 3600.0
 BIT_NAMES: dict[str, int] = {"voltage": 0x01, "overheating": 0x04, "encoder": 0x08, "shock": 0x10, "overload": 0x20}
 
 USAGE = ("commands: drop ID [N] | corrupt ID [N] | delay ID SECONDS [N] | hwerror ID BITS | powercycle ID | "
-         "vanish [SECONDS] | reappear | clear [ID] | status | help")
+         "remove ID | add ID | vanish [SECONDS] | reappear | clear [ID] | status | help")
 
 
 class CommandError(ValueError):
@@ -65,7 +69,7 @@ class EmulatorControl:
         self.emulator = emulator
         self._commands: dict[str, Callable[[list[str]], str]] = {
             "drop": self._drop, "corrupt": self._corrupt, "delay": self._delay, "hwerror": self._hwerror,
-            "powercycle": self._powercycle, "vanish": self._vanish, "reappear": self._reappear,
+            "powercycle": self._powercycle, "remove": self._remove, "add": self._add, "vanish": self._vanish, "reappear": self._reappear,
             "clear": self._clear, "status": self._status, "help": lambda args: self._no_args(args, USAGE),
         }
 
@@ -190,6 +194,18 @@ class EmulatorControl:
         servo_id = self._servo_id(args[0])
         self.emulator.power_cycle(servo_id)
         return f"id {servo_id}: power cycled (RAM defaults, torque off; booting)"
+
+    def _remove(self, args: list[str]) -> str:
+        self._arity(args, 1, 1, "remove ID")
+        servo_id = self._servo_id(args[0])
+        self.emulator.remove_servo(servo_id)
+        return f"id {servo_id}: off the bus (it answers nothing until `add {servo_id}`)"
+
+    def _add(self, args: list[str]) -> str:
+        self._arity(args, 1, 1, "add ID")
+        servo_id = self._servo_id(args[0])
+        self.emulator.add_servo(servo_id)
+        return f"id {servo_id}: back on the bus (RAM defaults, torque off; booting)"
 
     def _vanish(self, args: list[str]) -> str:
         self._arity(args, 0, 1, "vanish [SECONDS]")

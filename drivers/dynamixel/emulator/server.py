@@ -98,7 +98,7 @@ class DxlEmulator:
     def __init__(self, ids: Iterable[int] = (1, 2, 3, 4), *, protocol: float = 2.0, model: str | None = None,
                  models: Mapping[int, str] | None = None, firmware: int | Mapping[int, int] | None = None,
                  clock: Clock = SYSTEM_CLOCK, link: str | None = None, baud: int = 1_000_000,
-                 positions_ticks: dict[int, int] | None = None,
+                 positions_ticks: dict[int, int] | None = None, absent: Iterable[int] = (),
                  on_error: Callable[[BaseException], None] | None = None) -> None:
         if protocol not in DEFAULT_MODELS:
             raise ValueError(f"protocol {protocol}: expected 1.0 or 2.0")
@@ -127,6 +127,9 @@ class DxlEmulator:
             else:
                 self.servos[i] = EmulatedServo(i, model_of[i], clock=clock, baud=baud, firmware=firmware_of[i],
                                                position_ticks=positions_ticks.get(i, 2048))
+        self._absent = set(absent)  # ids off the bus (unplugged, unpowered): they hear and answer nothing
+        if not self._absent <= set(ids):
+            raise ValueError(f"absent ids {sorted(self._absent - set(ids))}: not among the servos {ids}")
         self.on_error = on_error
         self.last_error: BaseException | None = None
         self.packets_received = 0
@@ -223,6 +226,21 @@ class DxlEmulator:
         with self._lock:
             self.servos[servo_id].reboot(self.clock.monotonic())
 
+    def remove_servo(self, servo_id: int) -> None:
+        """The servo leaves the bus (its cable unplugged, its power gone): it hears nothing and
+        answers nothing until `add_servo`."""
+        with self._lock:
+            self.servos[servo_id].update(self.clock.monotonic())
+            self._absent.add(servo_id)
+
+    def add_servo(self, servo_id: int) -> None:
+        """The servo is back on the bus, just powered up: RAM defaults (torque off), silent
+        while it boots."""
+        with self._lock:
+            servo = self.servos[servo_id]
+            self._absent.discard(servo_id)
+            servo.reboot(self.clock.monotonic())
+
     def clear_faults(self, servo_id: int | None = None) -> None:
         """Cancel the pending dropped, corrupted and delayed replies of `servo_id` (or of all).
         Hardware errors stay: a servo clears them only when it reboots."""
@@ -267,6 +285,7 @@ class DxlEmulator:
                     "delay_s": faults.delay_s if faults.delay_count else 0.0,
                     "hardware_error": servo.hardware_error_bits,
                     "torque_on": servo.torque_on, "booting": servo.is_booting(now),
+                    "present": servo_id not in self._absent,
                 }
             back_in_s = None
             if self._port is None and self._reappear_at_s is not None:
@@ -451,12 +470,13 @@ class DxlEmulator:
     def _dispatch(self, packet: Packet, now: float) -> list[tuple[int | None, bytes, float]]:
         """The replies to one packet in the order they go out: (servo id, status packet,
         0.0), or for a Fast Sync Read (None, each servo's piece of the packet they share,
-        the delay before it). Called with the lock held."""
+        the delay before it). Absent servos neither act nor answer. Called with the lock held."""
+        servos = {i: s for i, s in self.servos.items() if i not in self._absent} if self._absent else self.servos
         if self.protocol == 1.0:
-            return [(i, reply, 0.0) for i, reply in dispatch1(self.servos, packet, now)]
+            return [(i, reply, 0.0) for i, reply in dispatch1(servos, packet, now)]
         if packet.instruction == INST_FAST_SYNC_READ and packet.crc_ok:
-            return [(None, piece, delay_s) for delay_s, piece in fast_sync_read(self.servos, packet.params, now, self)]
-        return [(i, reply, 0.0) for i, reply in dispatch2(self.servos, packet, now)]
+            return [(None, piece, delay_s) for delay_s, piece in fast_sync_read(servos, packet.params, now, self)]
+        return [(i, reply, 0.0) for i, reply in dispatch2(servos, packet, now)]
 
     def consume_drop(self, servo_id: int) -> bool:
         faults = self._faults[servo_id]

@@ -1,20 +1,24 @@
 """The OpenCV backend: a generated video file played as a camera on an injected clock, device
-resolution (index, path, udev symlink), granted settings logged, and the drain that keeps the
-held frame the newest the driver has (on a scripted V4L2-like capture on a ManualClock)."""
+resolution (index, path, udev symlink), granted settings logged, the drain that keeps the
+held frame the newest the driver has (on a scripted V4L2-like capture on a ManualClock), and
+a camera unplugged and plugged back (its path vanishing and coming back) reopened by its udev
+name with its config applied again."""
 from __future__ import annotations
 
 import collections
 import logging
 import os
+import shutil
+import time
 
 import cv2
 import numpy as np
 import pytest
 
-from drivers.cameras.camera import create_camera
+from drivers.cameras.camera import StreamHealth, create_camera
 from drivers.cameras.config import CameraConfig
 from drivers.clock import ManualClock
-from drivers.errors import CameraConfigError, CameraLostError
+from drivers.errors import CameraConfigError, CameraLostError, CameraTimeoutError
 from drivers.cameras.opencv import OpenCVCamera, resolve_source
 
 FPS = 25.0
@@ -198,3 +202,94 @@ def test_v4l2_formats_are_read_from_the_driver(tmp_path):
         "YUYV (YUYV 4:2:2): 640x480, 1280x720",
         "MJPG (Motion-JPEG): 160x120 to 1920x1080",
     ]
+
+
+def wait_health(cam, health, timeout_s=10.0):
+    deadline = time.monotonic() + timeout_s
+    while cam.health is not health:
+        assert time.monotonic() < deadline, f"{cam.name}: health {cam.health.value}, waited for {health.value}"
+        time.sleep(0.01)
+
+
+@pytest.mark.parametrize("vanishing", ["udev-symlink", "file"])
+def test_a_vanished_path_is_lost_and_reopened_once_it_is_back(video, tmp_path, vanishing):
+    played = tmp_path / "head.avi"
+    shutil.copy(video, played)
+    link = tmp_path / "head-left"
+    os.symlink(played, link)
+    config = CameraConfig(backend="opencv", device=str(link), fps=50.0, reconnect_backoff_max_s=0.05)
+    errors = []
+    with OpenCVCamera(config, name="left", on_error=lambda cam, err: errors.append(err)) as cam:
+        assert cam.capabilities.reconnect
+        cam.enable()
+        cam.wait_frame(timeout_s=5)
+        gone = link if vanishing == "udev-symlink" else played
+        aside = tmp_path / "aside"
+        os.rename(gone, aside)
+        wait_health(cam, StreamHealth.RECONNECTING)
+        assert isinstance(errors[0], CameraLostError) and f"left: {link} vanished" in str(errors[0])
+        with pytest.raises(CameraTimeoutError):
+            cam.wait_frame(timeout_s=0.3)  # nothing from a vanished device
+        os.rename(aside, gone)
+        frame = cam.wait_frame(timeout_s=5)
+        assert cam.health is StreamHealth.STREAMING and cam.stats()["reconnects"] == 1
+        assert frame.image.shape == (120, 160)
+
+
+class RecordingCapture:
+    """A V4L2-like capture that records what it was set to; its device can be unplugged."""
+
+    def __init__(self, target) -> None:
+        self.target, self.unplugged, self.sets = target, False, []
+        self.props = {cv2.CAP_PROP_FRAME_WIDTH: 640, cv2.CAP_PROP_FRAME_HEIGHT: 480, cv2.CAP_PROP_FPS: 100.0,
+                      cv2.CAP_PROP_FOURCC: cv2.VideoWriter_fourcc(*"MJPG")}
+
+    def isOpened(self) -> bool:
+        return True
+
+    def grab(self) -> bool:
+        time.sleep(0.01)  # one frame period of a 100 fps camera
+        return not self.unplugged
+
+    def retrieve(self):
+        return True, np.zeros((480, 640, 3), np.uint8)
+
+    def get(self, prop):
+        return self.props.get(prop, 0.0)
+
+    def set(self, prop, value) -> bool:
+        self.sets.append((prop, value))
+        self.props[prop] = value
+        return True
+
+    def release(self) -> None:
+        pass
+
+
+def test_a_replugged_device_is_found_by_its_udev_name_and_configured_again(tmp_path):
+    link = tmp_path / "head-left"  # udev's name for the camera; the node behind it changes
+    os.symlink("/dev/null", link)
+    captures = []
+
+    def factory(target, api):
+        captures.append(RecordingCapture(target))
+        return captures[-1]
+
+    config = CameraConfig(backend="opencv", device=str(link), pixel_format="MJPG", width=640, height=480,
+                          fps=100.0, exposure_us=5000.0, gain_db=3.0, reconnect_backoff_max_s=0.05)
+    with OpenCVCamera(config, name="left", capture_factory=factory) as cam:
+        cam.enable()
+        cam.wait_frame(timeout_s=5)
+        captures[0].unplugged = True  # the driver fails its grabs, and the node goes
+        os.unlink(link)
+        wait_health(cam, StreamHealth.RECONNECTING)
+        time.sleep(0.2)  # several reopen attempts, all failing on the missing path
+        assert len(captures) == 1
+        os.symlink("/dev/zero", link)  # back, under another node
+        cam.wait_frame(timeout_s=5)
+        assert cam.health is StreamHealth.STREAMING and cam.stats()["reconnects"] == 1
+    assert [c.target for c in captures] == ["/dev/null", "/dev/zero"]
+    wanted = [(cv2.CAP_PROP_FOURCC, cv2.VideoWriter.fourcc(*"MJPG")), (cv2.CAP_PROP_FRAME_WIDTH, 640),
+              (cv2.CAP_PROP_FRAME_HEIGHT, 480), (cv2.CAP_PROP_FPS, 100.0),
+              (cv2.CAP_PROP_AUTO_EXPOSURE, 1), (cv2.CAP_PROP_EXPOSURE, 50.0), (cv2.CAP_PROP_GAIN, 3.0)]
+    assert captures[1].sets == captures[0].sets == wanted, "the replugged camera's config was not applied again"

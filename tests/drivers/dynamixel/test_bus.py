@@ -320,3 +320,26 @@ def test_scan_with_protocol_1_finds_nothing_on_a_protocol_2_bus(tmp_path):
 
 def test_all_joints_are_configured():
     assert set(config_mapping()["joints"]) == set(JOINTS)
+
+
+def test_a_servo_off_the_bus_fails_open_and_reads_naming_it_and_is_back_once_added(rig, caplog):
+    r = rig(retries=0)
+    r.emulator.remove_servo(IDS["left_eye"])  # missing at start
+    with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\) on .*head-servos"):
+        r.bus.open()
+    r.emulator.add_servo(IDS["left_eye"])
+    r.advance(0.5)  # it boots
+    with r.bus as bus:
+        bus.enable()
+        bus.write_goals({"left_eye": 5.0})
+        r.advance(1.0)
+        r.emulator.remove_servo(IDS["left_eye"])  # unplugged while running
+        with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\)"):
+            bus.read_state()
+        assert r.emulator.injected()["servos"][IDS["left_eye"]]["present"] is False
+        r.emulator.add_servo(IDS["left_eye"])  # back, just powered up: torque off, RAM defaults
+        r.advance(0.5)
+        with caplog.at_level(logging.WARNING):
+            state = bus.read_state()
+        assert "torque found off" in caplog.text
+        assert state["left_eye"].torque_on and state["left_eye"].position == pytest.approx(5.0, abs=0.1)

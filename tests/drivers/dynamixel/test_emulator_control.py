@@ -111,7 +111,7 @@ def test_every_command_through_a_real_socket_answers_one_line_and_acts(served):
     status = client.status()
     assert status["vanished"] is False and status["link"] == emulator.link
     assert status["servos"]["4"] == {"drop": 0, "corrupt": 0, "delay_count": 0, "delay_s": 0.0,
-                                     "hardware_error": 0, "torque_on": False, "booting": False}
+                                     "hardware_error": 0, "torque_on": False, "booting": False, "present": True}
 
     assert client.ask("drop 4 2") == "ok id 4: the next 2 replies dropped"
     assert client.status()["servos"]["4"]["drop"] == 2
@@ -150,6 +150,17 @@ def test_every_command_through_a_real_socket_answers_one_line_and_acts(served):
     assert (booted["booting"], booted["hardware_error"], booted["torque_on"]) == (False, 0, False)
     assert _answers(port, 1)
 
+    # A servo off the bus and back: it answers nothing, then boots with RAM defaults.
+    assert _retried(port, packet.write1ByteTxRx, 4, XAddr.TORQUE_ENABLE, 1)[0] == sdk.COMM_SUCCESS
+    assert client.ask("remove 4") == "ok id 4: off the bus (it answers nothing until `add 4`)"
+    assert client.status()["servos"]["4"]["present"] is False
+    assert _ping(port, 4) == sdk.COMM_RX_TIMEOUT
+    assert client.ask("add 4") == "ok id 4: back on the bus (RAM defaults, torque off; booting)"
+    clock.advance(1.0)
+    back = client.status()["servos"]["4"]
+    assert (back["present"], back["booting"], back["torque_on"]) == (True, False, False)
+    assert _answers(port, 4)
+
 
 def test_vanish_for_a_while_then_back_by_itself_and_vanish_until_told(served):
     emulator, client, port, _clock, _server = served
@@ -187,6 +198,8 @@ def test_vanish_for_a_while_then_back_by_itself_and_vanish_until_told(served):
     ("hwerror 2 0x100", "error hwerror: bits 0x100: expected 1 to 0xff"),
     ("hwerror 2 melting", "error hwerror: bits 'melting': expected a number (0x20) or names joined by '+'"),
     ("powercycle", "error powercycle: expected powercycle ID"),
+    ("remove", "error remove: expected remove ID"),
+    ("add 9", "error add: no servo with id 9; ids: 1, 2, 3, 4"),
     ("vanish soon", "error vanish: 'soon' is not a number of seconds"),
     ("vanish inf", "error vanish: inf s: expected 0 to 3600 s"),
     ("reappear now", "error reappear: takes no arguments"),

@@ -12,7 +12,7 @@ from drivers.cameras.camera import StreamHealth, create_camera
 from drivers.cameras.config import CameraConfig, StereoCamerasConfig
 from drivers.cameras.stereo import StereoPair
 from drivers.clock import ManualClock
-from drivers.errors import CameraConfigError, CameraError, CameraTimeoutError
+from drivers.errors import CameraConfigError, CameraError, CameraLostError, CameraTimeoutError
 from drivers.sim.camera import SimulatedCamera, fixed_pose
 from drivers.sim.scene import Scene, StereoRenderer, shared_scene
 
@@ -215,3 +215,39 @@ def test_a_simulated_camera_renders_the_photo_room():
     with photos, generated:
         assert not np.array_equal(photos.render(REST), generated.render(REST))
         assert photos.render(REST).std() > 10
+
+
+def test_an_unplugged_camera_is_lost_reopens_only_once_plugged_back_and_is_configured_again():
+    clock = ManualClock(0.0)
+    config = CameraConfig.from_mapping({"backend": "sim", "eye": "left", "fps": 16.0, "width": 160, "height": 120,
+                                        "seed": 3, "reconnect_backoff_max_s": 0.02}, "cameras.left")
+    errors: list[BaseException] = []
+    cam = create_camera(config, name="left", clock=clock, head=HEAD, pose_source=fixed_pose(**REST),
+                        paced_by_clock=False, on_error=lambda c, err: errors.append(err))
+    assert isinstance(cam, SimulatedCamera) and cam.capabilities.reconnect
+    states: list[StreamHealth] = []
+    changed = threading.Event()
+
+    def listener(frame):
+        if frame is None:
+            states.append(cam.health)
+            changed.set()
+
+    cam.add_listener(listener)
+    with cam:
+        cam.enable()
+        cam.wait_frame(after_s=0.0)
+        assert cam.opens == 1
+        cam.unplug()
+        clock.advance(0.1)
+        assert changed.wait(5) and states[0] is StreamHealth.RECONNECTING
+        assert isinstance(errors[0], CameraLostError) and "left: no frame" in str(errors[0])
+        assert "device node is gone (unplugged)" in str(errors[0])
+        with pytest.raises(CameraTimeoutError):
+            cam.wait_frame(timeout_s=0.2)
+        assert cam.opens == 1  # every reopen failed on the missing node
+        cam.replug()
+        clock.advance(0.1)
+        frame = cam.wait_frame(timeout_s=5)
+        assert cam.health is StreamHealth.STREAMING and cam.stats()["reconnects"] == 1
+        assert cam.opens == 2 and frame.image.shape == (120, 160)

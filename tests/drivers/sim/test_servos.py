@@ -6,7 +6,7 @@ import math
 import pytest
 
 from drivers.clock import ManualClock
-from drivers.errors import BusDownError
+from drivers.errors import BusDownError, ServoTimeoutError
 from drivers.servo.bus import create_servo_bus
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.servos import ProfileAxis, SimulatedServoBus
@@ -167,3 +167,30 @@ def test_the_probe_moves_servos_by_id_safely():
             probe.write_goal(2, 200.0)
         probe.restore_motion(2)
         assert probe.torque_limit(2) is None
+
+
+def test_a_servo_off_the_bus_times_out_naming_it_and_comes_back_without_a_jump():
+    clock = ManualClock(0.0)
+    bus = SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping()), clock=clock)
+    bus.remove_servo("left_eye")  # missing at start
+    with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\) on .*: no reply \(the simulated servo is "
+                                                r"off the bus\)"):
+        bus.open()
+    assert not bus.is_open
+    bus.add_servo("left_eye")
+    with bus:
+        bus.enable()
+        bus.write_goals({"pan": 10.0, "left_eye": 8.0})
+        clock.advance(2.0)
+        bus.remove_servo("left_eye")  # unplugged while running: it stops, torque gone
+        with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\)"):
+            bus.read_state()
+        bus.write_goals({"pan": -10.0, "left_eye": -8.0})  # a write expects no reply: the others move
+        clock.advance(2.0)
+        assert bus.true_position("pan") == pytest.approx(-10.0)
+        assert bus.true_position("left_eye") == pytest.approx(8.0)
+        bus.add_servo("left_eye")  # back, just powered up: torque off, goal at its position
+        state = bus.read_state()
+        assert state["left_eye"].torque_on  # restored by the bus, at the position read back
+        clock.advance(1.0)
+        assert bus.true_position("left_eye") == pytest.approx(8.0), "the servo jumped when it came back"
