@@ -4,9 +4,11 @@ A fault that lasts (the servo loop gone, a camera unplugged, the state directory
 the code that meets it log the same message again on every attempt. The limit keeps the log
 readable and the journal and the disk from filling, whatever the loops do:
 
-- a kind is the logger's name, the level and the message's format string, not its arguments
-  ("fixation aborted: %s" is one kind whatever the detail); a format string that is nothing
-  but placeholders ("%s", as the servo process's relayed records are) is keyed by the message;
+- a kind is the logger's name, the level, the message's format string and those of its
+  arguments that are names (a string of at most 32 characters without whitespace: a camera,
+  a joint, a port), not the others ("fixation aborted: %s" is one kind whatever the detail,
+  "camera %s: reopen failed: %s" one per camera); a format string that is nothing but
+  placeholders ("%s", as the servo process's relayed records are) is keyed by the message;
 - the first record of a kind passes whole; the next ones within `interval_s` of the last line
   of that kind are counted, not written;
 - the first one after the interval is written as a summary: its message and "(repeated 2,314
@@ -35,7 +37,9 @@ DEFAULT_INTERVAL_S = 10.0
 MAX_KINDS = 1024
 _PLACEHOLDER = re.compile(r"%(\([^)]*\))?[-#0 +]*(\*|\d+)?(\.(\*|\d+))?[diouxXeEfFgGcrsa%]")
 
-Kind = tuple[str, int, str]
+NAME_MAX_CHARS = 32
+
+Kind = tuple[str, int, str, tuple[str, ...]]
 
 
 @dataclasses.dataclass
@@ -46,11 +50,14 @@ class _Seen:
 
 
 def kind_of(record: logging.LogRecord) -> Kind:
-    """(logger, level, format string); the message itself when the format is only placeholders."""
+    """(logger, level, format string, the arguments that are names); the message itself when
+    the format is only placeholders."""
     fmt = record.msg if isinstance(record.msg, str) else None
     if fmt is None or not _PLACEHOLDER.sub("", fmt).strip(" :;,.-"):
-        fmt = _message(record)
-    return record.name, record.levelno, fmt
+        return record.name, record.levelno, _message(record), ()
+    args = record.args.values() if isinstance(record.args, dict) else record.args or ()
+    names = tuple(a for a in args if isinstance(a, str) and len(a) <= NAME_MAX_CHARS and not any(c.isspace() for c in a))
+    return record.name, record.levelno, fmt, names
 
 
 def _message(record: logging.LogRecord) -> str:

@@ -69,21 +69,24 @@ def test_a_fault_repeated_for_30_s_writes_one_line_then_a_summary_per_interval(i
 def test_other_kinds_pass_while_one_is_limited_and_a_quiet_kind_gets_its_summary_later():
     clock = ManualClock()
     log, lines = limited_logger("kinds", 10.0, clock)
-    for _ in range(5):
-        log.warning("camera %s: no frame", "left")
-        log.error("camera %s: no frame", "left")  # another level: another kind
+    for i in range(5):
+        log.warning("camera %s: no frame (%s)", "left", f"waited {i} s")
+        log.warning("camera %s: no frame (%s)", "right", f"waited {i} s")  # a name among the arguments
+        log.error("camera %s: no frame (%s)", "left", f"waited {i} s")  # another level: another kind
         log.warning("%s", "servo process: bus reopened")  # only placeholders: keyed by the message
         log.warning("%s", "servo process: read failed")
         clock.advance(0.1)
-    assert [m for _, m in lines.lines] == ["camera left: no frame", "camera left: no frame",
+    assert [m for _, m in lines.lines] == ["camera left: no frame (waited 0 s)", "camera right: no frame (waited 0 s)",
+                                           "camera left: no frame (waited 0 s)",
                                            "servo process: bus reopened", "servo process: read failed"]
     clock.advance(10.0)
     log.warning("state directory %s is full", "/var/lib/headctl")  # any record: quiet kinds are told
-    told = [m for _, m in lines.lines[4:]]
+    told = [m for _, m in lines.lines[5:]]
     assert told[-1] == "state directory /var/lib/headctl is full"
     assert sorted(told[:-1]) == sorted([
-        "camera left: no frame (repeated 4 times in the last 10 s)",
-        "camera left: no frame (repeated 4 times in the last 10 s)",
+        "camera left: no frame (waited 4 s) (repeated 4 times in the last 10 s)",
+        "camera right: no frame (waited 4 s) (repeated 4 times in the last 10 s)",
+        "camera left: no frame (waited 4 s) (repeated 4 times in the last 10 s)",
         "servo process: bus reopened (repeated 4 times in the last 10 s)",
         "servo process: read failed (repeated 4 times in the last 10 s)"])
 
@@ -115,7 +118,9 @@ def test_kinds_remembered_are_bounded():
         limiter.admit(logging.makeLogRecord({"name": "t", "levelno": logging.INFO, "msg": f"message {i} %s",
                                              "args": (i,)}))
     assert len(limiter._kinds) == 8
-    assert kind_of(logging.makeLogRecord({"name": "t", "levelno": 20, "msg": "a %s", "args": (1,)})) == ("t", 20, "a %s")
+    assert kind_of(logging.makeLogRecord({"name": "t", "levelno": 20, "msg": "%s on %s: %s",
+                                          "args": (1, "/dev/ttyUSB0", "no reply from id 3")})) == (
+        "t", 20, "%s on %s: %s", ("/dev/ttyUSB0",))
 
 
 def test_install_puts_handlers_behind_one_limit_on_the_logger():
