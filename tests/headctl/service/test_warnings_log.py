@@ -32,3 +32,17 @@ def test_a_flood_of_one_warning_keeps_the_others_and_counts_every_record():
         assert len(warnings.events) == 50
     finally:
         log.removeHandler(warnings)
+
+
+def test_the_daemon_limits_its_warnings_log_at_the_configs_interval(tmp_path):
+    import dataclasses
+
+    from headctl.config.head import LoggingConfig
+    from headctl.service.daemon import Daemon
+    from tests.conftest import sim_head_config
+
+    clock = ManualClock()
+    config = sim_head_config(tmp_path / "state")
+    config = dataclasses.replace(config, logging=LoggingConfig(repeat_summary_s=3.0))
+    limiter = Daemon(config, clock).parts.warnings.limiter
+    assert limiter.interval_s == 3.0 and limiter.clock is clock
