@@ -48,3 +48,37 @@ class ManualClock:
 
 
 SYSTEM_CLOCK = MonotonicClock()
+
+
+class Backoff:
+    """Bounded exponential back-off for a loop that waits on a failed part: `failed()` gives
+    the wait before the next attempt (`first_s`, then doubling up to `max_s`), `reset()` after
+    an attempt that worked. It holds no time itself: the loop waits on its own event (so that
+    `stop()` cuts the wait short) or on its clock."""
+
+    def __init__(self, first_s: float, max_s: float, factor: float = 2.0) -> None:
+        if not 0.0 < first_s <= max_s:
+            raise ValueError(f"back-off: first_s {first_s!r} and max_s {max_s!r} must satisfy 0 < first_s <= max_s")
+        if factor < 1.0:
+            raise ValueError(f"back-off: factor {factor!r} must be at least 1")
+        self.first_s = first_s
+        self.max_s = max_s
+        self.factor = factor
+        self.failures = 0  # since the last reset
+        self._next_s = first_s
+
+    @property
+    def delay_s(self) -> float:
+        """The wait the next failure will get."""
+        return self._next_s
+
+    def failed(self) -> float:
+        """One more failure: the wait before the next attempt."""
+        delay_s = self._next_s
+        self.failures += 1
+        self._next_s = min(self._next_s * self.factor, self.max_s)
+        return delay_s
+
+    def reset(self) -> None:
+        self.failures = 0
+        self._next_s = self.first_s

@@ -307,7 +307,11 @@ class Camera(Device):
     # -- the capture loop (runs on the CaptureThread) -------------------------------------
     def _capture_loop(self, stop: threading.Event) -> None:
         self._stop_event = stop
+        # A grab that fails at once (a backend erring on every call) is paced: failed grabs
+        # start at least a frame period apart (5 ms without a rate), so the loop never spins.
+        spacing_s = 1.0 / self.config.fps if self.config.fps else 0.005
         while not stop.is_set():
+            started_s = time.monotonic()
             try:
                 grab = self._grab(self.config.grab_timeout_s)
             except CameraLostError as err:
@@ -317,6 +321,7 @@ class Camera(Device):
                 continue
             except CameraError as err:  # one bad frame: reported, counted, streaming goes on
                 self._report(err)
+                stop.wait(max(0.0, started_s + spacing_s - time.monotonic()))
                 continue
             except Exception as err:  # a bug or an unknown failure: stop rather than spin
                 self._report(CameraError(f"{self.name}: capture failed: {err!r}"), cause=err)

@@ -1,7 +1,9 @@
 """The `headctl` command line: one entry point, one module per group of subcommands.
 
 Each module in `COMMAND_MODULES` has `register(subparsers)`, which adds its subcommands and
-sets `func(args) -> int` on each. Logging is configured here and only here.
+sets `func(args) -> int` on each. Logging is configured here (a command's config may add a log
+file and set the repeat limit's interval: `headctl.cli.service`): stderr (the journal under
+systemd) behind the repeat limit of `headctl.log_limit`.
 """
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import importlib
 import logging
 import sys
 
-from headctl import __version__
+from headctl import __version__, log_limit
 
 COMMAND_MODULES = (
     "headctl.cli.experiment",  # experiment: the paper's experiments on the simulated head
@@ -37,13 +39,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def configure_logging(level: str) -> None:
+    """stderr at `level` behind the repeat limit (a fault's repeats: the first in full, then one
+    summary line per interval); as `logging.basicConfig`, nothing if logging is set up already."""
+    root = logging.getLogger()
+    if root.handlers:
+        return
+    root.setLevel(getattr(logging, level))
+    console = logging.StreamHandler()
+    console.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
+    log_limit.install(console)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=getattr(logging, args.log_level),
-        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s",
-    )
+    configure_logging(args.log_level)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -20,6 +20,7 @@ import time
 from typing import TYPE_CHECKING
 
 from drivers.errors import DriverError
+from headctl import log_limit
 from headctl.config.head import HeadConfig, check_runtime, load_config
 from headctl.errors import ConfigError, HeadctlError
 from headctl.json_types import JSONObject
@@ -176,10 +177,11 @@ def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
     root = logging.getLogger()
     if args.log_level == "INFO":  # the CLI's default: the config decides
         root.setLevel(getattr(logging, config.logging.level))
+    log_limit.configure(config.logging.repeat_summary_s)
     if config.logging.file:
         handler = logging.FileHandler(config.logging.file)
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)-7s %(name)s: %(message)s"))
-        root.addHandler(handler)
+        log_limit.install(handler, config.logging.repeat_summary_s)  # behind the same repeat limit as stderr
 
 
 # --- run -------------------------------------------------------------------------------------

@@ -199,6 +199,9 @@ class ServiceConfig:
 class LoggingConfig:
     level: str = setting("INFO", choices=LOG_LEVELS, expected=" or ".join(LOG_LEVELS))
     file: str | None = None  # also log to this file (besides stderr / the journal)
+    # A message repeated by a fault: the first in full, then one summary line per this interval
+    # (0: every one written); `headctl.log_limit`.
+    repeat_summary_s: float = setting(10.0, lo=0.0, hi=3600.0, expected="a time in seconds from 0 (off) to 3600")
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -43,6 +43,7 @@ from headctl.errors import HeadctlError
 from headctl.service.head import StereoPairSource
 from headctl.service.build import HeadDevices, build_head
 from headctl.service.control import HeadService, ServiceControl
+from headctl.log_limit import RepeatLimiter
 from headctl.service.events import EventHub, EventLog
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
 from headctl.service.servo_io.hardware_faults import HardwareFaults
@@ -86,7 +87,7 @@ class Daemon:
         self.config = config
         self.clock = clock
         hub = EventHub()
-        self.parts = ServiceParts(config=config, clock=clock, hub=hub, warnings=EventLog(),
+        self.parts = ServiceParts(config=config, clock=clock, hub=hub, warnings=EventLog(limiter=RepeatLimiter(config.logging.repeat_summary_s, clock)),
                                   looks=LookQueue(config.api.max_queued_looks), learning=LearningLog(clock),
                                   started_s=clock.monotonic(), hardware=HardwareFaults(hub))
         self.notifier = SystemdNotifier()

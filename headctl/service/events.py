@@ -4,7 +4,8 @@
   published by the service's threads to any number of subscribers (the HTTP event stream),
   each a callback that must not block; the last events are kept so that a client that
   reconnects (SSE `Last-Event-ID`) misses none.
-- `EventLog`: the last warnings and errors of every module, kept for the status.
+- `EventLog`: the last warnings and errors of every module, kept for the status (a bounded
+  list, repeats of one kind limited as in the service's log: `headctl.log_limit`).
 - `plain`: values made JSON-ready (numpy arrays and scalars, NaN as None).
 """
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Callable, TypeAlias, TypedDict
 import numpy as np
 
 from headctl.json_types import JSON, JSONObject
+from headctl.log_limit import RepeatLimiter
 
 log = logging.getLogger(__name__)
 
@@ -115,18 +117,22 @@ def plain(value: object, digits: int | None = 4) -> JSON:
 class EventLog(logging.Handler):
     """The last warnings and errors of every module (bus down, hardware errors, reboots, camera
     faults), kept for `headctl status`: what the drivers recover from by themselves is still
-    reported."""
+    reported. A fault that repeats is kept once, then once per `limiter`'s interval with the
+    count (`headctl.log_limit`), so it cannot push every other warning out; `counts` counts
+    every record."""
 
-    def __init__(self, size: int = 50) -> None:
+    def __init__(self, size: int = 50, limiter: RepeatLimiter | None = None) -> None:
         super().__init__(level=logging.WARNING)
         self.events: collections.deque[LogEntry] = collections.deque(maxlen=size)
         self.counts: collections.Counter[str] = collections.Counter()
+        self.limiter = limiter if limiter is not None else RepeatLimiter()
 
     def emit(self, record: logging.LogRecord) -> None:
-        try:
-            message = record.getMessage()
-        except Exception:  # a bad format string must not break logging
-            message = str(record.msg)
         self.counts[record.levelname] += 1
-        self.events.append({"time": record.created, "level": record.levelname, "logger": record.name,
-                            "message": message})
+        for kept in self.limiter.admit(record):
+            try:
+                message = kept.getMessage()
+            except Exception:  # a bad format string must not break logging
+                message = str(kept.msg)
+            self.events.append({"time": kept.created, "level": kept.levelname, "logger": kept.name,
+                                "message": message})

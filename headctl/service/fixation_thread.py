@@ -2,7 +2,10 @@
 
 Each fixation is `calib_free.gaze.fixation.FixationController.fixate()` on the service's `Head`;
 taught ones go to the map adapter (the controller submits them). The thread is paused while
-the servo bus is down or torque is off. `Interrupt` is what the head calls before every bus
+the servo bus is down or torque is off, and backs off while fixations keep failing on a part
+that has failed (`PART_FAILURES`: the bus gone, a servo faulted, no frames): 0.05 s doubling to
+1 s between attempts, reset by the first fixation that got past them, so a dead servo loop
+costs about one attempt a second instead of thousands. `Interrupt` is what the head calls before every bus
 access and frame wait: it stops the fixation in progress when the service stops (for good)
 or when a client cancels the look in progress (that look only). `HeadEvents` turns what the
 head tells into events and figures (phase, saccade onset and end, vergence latency).
@@ -21,7 +24,7 @@ from calib_free.gaze.look import LookController
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome,
                                  FixationRecord, HeadTimeoutError)
 from calib_free.gaze.pursuit import TrackOutcome
-from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.clock import SYSTEM_CLOCK, Backoff, Clock
 from drivers.errors import DriverError
 from headctl.service.head import Head
 from headctl.service.events import EventHub, plain
@@ -81,6 +84,14 @@ class HeadEvents:
         self.vergence_latency_s.append(frame_to_command_s)
 
 
+# Fixations that ended on a part that failed rather than on what the eyes saw: the next
+# attempt waits (`FixationThread.backoff`), since it would most likely fail the same way.
+PART_FAILURES = frozenset({FixationOutcome.BUS_DOWN, FixationOutcome.SERVO_FAULT, FixationOutcome.NO_FRAMES})
+BACKOFF_FIRST_S = 0.05
+BACKOFF_MAX_S = 1.0  # a part that answers again is used at most this late
+WAIT_SLICE_S = 0.05  # how soon a wait notices stop() (a look wakes it at once)
+
+
 class FixationCounts(TypedDict):
     done: int
     taught: int
@@ -116,6 +127,7 @@ class FixationThread(threading.Thread):
         self.looker = LookController(controller, on_fixation=self._count)
         # Smooth pursuit (`headctl.service.tracking`); without it, a track fails saying so.
         self.tracking = tracking
+        self.backoff = Backoff(BACKOFF_FIRST_S, BACKOFF_MAX_S)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self.abort.set()
@@ -147,14 +159,26 @@ class FixationThread(threading.Thread):
                         wait_s = min(wait_s, next_explore_s - now)
                     self.looks.wait_for_work(max(wait_s, 0.001))  # a look wakes it at once
                     continue
-                self._fixate(None)
+                record = self._fixate(None)
                 next_explore_s = now + self.min_interval_s
+                if record.outcome in PART_FAILURES:
+                    self._wait(self.backoff.failed())
+                else:
+                    self.backoff.reset()
         except Exception as err:  # reported through the status, never lost
             self.error = err
             log.exception("%s: the fixation controller failed", self.name)
         finally:
             self.head.set_phase("stopped")
             self.looks.cancel_all("the fixation controller stopped")
+
+    def _wait(self, wait_s: float) -> None:
+        """Wait `wait_s` before the next exploratory fixation; a look or stop() ends it sooner."""
+        deadline_s = self.clock.monotonic() + wait_s
+        while not self.abort.is_set():
+            remaining_s = deadline_s - self.clock.monotonic()
+            if remaining_s <= 0 or self.looks.wait_for_work(min(remaining_s, WAIT_SLICE_S)):
+                return
 
     def _fixate(self, target: np.ndarray | None, reference_pose: np.ndarray | None = None) -> FixationRecord:
         """One fixation, taught or refused (an interrupted one is refused with the reason)."""
@@ -165,7 +189,6 @@ class FixationThread(threading.Thread):
             self.head.set_phase("idle")
         if record.outcome is FixationOutcome.SERVO_FAULT:
             log.warning("fixation aborted: %s", record.detail)
-            self.abort.wait(0.2)
         elif record.outcome in (FixationOutcome.BUS_DOWN, FixationOutcome.CANCELLED):
             log.info("fixation aborted: %s", record.detail)
         self._count(record)

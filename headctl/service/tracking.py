@@ -26,7 +26,7 @@ import numpy as np
 from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError
 from headctl.service.head import joints_of
 from calib_free.gaze.pursuit import MapReader, PoseHistory, Pursuit, PursuitParams, PursuitStep, TrackOutcome
-from drivers.clock import SYSTEM_CLOCK, Clock
+from drivers.clock import SYSTEM_CLOCK, Backoff, Clock
 from drivers.errors import DriverError
 from headctl.errors import ServoLoopStoppedError
 from headctl.service.head import Head, JointBus
@@ -63,12 +63,15 @@ class ServoPoses(threading.Thread):
         self._stop_event = threading.Event()
 
     def run(self) -> None:
+        backoff = Backoff(0.01, 0.25)
         while not self._stop_event.is_set():
             try:
                 state = self.bus.read_state()
             except (DriverError, ServoLoopStoppedError, TimeoutError):
-                self._stop_event.wait(0.01)  # the bus down: no pose, so no command (at() gives None)
+                # The bus down or the loop gone: no pose, so no command (at() gives None).
+                self._stop_event.wait(backoff.failed())
                 continue
+            backoff.reset()
             self.history.add(state.time_s, self.pose_from(state.positions))
 
     def at(self, time_s: float, wait_s: float = 0.03) -> np.ndarray | None:

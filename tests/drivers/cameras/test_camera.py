@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -206,3 +207,17 @@ def test_a_fault_repeating_every_frame_does_not_flood_the_log(caplog):
         "cam0: incomplete buffer (repeated 100 times)",
         "cam0: incomplete buffer (repeated 200 times)",
     ]
+
+
+def test_grabs_that_fail_at_once_are_paced_at_the_frame_rate():
+    cam, errors = scripted(fps=50.0)  # failed grabs at least 20 ms apart
+    with cam:
+        cam.enable()
+        started = time.monotonic()
+        for _ in range(20):
+            cam.script.put(CameraError("cam0: cannot read a frame from clip.avi"))
+        cam.script.put(7)
+        cam.wait_frame(after_s=6.0, timeout_s=5)
+        elapsed = time.monotonic() - started
+    assert len(errors) == 20
+    assert elapsed >= 0.95 * 20 * 0.02  # not a spin: the last error waited its period before the frame
