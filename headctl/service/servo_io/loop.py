@@ -181,6 +181,11 @@ class ServoLoop(threading.Thread):
         self.last_cycle_s = self.clock.monotonic()
 
     # -- what the controller calls (through LoopBus) ----------------------------------------
+    @property
+    def power_losses(self) -> int:
+        """Times the bus found its servos had lost power and initialised them again."""
+        return self.bus.power_losses
+
     def touch(self) -> None:
         self._last_input_s = self.clock.monotonic()
 
@@ -375,6 +380,11 @@ class ServoLoop(threading.Thread):
             self._fail_requests(err)
             return
         self.last_read_s = self.clock.monotonic()
+        if self.torque_enabled and not self.bus.is_enabled:  # servo_bus.power_loss_torque: off
+            log.warning("%s: torque off after a power loss; goals dropped until torque is switched on", self.name)
+            self.torque_enabled = False
+            with self._cond:
+                self._goals = {}
         if self.down_reason is not None:
             log.warning("%s: servo bus back; motion resumes", self.name)
             self.down_reason = None
@@ -497,7 +507,7 @@ class ServoLoop(threading.Thread):
         return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
                 "long_periods": self.long_periods,
                 "read_errors": self.read_errors, "write_errors": self.write_errors,
-                "bus_down_count": self.bus_down_count, **cached[1]}
+                "bus_down_count": self.bus_down_count, "power_losses": self.power_losses, **cached[1]}
 
 
     # -- what the head sees (headctl.service.head.JointBus) -------------------------------------------
