@@ -170,6 +170,7 @@ class ServoLoop(threading.Thread):
         self.write_errors = 0
         self.bus_down_count = 0
         self.last_read_error = ""
+        self._read_failing = False
         self.torque_enabled = True  # as the daemon enabled the bus; `set_torque` changes it
         self._actions: list[_LoopAction] = []
         self.last_read_s = self.clock.monotonic()
@@ -375,10 +376,15 @@ class ServoLoop(threading.Thread):
         except DriverError as err:  # a failed read: nothing is written on a stale state
             self.read_errors += 1
             self.last_read_error = str(err)
+            tell = not self._read_failing or self.read_errors % 100 == 1
+            self._read_failing = True
             if self.read_errors % 100 == 1:  # at 100 Hz a persistent fault would drown the log
                 log.warning("%s: read failed (%d so far): %s", self.name, self.read_errors, err)
             self._fail_requests(err)
+            if tell:  # the reason, for the status (across the process boundary too), not every cycle
+                self._fault_changed()
             return
+        self._read_failing = False
         self.last_read_s = self.clock.monotonic()
         if self.torque_enabled and not self.bus.is_enabled:  # servo_bus.power_loss_torque: off
             log.warning("%s: torque off after a power loss; goals dropped until torque is switched on", self.name)

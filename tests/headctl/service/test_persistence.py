@@ -2,6 +2,7 @@
 time (headctl.service.persistence)."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import io
@@ -209,6 +210,19 @@ def _learn(adapter, count):
     assert adapter.wait_idle(10)
 
 
+@contextlib.contextmanager
+def _checkpointing(tmp_path, every, interval_s=30.0):
+    """(config, clock, adapter, checkpointer): a map adapting on its thread, checkpointed after
+    each adaptation on a manual clock."""
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, config.map_path, every=every, clock=clock, interval_s=interval_s)
+        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+        yield config, clock, adapter, cp
+
+
 def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
     config = _config(tmp_path)
     clock = ManualClock()
@@ -232,12 +246,7 @@ def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
 
 
 def test_the_count_and_the_time_whichever_comes_first(tmp_path):
-    config = _config(tmp_path)
-    clock = ManualClock()
-    gm, _, _ = restore_map(config)
-    with MapAdapter(gm) as adapter:
-        cp = Checkpointer(adapter, config.map_path, every=4, clock=clock, interval_s=30.0)
-        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+    with _checkpointing(tmp_path, every=4) as (config, clock, adapter, cp):
         _learn(adapter, 6)
         assert cp.count == 1 and cp.last_adaptations == 4  # by count, at 4
         clock.advance(30.0)
@@ -247,12 +256,7 @@ def test_the_count_and_the_time_whichever_comes_first(tmp_path):
 
 
 def test_an_interval_of_0_checkpoints_by_count_only(tmp_path):
-    config = _config(tmp_path)
-    clock = ManualClock()
-    gm, _, _ = restore_map(config)
-    with MapAdapter(gm) as adapter:
-        cp = Checkpointer(adapter, config.map_path, every=50, clock=clock, interval_s=0.0)
-        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+    with _checkpointing(tmp_path, every=50, interval_s=0.0) as (config, clock, adapter, cp):
         _learn(adapter, 3)
         clock.advance(1e6)
         assert cp.changed() and not cp.due() and not cp.maybe_on_time() and cp.count == 0
@@ -323,12 +327,7 @@ class _FullFile:
 
 @pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS], ids=["full", "read-only"])
 def test_checkpoints_fail_naming_the_directory_keep_the_last_good_one_and_resume(tmp_path, monkeypatch, code):
-    config = _config(tmp_path)
-    clock = ManualClock()
-    gm, _, _ = restore_map(config)
-    with MapAdapter(gm) as adapter:
-        cp = Checkpointer(adapter, config.map_path, every=2, clock=clock, interval_s=30.0)
-        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+    with _checkpointing(tmp_path, every=2) as (config, clock, adapter, cp):
         _learn(adapter, 2)
         assert cp.count == 1 and read_map(config.map_path).adaptations == 2
         good = config.map_path.read_bytes()

@@ -1,6 +1,12 @@
-"""The wall clock stepped (NTP, a person setting the date) while the service runs: control
-timing is on the monotonic clock, so nothing stalls and nothing fires early; only the times
-shown to people (events, looks, checkpoints) follow the wall clock."""
+"""Faults a real head meets, on the simulated head while the service runs:
+
+- a brown-out (its servo loop in a process of its own): every servo silent, then back with RAM
+  defaults and an Input Voltage error; reported as a fault while it lasts, healed without a
+  person (settings again, goals := present, torque);
+- the wall clock stepped (NTP, a person setting the date): control timing is on the monotonic
+  clock, so nothing stalls and nothing fires early; only the times shown to people (events,
+  looks, checkpoints) follow the wall clock.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -12,11 +18,35 @@ import pytest
 
 from calib_free.map.adapter import Sample
 from calib_free.map.file import write_map
+from headctl.service.control import SimFault
 from headctl.service.daemon import Daemon
 from headctl.service.looks import LookKind, LookRequest, LookState
 from tests.conftest import sim_head_config, wait_until
 
 pytestmark = pytest.mark.timeout(180)
+
+
+def test_a_brown_out_is_reported_while_it_lasts_and_healed_without_a_person(tmp_path):
+    daemon = Daemon(sim_head_config(tmp_path / "state")).start()
+    try:
+        control = daemon.control
+        assert control.inject_fault(SimFault.POWER_LOSS) == "power_loss"
+        fault = wait_until(lambda: control.snapshot().faults.get("servo_reads"), 10, "the failing reads reported")
+        assert "no servo answered (the servos have no power)" in fault
+        assert control.snapshot().as_dict()["state"] == "degraded"
+        control.inject_fault(SimFault.POWER_BACK, bits=0x01)  # back with an Input Voltage error
+        status = wait_until(lambda: (s := control.snapshot().as_dict())["state"] == "running"
+                            and s["servo_loop"]["power_losses"] == 1 and s, 20, "running again")
+        assert all(joint["torque_on"] and not joint["hardware_errors"] for joint in status["joints"].values())
+        assert any("lost power and came back" in event["message"] and "torque restored" in event["message"]
+                   for event in status["events"])
+        look = control.look(LookRequest(LookKind.ANGLES, (3.0, -2.0, 6.0)))
+        wait_until(lambda: look.state.finished, 30, "a look after the brown-out")
+        assert look.state is LookState.DONE, (look.outcome, look.detail)
+        assert control.snapshot().as_dict()["servo_loop"]["power_losses"] == 1
+    finally:
+        daemon.stop()
+
 
 # The wall clock's offset from the real one, in hours, changing every third of a second:
 # forward by hours, back by more than it went forward, and so on.
