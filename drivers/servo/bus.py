@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from drivers import backends
-from drivers.base import Device
+from drivers.base import Device, Lifecycle
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.servo.faults import (
     BY_AUTOMATIC_REBOOT,
@@ -86,6 +86,9 @@ class JointState:
     temperature_c: float
     input_voltage_v: float
     hardware_errors: tuple[str, ...] = ()
+    # The backend found the servo's RAM at its power-on defaults (it lost power and came back
+    # since the bus configured it); the bus then initialises it again (`ServoBus.power_losses`).
+    power_cycled: bool = False
 
 
 @dataclass(frozen=True)
@@ -165,6 +168,8 @@ class ServoBus(Device, abc.ABC):
         self._episodes = EpisodeRecorder(self.fault_log, self.name)
         self._clamping: set[str] = set()
         self._torque_off_pending = False  # disable() failed while the bus was down
+        self.power_losses = 0  # times servos were found to have lost power and come back
+        self.last_power_loss: str | None = None  # what the last one was and what was done
 
     # -- public API ----------------------------------------------------------------------
     @property
@@ -364,24 +369,53 @@ class ServoBus(Device, abc.ABC):
         else:
             verdicts = {joint: REPORTED for joint in faults}
         self._record_episodes(state, now_s, verdicts)
-        acted = False
+        # A servo whose RAM is back at its defaults, or whose torque is off without a hardware
+        # error while the bus is enabled, lost power and came back (a brown-out): initialised
+        # again before any reboot, so that the torque policy holds for the reboots too.
+        lost = [j for j, s in state.joints.items()
+                if s.power_cycled or (self.is_enabled and not s.torque_on and j not in self._faults)]
+        acted = bool(lost)
+        if lost:
+            self._io(functools.partial(self._power_back, lost))
         for joint, verdict in verdicts.items():
             if verdict == REBOOTING:
                 self._io(functools.partial(self._auto_reboot, joint, faults[joint].reason))
-                acted = True
-        if self.is_enabled:
-            # Torque found off without a hardware error: the servo lost power and came
-            # back. Restore it the safe way (positions read back first).
-            lost = [j for j, s in state.joints.items() if not s.torque_on and j not in self._faults]
-            if lost:
-                log.warning("%s: torque found off on %s; restoring it", self.name, ", ".join(lost))
-                self._io(lambda: self._restore_torque(lost))
                 acted = True
         if acted:
             state = self._io(self._read_state_once)
             self._note_faults(state)
             self._record_episodes(state, self.clock.monotonic(), {})
         return state
+
+    def _power_back(self, joints: list[str]) -> None:
+        """Servos that lost power and came back: their settings written again (`_configure`),
+        their goals := the positions read back (no jump), torque as `power_loss_torque` says
+        when the bus is enabled (`off`: torque off on every joint and the bus no longer
+        enabled, for a person to enable again)."""
+        self._configure(joints)
+        restore = self.is_enabled and self.config.power_loss_torque == "restore"
+        if restore:
+            refused = []
+            for joint in joints:  # one at a time: a servo in shutdown refuses, the others go on
+                try:
+                    self._restore_torque([joint])
+                except ServoHardwareError as err:
+                    refused.append(joint)
+                    log.warning("%s", err)
+            torque = "torque restored" + (f" except on {', '.join(refused)} (hardware error)" if refused else "")
+        else:
+            present = self._read_servos()
+            self._write_servo_goals({j: present[j].position for j in joints})
+            torque = "torque left off"
+            if self.is_enabled:
+                self._set_torque(JOINTS, False)
+                self._state = Lifecycle.OPEN
+                torque = "torque off on every joint (servo_bus.power_loss_torque: off): enable it again by hand"
+        self.power_losses += 1
+        self.last_power_loss = (f"{', '.join(self.describe(j) for j in joints)}: lost power and came back "
+                                f"(RAM at its defaults): settings written again, goals := present positions, "
+                                f"{torque}")
+        log.warning("%s: %s", self.name, self.last_power_loss)
 
     def _record_episodes(self, state: BusState, now_s: float, verdicts: Mapping[str, str]) -> None:
         """Open, update and close the joints' episodes in `fault_log` from a state just read.

@@ -4,8 +4,9 @@ This module owns `ProfileAxis`, the motion model shared with the Dynamixel emula
 trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
 velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
 backend built on it. The simulated head and the daemon use it; its fault-injection hooks
-(`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`) let their tests exercise the
-recovery paths of `drivers.servo.bus` without hardware.
+(`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`, and a
+brown-out: `inject_power_loss`, `restore_power`) let their tests exercise the recovery paths of
+`drivers.servo.bus` without hardware.
 
 Which servo turns which joint, which way and from where (`servo_bus.wiring`, else as
 `joints` says) belongs to the simulated world: the bus drives each joint's servo by the id
@@ -188,6 +189,7 @@ class _SimServo:
         self.hardware_error_bits = 0
         self.temperature_c = 35.0
         self.input_voltage_v = 12.0
+        self.ram_defaults = False  # booted since the bus last configured it (a power loss, a reboot)
 
 
 def wiring_of(config: ServoBusConfig) -> dict[int, WiredServo]:
@@ -240,6 +242,8 @@ class SimulatedServoBus(ServoBus):
                                        expected=f"an id on the simulated bus ({', '.join(map(str, sorted(by_id)))})")
         # Each configured joint drives the servo of its id, whichever joint that servo turns.
         self._servos = {joint: by_id[config.joints[joint].servo_id] for joint in JOINTS}
+        self._by_id = by_id
+        self._unpowered = False  # a brown-out: every servo silent until `restore_power()`
         self._wired = {wired.joint: by_id[servo_id] for servo_id, wired in self._wiring.items()}
         self._wired_as = {wired.joint: wired for wired in self._wiring.values()}
         # Guards the simulated hardware: fault hooks are called from test or daemon threads.
@@ -296,6 +300,36 @@ class SimulatedServoBus(ServoBus):
         for joint in joints:
             if joint in self._absent:
                 raise ServoTimeoutError(f"{self.describe(joint)}: no reply (the simulated servo is off the bus)")
+    def inject_power_loss(self) -> None:
+        """Every servo loses power (a brown-out): torque off where it is, and no answer to any
+        packet (reads time out) until `restore_power()`."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            for servo in self._by_id.values():
+                servo.axis.advance_to(now)
+                servo.axis.hold()
+                servo.torque_on = False
+            self._unpowered = True
+            self._sample(now, change=True)
+        log.info("%s: injected fault: the servos lost power", self.name)
+
+    def restore_power(self, bits: int = 0) -> None:
+        """Power is back: every servo boots with its RAM defaults (torque off, Goal Position :=
+        present, profiles unlimited) and Hardware Error Status `bits` (0x01: the input voltage
+        error a brown-out may leave)."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            for servo in self._by_id.values():
+                servo.axis.advance_to(now)
+                servo.axis.hold()
+                servo.goal_deg = servo.axis.position
+                servo.axis.max_velocity = self.max_velocity_dps
+                servo.axis.max_acceleration = math.inf
+                servo.hardware_error_bits = bits
+                servo.ram_defaults = True
+            self._unpowered = False
+            self._sample(now, change=True)
+        log.info("%s: injected fault cleared: the servos have power again (hardware error 0x%02x)", self.name, bits)
 
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
@@ -373,6 +407,7 @@ class SimulatedServoBus(ServoBus):
                 servo.axis.advance_to(now)
                 servo.axis.max_velocity = jc.profile_velocity or self.max_velocity_dps
                 servo.axis.max_acceleration = jc.profile_acceleration or math.inf
+                servo.ram_defaults = False
             self._sample(now, change=True)
 
     def _read_servos(self) -> dict[str, JointState]:
@@ -391,6 +426,7 @@ class SimulatedServoBus(ServoBus):
                     hardware_error_bits=servo.hardware_error_bits,
                     temperature_c=servo.temperature_c,
                     input_voltage_v=servo.input_voltage_v,
+                    power_cycled=servo.ram_defaults,
                 )
             return states
 
@@ -440,12 +476,17 @@ class SimulatedServoBus(ServoBus):
             servo.goal_deg = servo.axis.position
             servo.torque_on = False
             servo.hardware_error_bits = 0
+            servo.axis.max_velocity = self.max_velocity_dps  # RAM defaults, until configured
+            servo.axis.max_acceleration = math.inf
+            servo.ram_defaults = True
             self._sample(now, change=True)
 
     def _contact(self) -> float:
         """One packet on the bus: check the link, apply the Bus Watchdog, return now."""
         if not self._linked:
             raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+        if self._unpowered:
+            raise ServoTimeoutError(f"{self.name}: no servo answered (the servos have no power)")
         now = self.clock.monotonic()
         watchdog_s = self.config.watchdog_ms / 1000.0
         if watchdog_s and now - self._last_contact_s > watchdog_s:

@@ -51,6 +51,10 @@ class FaultInjection(Protocol):
 
     def inject_hardware_error(self, joint: str, bits: int) -> None: ...
 
+    def inject_power_loss(self) -> None: ...
+
+    def restore_power(self, bits: int = 0) -> None: ...
+
 
 class _PipeLogHandler(logging.Handler):
     def __init__(self, send: Callable[[Report], None]) -> None:
@@ -259,6 +263,10 @@ def _inject(bus: ServoBus, fault: ServoFault, joint: str | None, bits: int) -> N
         case ServoFault.HARDWARE_ERROR:
             assert joint is not None
             faulty.inject_hardware_error(joint, bits)
+        case ServoFault.POWER_LOSS:
+            faulty.inject_power_loss()
+        case ServoFault.POWER_BACK:
+            faulty.restore_power(bits)
 
 
 def servo_main(config: HeadConfig, inbox: multiprocessing.connection.Connection,

@@ -356,3 +356,9 @@ class ServoLoopProcess:
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         self.inject("hardware_error", joint, bits)
 
+    def inject_power_loss(self) -> None:
+        self.inject("power_loss")
+
+    def restore_power(self, bits: int = 0) -> None:
+        self.inject("power_back", bits=bits)
+
