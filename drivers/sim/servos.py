@@ -1,9 +1,7 @@
 """The simulated servo bus: four servos with a motion model and no serial port at all.
 
-This module owns `ProfileAxis`, the motion model shared with the Dynamixel emulator (a
-trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
-velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
-backend built on it. The simulated head and the daemon use it; its fault-injection hooks
+`SimulatedServoBus` is a first-class `ServoBus` backend on the motion model of
+`drivers.sim.servo_motion`. The simulated head and the daemon use it; its fault-injection hooks
 (`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`, and a
 brown-out: `inject_power_loss`, `restore_power`) let their tests exercise the recovery paths of
 `drivers.servo.bus` without hardware.
@@ -17,10 +15,8 @@ Time comes from an injectable clock, so tests run faster than real time with a
 `drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
 across `open()`/`close()` like real servos do.
 
-Where the joints were at a past time (a simulated frame's exposure, rendered later) comes
-from `JointTrace`: the bus records its servos' motion-model state at every change of course
-(goals, torque, a hold) and at reads into a short ring, and `true_joints_at` replays the motion
-model from it.
+Where the joints were at a past time (a simulated frame's exposure, rendered later): the bus
+records its servos' motion in a `JointTrace`, and `true_joints_at` replays it.
 """
 from __future__ import annotations
 
@@ -38,145 +34,13 @@ from drivers.servo.bus import JointState, ServoBus
 from drivers.servo.config import ServoBusConfig, WiredServo
 from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
+from drivers.sim.servo_motion import JointTrace, ProfileAxis
 
 log = logging.getLogger(__name__)
 
-# Integration step of the motion model: fine enough that a profile ends within a
-# millisecond of the analytic one, coarse enough that a 10 s jump of a ManualClock costs
-# a few thousand steps.
-_STEP_S = 0.001
 # Hardware Error Status bits that cut torque under the X-series default Shutdown (63) = 52:
 # overheating, electrical shock, overload.
 DEFAULT_SHUTDOWN_BITS = 0b0011_0100
-# The trace of the joints' true motion: a row each time the motion changes course (goals
-# written, torque, a hold) and at each read, at least 2 ms apart (a read sooner after the
-# newest row is not kept, a change replaces it), so 128 rows span over a second at the servo
-# loop's 100 Hz, longer than a simulated frame waits for its rendering.
-TRACE_SAMPLES = 128
-_TRACE_SPACING_S = 0.002
-TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
-TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
-# A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
-# loop writes goals every 10 ms, so past rows are a cycle apart).
-_REPLAY_MAX_S = 0.1
-
-
-class ProfileAxis:
-    """One joint moving toward its goal under a velocity and an acceleration limit.
-
-    Unit-agnostic (degrees for the simulator, ticks for the emulator). A limit of
-    `math.inf` means unlimited. Not thread-safe: its owner serialises access.
-    """
-
-    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
-                 max_acceleration: float = math.inf) -> None:
-        self.position = float(position)
-        self.velocity = 0.0
-        self.goal = float(position)
-        self.max_velocity = max_velocity
-        self.max_acceleration = max_acceleration
-        self.time_s = time_s
-
-    @property
-    def moving(self) -> bool:
-        return self.position != self.goal or self.velocity != 0.0
-
-    def set_goal(self, goal: float) -> None:
-        self.goal = float(goal)
-
-    def hold(self) -> None:
-        """Stop where the axis is now (torque off, watchdog, reboot)."""
-        self.goal = self.position
-        self.velocity = 0.0
-
-    def advance_to(self, time_s: float) -> None:
-        """Move the model forward to `time_s` (earlier times are ignored)."""
-        dt_total = time_s - self.time_s
-        if dt_total <= 0.0:
-            return
-        self.time_s = time_s
-        remaining = dt_total
-        while remaining > 0.0 and self.moving:
-            dt = min(_STEP_S, remaining)
-            remaining -= dt
-            self._step(dt)
-
-    def _step(self, dt: float) -> None:
-        distance = self.goal - self.position
-        direction = math.copysign(1.0, distance) if distance else -math.copysign(1.0, self.velocity)
-        accel = self.max_acceleration
-        # The fastest speed from which the axis can still stop at the goal.
-        stop_speed = math.sqrt(2.0 * accel * abs(distance)) if math.isfinite(accel) else math.inf
-        target_v = direction * min(self.max_velocity, stop_speed)
-        if math.isinf(target_v):
-            self.position, self.velocity = self.goal, 0.0
-            return
-        max_dv = accel * dt
-        self.velocity += min(max(target_v - self.velocity, -max_dv), max_dv)
-        new_position = self.position + self.velocity * dt
-        if (self.goal - new_position) * direction <= 0.0:
-            # Reached (or would pass) the goal: settle exactly on it.
-            self.position, self.velocity = self.goal, 0.0
-            return
-        self.position = new_position
-
-
-class JointTrace:
-    """The joints' true motion at past times: rows of the motion model's state (time, then for
-    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
-    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
-    have a NaN time), a ring of the last `size`.
-
-    `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
-    `time_s`: exact as long as every change of course is a row (the bus records one at each);
-    before the oldest row, the oldest position. Not thread-safe: its owner serialises access
-    (a reader in another process copies `rows` under its own lock)."""
-
-    def __init__(self, size: int = TRACE_SAMPLES) -> None:
-        self.rows = np.full((size, TRACE_WIDTH), np.nan)
-        self._next = 0
-
-    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
-            change: bool = False) -> None:
-        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
-        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
-        sample is not kept."""
-        newest = self.rows[(self._next - 1) % len(self.rows)]
-        if time_s - newest[0] < _TRACE_SPACING_S:
-            if not change:
-                return
-            row = newest
-        else:
-            row = self.rows[self._next]
-            self._next = (self._next + 1) % len(self.rows)
-        row[0] = time_s
-        for j, joint in enumerate(JOINTS):
-            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
-
-    def at(self, time_s: float) -> dict[str, float] | None:
-        return joints_at(self.rows, time_s)
-
-
-def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
-    """The joint angles at `time_s` from `JointTrace` rows (in any order); None without a row."""
-    times = rows[:, 0]
-    known = np.isfinite(times)
-    if not known.any():
-        return None
-    before = known & (times <= time_s)
-    if not before.any():  # older than the trace: the oldest position known
-        row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
-        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
-    row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
-    joints = {}
-    for j, joint in enumerate(JOINTS):
-        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
-                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
-        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
-        axis.velocity, axis.goal = float(velocity), float(goal)
-        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
-        joints[joint] = axis.position
-    return joints
 
 
 class _SimServo:

@@ -42,7 +42,7 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, DriverError
 from drivers.servo.bus import BusState, JointState
 from drivers.servo.faults import HardwareErrorEpisode
-from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH, joints_at
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, joints_at
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError, ServoLoopStoppedError, StaleStateError
 from headctl.service.servo_io.child import servo_main

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from drivers.servo.joints import JOINTS
-from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH
 
 HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
                "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state", "power_losses")
