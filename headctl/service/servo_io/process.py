@@ -61,7 +61,7 @@ START_TIMEOUT_S = 60.0  # the child imports numpy and opens the bus
 POLL_S = 0.001  # how often a reader waiting for a fresh state looks at the block
 
 
-def _servo_context() -> multiprocessing.context.BaseContext:
+def _servo_context() -> multiprocessing.context.ForkServerContext | multiprocessing.context.SpawnContext:
     """How children are made: forked from a fork server that imported the child's modules once
     (a clean single-threaded process, not this one), so that a restarted child is ready in tens of
     milliseconds rather than the seconds a fresh interpreter takes to import numpy and the drivers."""
@@ -181,7 +181,6 @@ class ServoLoopProcess:
         simulated = self._shared.values[_H["has_state"]] == 1.0 and self.config.simulated
         positions = {j: self.true_position(j) for j in JOINTS} if simulated else None
         self._spawn(positions if positions and all(np.isfinite(list(positions.values()))) else None)
-        self.error = None
         self.down_reason, self.faults, self.last_read_error = None, {}, ""
         try:
             self.start(timeout_s)
@@ -189,6 +188,7 @@ class ServoLoopProcess:
             self.error = err
             raise
         self.restarts += 1
+        self.error = None  # the fault lasts until the new child cycles
         if self.on_fault_change is not None:
             self.on_fault_change()
         return {"old_pid": old_pid, "exit_code": old_code, "new_pid": self._process.pid}
