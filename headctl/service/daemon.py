@@ -123,6 +123,28 @@ class _AdapterPart:
         return {"adaptations": self.adapter.progress.adaptations}
 
 
+class _ServoThreadPart:
+    """The servo loop as a thread of this process (`service.servo_process: false`, or a test's
+    manual clock) as a `Restartable`: a thread cannot be started twice and the loop's bus is in
+    an unknown state, so each restart fails; its failures run into the give-up rule, and systemd
+    starts the unit again."""
+
+    name = "servo-io"
+    counts = True
+
+    def __init__(self, loop: ServoLoop) -> None:
+        self.loop = loop
+
+    def failure(self) -> str | None:
+        if self.loop.is_alive() or self.loop.stopping:
+            return None
+        return f"servo loop thread died: {self.loop.error!r}"
+
+    def restart(self) -> dict[str, object]:
+        raise HeadctlError("a servo loop thread is not restarted in place (service.servo_process: true makes it "
+                           "a process that is)")
+
+
 class _FrontEndPart:
     """The front end as a `Restartable`: one that stopped serving is closed and made again."""
 
@@ -276,8 +298,7 @@ class Daemon:
         fixation.start()
         stack.callback(self._stop_fixation)
         watched: list[Restartable] = [_FixationPart(parts, make_fixation), _AdapterPart(adapter)]
-        if isinstance(loop, ServoLoopProcess):  # a servo loop thread that died is a bug: see docs/real-head.md
-            watched.insert(0, loop)
+        watched.insert(0, loop if isinstance(loop, ServoLoopProcess) else _ServoThreadPart(loop))
         if self.front_end is not None:
             watched.append(_FrontEndPart(self))
         self.restarts.watch(watched)

@@ -135,3 +135,24 @@ def test_a_dead_fixation_thread_adapter_thread_or_front_end_is_made_again(tmp_pa
         assert daemon.control.snapshot().restarts == {"fixation": 1, "gaze-adapter": 1, "api-server": 1}
         assert not daemon.restarts.gave_up
         wait_until(lambda: not daemon.control.snapshot().faults.get("api"), 5.0, "the api fault cleared")
+
+
+def test_a_dead_servo_loop_thread_is_not_restarted_in_place_and_the_service_gives_up(tmp_path):
+    config = sim_head_config(tmp_path / "state")
+    service = dataclasses.replace(config.service, servo_process=False, restart_limit=1, restart_backoff_s=0.05,
+                                  restart_backoff_max_s=0.1)
+    with Daemon(dataclasses.replace(config, service=service)) as daemon:
+        running, supervisor = daemon.parts.running, daemon._supervisor
+        assert running is not None and supervisor is not None and supervisor.healthy()
+        recorder = Recorder("service_gave_up")
+        daemon.parts.hub.subscribe(recorder)
+        loop = running.loop
+
+        def broken() -> None:
+            raise RuntimeError("bus library crashed")
+
+        loop.step = broken  # type: ignore[method-assign]  # the thread's next cycle raises
+        assert recorder.arrived.wait(5.0), "the service did not give up"
+        assert daemon.stop_requested.is_set() and daemon.exit_code == 3 and not supervisor.healthy()
+        (event,) = recorder.of("service_gave_up")
+        assert "2 failures within 300 s" in event["reason"] and "not restarted in place" in event["reason"]
