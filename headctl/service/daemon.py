@@ -185,10 +185,7 @@ class Daemon:
         self._stack = contextlib.ExitStack()
         self._front_stack = contextlib.ExitStack()  # the front end's own, so that it can be made again
         self._supervisor: Supervisor | None = None
-        service = config.service
-        self.restarts = Restarts(RestartSettings(service.restart_limit, service.restart_window_s,
-                                                 service.restart_backoff_s, service.restart_backoff_max_s),
-                                 clock, on_restart=self._restarted)
+        self.restarts = Restarts(RestartSettings.of(config.service), clock, on_restart=self._restarted)
         self.exit_code = 0  # what `run()` returns: EXIT_GAVE_UP once the service gave up
         self._lifecycle = threading.Lock()
         # The servo loop in a process of its own, unless the config says otherwise or time is

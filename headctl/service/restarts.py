@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Protocol
 
 from drivers.clock import Clock
+from headctl.config.head import ServiceConfig
 
 log = logging.getLogger(__name__)
 
@@ -58,10 +59,15 @@ class Restartable(Protocol):
 class RestartSettings:
     """The `service.restart_*` keys (`headctl.config.head.ServiceConfig`)."""
 
-    limit: int = 5
-    window_s: float = 300.0
-    backoff_s: float = 0.5
-    backoff_max_s: float = 10.0
+    limit: int
+    window_s: float
+    backoff_s: float
+    backoff_max_s: float
+
+    @classmethod
+    def of(cls, service: ServiceConfig) -> "RestartSettings":
+        return cls(service.restart_limit, service.restart_window_s, service.restart_backoff_s,
+                   service.restart_backoff_max_s)
 
 
 @dataclasses.dataclass

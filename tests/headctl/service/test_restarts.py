@@ -146,6 +146,7 @@ def test_the_restart_keys_have_defaults_and_are_checked(tmp_path):
     service = load_config().service
     assert (service.restart_limit, service.restart_window_s, service.restart_backoff_s,
             service.restart_backoff_max_s) == (5, 300.0, 0.5, 10.0)
+    assert RestartSettings.of(service) == RestartSettings(limit=5, window_s=300.0, backoff_s=0.5, backoff_max_s=10.0)
     assert _config_with(tmp_path, restart_limit=2, restart_window_s=60).service.restart_limit == 2
     with pytest.raises(ConfigError, match=r"service\.restart_limit: got 0, expected at least 1"):
         _config_with(tmp_path, restart_limit=0)
