@@ -58,6 +58,10 @@ from headctl.service.servo_io.shared import COUNTERS, HISTORY, TRACE_BASE, Share
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0  # the child imports numpy and opens the bus
+# A restarted child (forked, modules imported) is ready in well under a second; one that is not
+# within this is a failed restart, retried after the next back-off, and the supervisor waiting on
+# it stays well within systemd's watchdog interval.
+RESTART_TIMEOUT_S = 5.0
 POLL_S = 0.001  # how often a reader waiting for a fresh state looks at the block
 
 
@@ -164,7 +168,7 @@ class ServoLoopProcess:
             return f"servo process {self._process.pid} exited (code {self._process.exitcode})"
         return None
 
-    def restart(self, timeout_s: float = START_TIMEOUT_S) -> dict[str, object]:
+    def restart(self, timeout_s: float = RESTART_TIMEOUT_S) -> dict[str, object]:
         """Replace a child that died by a new one: the bus reopened, the servos initialised again,
         the goals set to the present positions (the bus's `enable()`), torque on unless the service
         had switched it off; returns once it is ready (its pid and the old one's exit code), or

@@ -56,7 +56,9 @@ def test_a_killed_servo_process_is_replaced_within_5_s_and_the_service_runs_agai
         assert recorder.arrived.wait(5.0), "no servo_process_restarted event within 5 s"
         left_s = 5.0 - (time.monotonic() - killed_s)
         snap = wait_until(lambda: (s := control.snapshot()).state == "running" and s, left_s, "running again")
-        assert time.monotonic() - killed_s < 5.0
+        healed_s = time.monotonic() - killed_s
+        print(f"kill -9 of the servo process to running again: {healed_s:.2f} s")  # docs/results/service.md
+        assert healed_s < 5.0
         servo = snap.servo_loop or {}
         assert servo["pid"] not in (old_pid, None) and servo["restarts"] == 1 and snap.restarts == {"servo-io": 1}
         (event,) = recorder.of("servo_process_restarted")
