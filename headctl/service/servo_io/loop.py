@@ -295,6 +295,11 @@ class ServoLoop(threading.Thread):
     def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
         self.call(self.torque_switch(on), timeout_s)
 
+    @property
+    def stopping(self) -> bool:
+        """Whether it was asked to stop (a thread that ended then did not fail)."""
+        return self._stop_event.is_set()
+
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop_event.set()
         join_thread(self, timeout_s)
