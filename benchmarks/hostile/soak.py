@@ -49,7 +49,7 @@ from typing import Any
 
 from benchmarks.hostile.soak_faults import FAULTS, Episode, Unsupported
 from benchmarks.support.daemon_process import ROOT, BenchDaemon
-from benchmarks.support.procfs import child_running, sample, trend
+from benchmarks.support.procfs import alive, child_running, sample, trend
 from calib_free.errors import CalibFreeError
 from calib_free.map.file import read_map
 from headctl.api.client import ApiClient, ApiError
@@ -100,6 +100,12 @@ class Daemon(BenchDaemon):
             return None
 
     def servo_pid(self) -> int | None:
+        """The live servo process: the one the status names (it forks from the service's fork
+        server, so it is no child of the service), else a child by its command line."""
+        loop = (self.status() or {}).get("servo_loop") or {}
+        pid = loop.get("pid") if isinstance(loop, dict) else None
+        if isinstance(pid, int) and alive(pid):
+            return pid
         return child_running(self.proc.pid, SERVO_MARKER)
 
 

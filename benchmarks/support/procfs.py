@@ -57,6 +57,15 @@ def command_line(pid: int) -> str:
         return ""
 
 
+def alive(pid: int) -> bool:
+    """Whether process `pid` exists and has not exited (a zombie waiting to be reaped has)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+
+
 def child_running(pid: int, marker: str) -> int | None:
     """The child of `pid` whose command line holds `marker` (the first, by pid), if any."""
     for child in children(pid):
