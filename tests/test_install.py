@@ -95,6 +95,11 @@ def test_the_unit_is_type_notify_with_watchdog_restart_and_an_unprivileged_user(
     assert set(service["SupplementaryGroups"].split()) == {"dialout", "video"}
     assert service["ExecStart"].split()[1:4] == ["run", "--config", "/etc/headctl/%i.yaml"]
     assert service["StateDirectory"] == "headctl/%i"
+    # systemd restarts a unit that gave up (exit 3) or failed, after a pause, within its own rate limit
+    assert float(service["RestartSec"]) >= 1
+    assert int(unit["Unit"]["StartLimitBurst"]) >= 2 and int(unit["Unit"]["StartLimitIntervalSec"]) > 0
+    assert int(unit["Unit"]["StartLimitIntervalSec"]) > int(unit["Unit"]["StartLimitBurst"]) * float(
+        service["RestartSec"])  # the burst fits in the interval: the limit can trip
     for name in EXAMPLES[1:]:  # the real heads keep their state where the unit's StateDirectory is
         assert load_config(ROOT / "configs" / name).state_dir == pathlib.Path("/var/lib/headctl") / name[:-5]
     if shutil.which("systemd-analyze"):  # systemd's own parser, where systemd is installed

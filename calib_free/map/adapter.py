@@ -79,6 +79,17 @@ class MapAdapter:
             if self._thread.is_alive():
                 log.warning("%s did not stop within %.1f s", self._thread.name, timeout_s)
 
+    def is_alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def restart(self) -> "MapAdapter":
+        """A new thread in place of one that died (the queue, the map and the counters kept);
+        nothing when it runs or was stopped."""
+        if self._started and not self._thread.is_alive() and not self._stop.is_set():
+            self._thread = threading.Thread(target=self._run, name=self._thread.name, daemon=True)
+            self._thread.start()
+        return self
+
     def __enter__(self) -> "MapAdapter":
         return self.start()
 

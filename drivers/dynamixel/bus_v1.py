@@ -22,6 +22,7 @@ and configures the servo again. There is no bus watchdog.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import struct
 from collections.abc import Iterable, Mapping
@@ -147,7 +148,9 @@ class Protocol1Bus(DynamixelBusBase):
             if bad:
                 raise ServoCommError(f"{self.describe(bad[0])}: Moving Speed still not as configured after "
                                      "configuring it again")
-        return {joint: self._joint_state(joint, block, error) for joint, (block, error) in blocks.items()}
+        # `ServoBus` initialises the stale ones again (goals := present, torque as its policy says).
+        return {joint: dataclasses.replace(self._joint_state(joint, block, error), power_cycled=joint in stale)
+                for joint, (block, error) in blocks.items()}
 
     def _read_blocks(self) -> dict[str, tuple[P1Block, int]]:
         """Every servo's read block and status error byte: one Bulk Read, or a Read each."""

@@ -24,6 +24,7 @@ The pitfalls of dynamixel-sdk 4.1.0 handled here (the others: `drivers.dynamixel
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import struct
 from collections.abc import Iterable, Mapping
@@ -143,6 +144,9 @@ class DynamixelBus(DynamixelBusBase):
             bad = [j for j, s in states.items() if s is None]
             if bad:
                 raise ServoCommError(f"{self.describe(bad[0])}: sync-read block still inconsistent after reconfiguring")
+            # Its other RAM settings are at their defaults too: `ServoBus` initialises it again.
+            states = {j: dataclasses.replace(s, power_cycled=True) if j in remapped and s is not None else s
+                      for j, s in states.items()}
         return {joint: state for joint, state in states.items() if state is not None}
 
     def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:

@@ -30,22 +30,17 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any, ClassVar, TypeVar
 
 from drivers import backends
-from drivers.base import Device
+from drivers.base import Device, Lifecycle
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.servo.faults import (
-    BY_AUTOMATIC_REBOOT,
-    BY_HAND,
-    BY_ITSELF,
-    HELD_OFF,
     LEFT_TO_A_PERSON,
     REBOOT_FAILED,
     REBOOTED,
     REBOOTING,
     REPORTED,
-    WAITING,
     EpisodeRecorder,
     FaultLog,
-    HardwareErrorEpisode,
+    cleared_detail,
 )
 from drivers.servo.config import ServoBusConfig as ServoBusConfig
 from drivers.servo.joints import JOINTS as JOINTS
@@ -135,6 +130,8 @@ class ServoBus(Device, abc.ABC):
         self._clamping: set[str] = set()
         self._torque_off_pending = False  # disable() failed while the bus was down
         self._missing = MissingServos({j: c.servo_id for j, c in config.joints.items()}, self.name)
+        self.power_losses = 0  # times servos were found to have lost power and come back
+        self.last_power_loss: str | None = None  # what the last one was and what was done
 
     # -- public API ----------------------------------------------------------------------
     @property
@@ -214,21 +211,11 @@ class ServoBus(Device, abc.ABC):
         """Connect, ping each servo, record the silent ones, configure the others."""
         self._connect()
         self._connected = True
-        self._missing.reset()
-        failures: dict[str, ServoCommError] = {}
-        for joint in JOINTS:
-            try:
-                self._probe_servo(joint)
-            except BusDownError:
-                raise
-            except ServoCommError as err:
-                failures[joint] = err
-        if len(failures) == len(JOINTS):
-            self._connected = False  # nothing to leave in a safe state
-            first = next(iter(failures.values()))
-            raise type(first)(f"{self.name}: no servo answered: " + "; ".join(map(str, failures.values())))
-        for joint, failure in failures.items():
-            self._missing.add(joint, failure, self.clock.monotonic(), " at open")
+        try:
+            self._missing.probe_all(JOINTS, self._probe_servo, self.clock.monotonic(), self.name)
+        except ServoCommError:
+            self._connected = False  # no servo answered: nothing to leave in a safe state
+            raise
         self._configure(self.present_joints)
         self._joints_changed()
 
@@ -365,16 +352,8 @@ class ServoBus(Device, abc.ABC):
         """Ping each missing joint whose back-off has passed; one that answers is configured,
         and given goal := present position and torque if the bus is enabled."""
         now_s = self.clock.monotonic()
-        for joint in self._missing.due(now_s):
-            try:
-                self._probe_servo(joint)
-                self._configure([joint])
-            except BusDownError:
-                raise
-            except ServoError as err:
-                self._missing.ping_failed(joint, now_s, err)
-                continue
-            entry, torque = self._missing.found(joint), ""
+        for entry in self._missing.ping_due(now_s, self._probe_and_configure):
+            joint, torque = entry.joint, ""
             try:
                 self._joints_changed()
                 if self.is_enabled:
@@ -386,6 +365,10 @@ class ServoBus(Device, abc.ABC):
                 torque = f"; torque not restored: {err}"
             log.warning("%s: answers again after %.1f s; configured%s", self.describe(joint), now_s - entry.since_s,
                         torque)
+
+    def _probe_and_configure(self, joint: str) -> None:
+        self._probe_servo(joint)
+        self._configure([joint])
 
     def _read_state_once(self) -> BusState:
         start_s = self.clock.monotonic()
@@ -423,24 +406,53 @@ class ServoBus(Device, abc.ABC):
         else:
             verdicts = {joint: REPORTED for joint in faults}
         self._record_episodes(state, now_s, verdicts)
-        acted = False
+        # A servo whose RAM is back at its defaults, or whose torque is off without a hardware
+        # error while the bus is enabled, lost power and came back (a brown-out): initialised
+        # again before any reboot, so that the torque policy holds for the reboots too.
+        lost = [j for j, s in state.joints.items()
+                if s.power_cycled or (self.is_enabled and not s.torque_on and j not in self._faults)]
+        acted = bool(lost)
+        if lost:
+            self._io(functools.partial(self._power_back, lost))
         for joint, verdict in verdicts.items():
             if verdict == REBOOTING:
                 self._io(functools.partial(self._auto_reboot, joint, faults[joint].reason))
-                acted = True
-        if self.is_enabled:
-            # Torque found off without a hardware error: the servo lost power and came
-            # back. Restore it the safe way (positions read back first).
-            lost = [j for j, s in state.joints.items() if not s.torque_on and j not in self._faults]
-            if lost:
-                log.warning("%s: torque found off on %s; restoring it", self.name, ", ".join(lost))
-                self._io(lambda: self._restore_torque(lost))
                 acted = True
         if acted:
             state = self._io(self._read_state_once)
             self._note_faults(state)
             self._record_episodes(state, self.clock.monotonic(), {})
         return state
+
+    def _power_back(self, joints: list[str]) -> None:
+        """Servos that lost power and came back: their settings written again (`_configure`),
+        their goals := the positions read back (no jump), torque as `power_loss_torque` says
+        when the bus is enabled (`off`: torque off on every joint and the bus no longer
+        enabled, for a person to enable again)."""
+        self._configure(joints)
+        restore = self.is_enabled and self.config.power_loss_torque == "restore"
+        if restore:
+            refused = []
+            for joint in joints:  # one at a time: a servo in shutdown refuses, the others go on
+                try:
+                    self._restore_torque([joint])
+                except ServoHardwareError as err:
+                    refused.append(joint)
+                    log.warning("%s", err)
+            torque = "torque restored" + (f" except on {', '.join(refused)} (hardware error)" if refused else "")
+        else:
+            present = self._read_servos()
+            self._write_servo_goals({j: present[j].position for j in joints})
+            torque = "torque left off"
+            if self.is_enabled:
+                self._set_torque(self.present_joints, False)
+                self._state = Lifecycle.OPEN
+                torque = "torque off on every joint (servo_bus.power_loss_torque: off): enable it again by hand"
+        self.power_losses += 1
+        self.last_power_loss = (f"{', '.join(self.describe(j) for j in joints)}: lost power and came back "
+                                f"(RAM at its defaults): settings written again, goals := present positions, "
+                                f"{torque}")
+        log.warning("%s: %s", self.name, self.last_power_loss)
 
     def _record_episodes(self, state: BusState, now_s: float, verdicts: Mapping[str, str]) -> None:
         """Open, update and close the joints' episodes in `fault_log` from a state just read.
@@ -449,7 +461,7 @@ class ServoBus(Device, abc.ABC):
         for joint, joint_state in state.joints.items():
             bits = joint_state.hardware_error_bits
             if not bits:
-                self._episodes.clear(joint, now_s, functools.partial(self._cleared_detail, now_s))
+                self._episodes.clear(joint, now_s, functools.partial(cleared_detail, self.describe, now_s))
                 continue
             verdict = verdicts.get(joint)
             current = self._episodes.current(joint)
@@ -471,25 +483,9 @@ class ServoBus(Device, abc.ABC):
                              + (", torque restored at the position read back" if self.is_enabled else ""))
 
     def _episode_detail(self, joint: str, bits: int, torque_on: bool, recovery: str) -> str:
-        limits = self.recovery.limits
-        what = {
-            REPORTED: "reported (automatic reboot is off: reboot it by hand)",
-            WAITING: f"torque kept; rebooted if it lasts {limits.persist_s:g} s",
-            HELD_OFF: f"back within {limits.holdoff_s:g} s of a reboot; reported, rebooted once that has passed",
-            REBOOTING: "rebooting",
-            REBOOTED: "rebooted, and the error is back",
-            LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
-                              "person (reboot it by hand once the cause is fixed)",
-        }.get(recovery, recovery)
         meanings = "; ".join(self.decode_hardware_error(bits))
-        torque = "torque on" if torque_on else "torque off"
-        return f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), {torque}: {what}"
-
-    def _cleared_detail(self, now_s: float, episode: HardwareErrorEpisode, by: str) -> str:
-        how = {BY_AUTOMATIC_REBOOT: "by an automatic reboot", BY_HAND: "by a reboot by hand",
-               BY_ITSELF: "without a reboot by this bus"}.get(by, by)
-        return (f"{self.describe(episode.joint)}: hardware error 0x{episode.bits:02x} "
-                f"({'; '.join(episode.meanings)}) cleared {how} after {now_s - episode.first_seen_s:.3f} s")
+        return (f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), "
+                f"{'torque on' if torque_on else 'torque off'}: {self.recovery.explain(recovery)}")
 
     def _note_faults(self, state: BusState) -> None:
         self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}

@@ -19,6 +19,9 @@ from drivers.errors import ServoConfigError
 from drivers.servo.joints import JOINTS
 
 LIMIT_POLICIES: tuple[str, ...] = ("clamp", "refuse")
+# What the bus does with torque when its servos lost power and came back (a brown-out):
+# `restore` torque where it was on (goal := present first), or leave it `off` for a person.
+POWER_LOSS_TORQUE: tuple[str, ...] = ("restore", "off")
 
 # Baud rates an X-series servo offers that dynamixel-sdk 4.1.0 also accepts (its
 # whitelist stops at 4 Mbps, so the servo's 4.5 Mbps is out of reach).
@@ -135,6 +138,8 @@ class ServoBusConfig:
     `watchdog_ms` arms the servos' Bus Watchdog while torque is on (0 = off; 20 ms steps):
     a host that falls silent that long stops the head. `latency_timer_ms` is the USB
     adapter's latency timer (the udev rule sets 1 ms); reply timeouts are computed from it.
+    `power_loss_torque` says whether servos that lost power and came back get their torque
+    back (`restore`) or stay limp (`off`); their settings are written again either way.
     `key_path` is where the section was read (`servo_bus`), for messages.
     """
 
@@ -148,6 +153,7 @@ class ServoBusConfig:
     limit_policy: str = setting("clamp", choices=LIMIT_POLICIES)
     reboot_on_hardware_error: bool = True
     torque_on_close: bool = False
+    power_loss_torque: str = setting("restore", choices=POWER_LOSS_TORQUE)
     watchdog_ms: int = setting(0, lo=0, hi=127 * 20, check=lambda ms: ms % 20 == 0,
                                expected="a multiple of 20 in [0, 2540] (the servo counts in 20 ms steps), 0 = off")
     return_delay_us: int = setting(0, lo=0, hi=508, check=lambda us: us % 2 == 0,

@@ -13,11 +13,12 @@ returns a mapping that is replaced, never changed, so any thread may read it.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 
 from drivers.clock import Backoff
+from drivers.errors import BusDownError, ServoCommError, ServoError
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,40 @@ class MissingServos:
         backoff = self._backoff.setdefault(entry.joint, Backoff(self.first_s, self.max_s))
         self._next_ping_s[entry.joint] = now_s + backoff.failed()
         self._failing_since.pop(entry.joint, None)
+
+    def probe_all(self, joints: Sequence[str], probe: Callable[[str], None], now_s: float, name: str) -> None:
+        """Ping each of `joints` (at open): record the silent ones (`probe` raised
+        `ServoCommError`); raise when none answers. Other errors (the port, a servo of the
+        wrong model) propagate."""
+        self.reset()
+        failures: dict[str, ServoCommError] = {}
+        for joint in joints:
+            try:
+                probe(joint)
+            except BusDownError:
+                raise
+            except ServoCommError as err:
+                failures[joint] = err
+        if failures and len(failures) == len(joints):
+            first = next(iter(failures.values()))
+            raise type(first)(f"{name}: no servo answered: " + "; ".join(map(str, failures.values())))
+        for joint, failure in failures.items():
+            self.add(joint, failure, now_s, " at open")
+
+    def ping_due(self, now_s: float, attempt: Callable[[str], None]) -> list[MissingServo]:
+        """`attempt` (ping and configure) each missing joint whose back-off has passed; the
+        ones that answered, forgotten here, as they were recorded."""
+        found = []
+        for joint in self.due(now_s):
+            try:
+                attempt(joint)
+            except BusDownError:
+                raise
+            except ServoError as err:
+                self.ping_failed(joint, now_s, err)
+                continue
+            found.append(self.found(joint))
+        return found
 
     def due(self, now_s: float) -> list[str]:
         """The missing joints whose next ping is due."""

@@ -22,6 +22,9 @@ class JointState:
     temperature_c: float
     input_voltage_v: float
     hardware_errors: tuple[str, ...] = ()
+    # The backend found the servo's RAM at its power-on defaults (it lost power and came back
+    # since the bus configured it); the bus then initialises it again (`ServoBus.power_losses`).
+    power_cycled: bool = False
 
 
 @dataclass(frozen=True)

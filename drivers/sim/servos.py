@@ -1,11 +1,10 @@
 """The simulated servo bus: four servos with a motion model and no serial port at all.
 
-This module owns `ProfileAxis`, the motion model shared with the Dynamixel emulator (a
-trapezoidal velocity profile toward the goal, as an X-series servo in position mode with a
-velocity-based profile runs it), and `SimulatedServoBus`, a first-class `ServoBus`
-backend built on it. The simulated head and the daemon use it; its fault-injection hooks
-(`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`) let their tests exercise the
-recovery paths of `drivers.servo.bus` without hardware.
+`SimulatedServoBus` is a first-class `ServoBus` backend on the motion model of
+`drivers.sim.servo_motion`. The simulated head and the daemon use it; its fault-injection hooks
+(`inject_bus_down`, `restore_bus`, `inject_hardware_error`, `remove_servo`, `add_servo`, and a
+brown-out: `inject_power_loss`, `restore_power`) let their tests exercise the recovery paths of
+`drivers.servo.bus` without hardware.
 
 Which servo turns which joint, which way and from where (`servo_bus.wiring`, else as
 `joints` says) belongs to the simulated world: the bus drives each joint's servo by the id
@@ -16,10 +15,8 @@ Time comes from an injectable clock, so tests run faster than real time with a
 `drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
 across `open()`/`close()` like real servos do.
 
-Where the joints were at a past time (a simulated frame's exposure, rendered later) comes
-from `JointTrace`: the bus records its servos' motion-model state at every change of course
-(goals, torque, a hold) and at reads into a short ring, and `true_joints_at` replays the motion
-model from it.
+Where the joints were at a past time (a simulated frame's exposure, rendered later): the bus
+records its servos' motion in a `JointTrace`, and `true_joints_at` replays it.
 """
 from __future__ import annotations
 
@@ -37,145 +34,13 @@ from drivers.servo.bus import JointState, ServoBus
 from drivers.servo.config import ServoBusConfig, WiredServo
 from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
+from drivers.sim.servo_motion import JointTrace, ProfileAxis
 
 log = logging.getLogger(__name__)
 
-# Integration step of the motion model: fine enough that a profile ends within a
-# millisecond of the analytic one, coarse enough that a 10 s jump of a ManualClock costs
-# a few thousand steps.
-_STEP_S = 0.001
 # Hardware Error Status bits that cut torque under the X-series default Shutdown (63) = 52:
 # overheating, electrical shock, overload.
 DEFAULT_SHUTDOWN_BITS = 0b0011_0100
-# The trace of the joints' true motion: a row each time the motion changes course (goals
-# written, torque, a hold) and at each read, at least 2 ms apart (a read sooner after the
-# newest row is not kept, a change replaces it), so 128 rows span over a second at the servo
-# loop's 100 Hz, longer than a simulated frame waits for its rendering.
-TRACE_SAMPLES = 128
-_TRACE_SPACING_S = 0.002
-TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
-TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
-# A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
-# loop writes goals every 10 ms, so past rows are a cycle apart).
-_REPLAY_MAX_S = 0.1
-
-
-class ProfileAxis:
-    """One joint moving toward its goal under a velocity and an acceleration limit.
-
-    Unit-agnostic (degrees for the simulator, ticks for the emulator). A limit of
-    `math.inf` means unlimited. Not thread-safe: its owner serialises access.
-    """
-
-    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
-                 max_acceleration: float = math.inf) -> None:
-        self.position = float(position)
-        self.velocity = 0.0
-        self.goal = float(position)
-        self.max_velocity = max_velocity
-        self.max_acceleration = max_acceleration
-        self.time_s = time_s
-
-    @property
-    def moving(self) -> bool:
-        return self.position != self.goal or self.velocity != 0.0
-
-    def set_goal(self, goal: float) -> None:
-        self.goal = float(goal)
-
-    def hold(self) -> None:
-        """Stop where the axis is now (torque off, watchdog, reboot)."""
-        self.goal = self.position
-        self.velocity = 0.0
-
-    def advance_to(self, time_s: float) -> None:
-        """Move the model forward to `time_s` (earlier times are ignored)."""
-        dt_total = time_s - self.time_s
-        if dt_total <= 0.0:
-            return
-        self.time_s = time_s
-        remaining = dt_total
-        while remaining > 0.0 and self.moving:
-            dt = min(_STEP_S, remaining)
-            remaining -= dt
-            self._step(dt)
-
-    def _step(self, dt: float) -> None:
-        distance = self.goal - self.position
-        direction = math.copysign(1.0, distance) if distance else -math.copysign(1.0, self.velocity)
-        accel = self.max_acceleration
-        # The fastest speed from which the axis can still stop at the goal.
-        stop_speed = math.sqrt(2.0 * accel * abs(distance)) if math.isfinite(accel) else math.inf
-        target_v = direction * min(self.max_velocity, stop_speed)
-        if math.isinf(target_v):
-            self.position, self.velocity = self.goal, 0.0
-            return
-        max_dv = accel * dt
-        self.velocity += min(max(target_v - self.velocity, -max_dv), max_dv)
-        new_position = self.position + self.velocity * dt
-        if (self.goal - new_position) * direction <= 0.0:
-            # Reached (or would pass) the goal: settle exactly on it.
-            self.position, self.velocity = self.goal, 0.0
-            return
-        self.position = new_position
-
-
-class JointTrace:
-    """The joints' true motion at past times: rows of the motion model's state (time, then for
-    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
-    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
-    have a NaN time), a ring of the last `size`.
-
-    `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
-    `time_s`: exact as long as every change of course is a row (the bus records one at each);
-    before the oldest row, the oldest position. Not thread-safe: its owner serialises access
-    (a reader in another process copies `rows` under its own lock)."""
-
-    def __init__(self, size: int = TRACE_SAMPLES) -> None:
-        self.rows = np.full((size, TRACE_WIDTH), np.nan)
-        self._next = 0
-
-    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
-            change: bool = False) -> None:
-        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
-        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
-        sample is not kept."""
-        newest = self.rows[(self._next - 1) % len(self.rows)]
-        if time_s - newest[0] < _TRACE_SPACING_S:
-            if not change:
-                return
-            row = newest
-        else:
-            row = self.rows[self._next]
-            self._next = (self._next + 1) % len(self.rows)
-        row[0] = time_s
-        for j, joint in enumerate(JOINTS):
-            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
-
-    def at(self, time_s: float) -> dict[str, float] | None:
-        return joints_at(self.rows, time_s)
-
-
-def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
-    """The joint angles at `time_s` from `JointTrace` rows (in any order); None without a row."""
-    times = rows[:, 0]
-    known = np.isfinite(times)
-    if not known.any():
-        return None
-    before = known & (times <= time_s)
-    if not before.any():  # older than the trace: the oldest position known
-        row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
-        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
-    row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
-    joints = {}
-    for j, joint in enumerate(JOINTS):
-        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
-                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
-        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
-        axis.velocity, axis.goal = float(velocity), float(goal)
-        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
-        joints[joint] = axis.position
-    return joints
 
 
 class _SimServo:
@@ -188,6 +53,7 @@ class _SimServo:
         self.hardware_error_bits = 0
         self.temperature_c = 35.0
         self.input_voltage_v = 12.0
+        self.ram_defaults = False  # booted since the bus last configured it (a power loss, a reboot)
 
 
 def wiring_of(config: ServoBusConfig) -> dict[int, WiredServo]:
@@ -240,6 +106,8 @@ class SimulatedServoBus(ServoBus):
                                        expected=f"an id on the simulated bus ({', '.join(map(str, sorted(by_id)))})")
         # Each configured joint drives the servo of its id, whichever joint that servo turns.
         self._servos = {joint: by_id[config.joints[joint].servo_id] for joint in JOINTS}
+        self._by_id = by_id
+        self._unpowered = False  # a brown-out: every servo silent until `restore_power()`
         self._wired = {wired.joint: by_id[servo_id] for servo_id, wired in self._wiring.items()}
         self._wired_as = {wired.joint: wired for wired in self._wiring.values()}
         # Guards the simulated hardware: fault hooks are called from test or daemon threads.
@@ -297,6 +165,37 @@ class SimulatedServoBus(ServoBus):
             if joint in self._absent:
                 err = ServoTimeoutError(f"{self.describe(joint)}: no reply (the simulated servo is off the bus)")
                 raise blaming(err, joint)
+
+    def inject_power_loss(self) -> None:
+        """Every servo loses power (a brown-out): torque off where it is, and no answer to any
+        packet (reads time out) until `restore_power()`."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            for servo in self._by_id.values():
+                servo.axis.advance_to(now)
+                servo.axis.hold()
+                servo.torque_on = False
+            self._unpowered = True
+            self._sample(now, change=True)
+        log.info("%s: injected fault: the servos lost power", self.name)
+
+    def restore_power(self, bits: int = 0) -> None:
+        """Power is back: every servo boots with its RAM defaults (torque off, Goal Position :=
+        present, profiles unlimited) and Hardware Error Status `bits` (0x01: the input voltage
+        error a brown-out may leave)."""
+        with self._sim_lock:
+            now = self.clock.monotonic()
+            for servo in self._by_id.values():
+                servo.axis.advance_to(now)
+                servo.axis.hold()
+                servo.goal_deg = servo.axis.position
+                servo.axis.max_velocity = self.max_velocity_dps
+                servo.axis.max_acceleration = math.inf
+                servo.hardware_error_bits = bits
+                servo.ram_defaults = True
+            self._unpowered = False
+            self._sample(now, change=True)
+        log.info("%s: injected fault cleared: the servos have power again (hardware error 0x%02x)", self.name, bits)
 
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         """Raise Hardware Error Status `bits` on `joint`; shutdown bits cut its torque."""
@@ -378,6 +277,7 @@ class SimulatedServoBus(ServoBus):
                 servo.axis.advance_to(now)
                 servo.axis.max_velocity = jc.profile_velocity or self.max_velocity_dps
                 servo.axis.max_acceleration = jc.profile_acceleration or math.inf
+                servo.ram_defaults = False
             self._sample(now, change=True)
 
     def _read_servos(self) -> dict[str, JointState]:
@@ -393,6 +293,7 @@ class SimulatedServoBus(ServoBus):
                     position=servo.axis.position, velocity=servo.axis.velocity, moving=servo.axis.moving,
                     torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
                     temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
+                    power_cycled=servo.ram_defaults,
                 )
             return states
 
@@ -442,12 +343,17 @@ class SimulatedServoBus(ServoBus):
             servo.goal_deg = servo.axis.position
             servo.torque_on = False
             servo.hardware_error_bits = 0
+            servo.axis.max_velocity = self.max_velocity_dps  # RAM defaults, until configured
+            servo.axis.max_acceleration = math.inf
+            servo.ram_defaults = True
             self._sample(now, change=True)
 
     def _contact(self) -> float:
         """One packet on the bus: check the link, apply the Bus Watchdog, return now."""
         if not self._linked:
             raise BusDownError(f"{self.name}: simulated adapter is unplugged")
+        if self._unpowered:
+            raise ServoTimeoutError(f"{self.name}: no servo answered (the servos have no power)")
         now = self.clock.monotonic()
         watchdog_s = self.config.watchdog_ms / 1000.0
         if watchdog_s and now - self._last_contact_s > watchdog_s:

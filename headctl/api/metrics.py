@@ -77,6 +77,13 @@ class ServiceCollector(Collector):
         for entry in snap.hardware_errors["reboots"]:
             reboots.add_metric([entry["joint"], entry["reason"]], entry["count"])
         yield reboots
+        yield CounterMetricFamily("headctl_servo_process_restarts", "servo processes that died and were replaced",
+                                  snap.restarts.get("servo-io", 0))
+        restarts = CounterMetricFamily("headctl_restarts", "parts of the service restarted after they died, "
+                                       "by part", labels=["part"])
+        for part, count in sorted(snap.restarts.items()):
+            restarts.add_metric([part], count)
+        yield restarts
         yield _gauge("headctl_servo_hardware_errors_open", "hardware-error episodes open now",
                      len(snap.hardware_errors["open"]))
         yield _gauge("headctl_servo_bus_down", "1 while the servo bus is down", float(snap.bus_down))

@@ -190,9 +190,19 @@ class ServiceConfig:
     realtime_priority: int = setting(0, lo=0, hi=99, expected="0 (off) to 99")
     # the servo loop in a process of its own (nothing in the service can stall it); false: a thread
     servo_process: bool = True
+    # supervision (headctl.service.restarts): a part that died is restarted after a back-off
+    # doubling from restart_backoff_s to restart_backoff_max_s; more than restart_limit
+    # failures within restart_window_s and the service exits (3) for systemd to restart it
+    restart_limit: int = setting(5, lo=1, hi=1000, expected="at least 1, at most 1000")
+    restart_window_s: float = setting(300.0, above=0.0, hi=86_400.0, expected="a positive time, at most 86400 s")
+    restart_backoff_s: float = setting(0.5, above=0.0, hi=60.0, expected="a positive time, at most 60 s")
+    restart_backoff_max_s: float = setting(10.0, above=0.0, hi=600.0, expected="a positive time, at most 600 s")
 
     def __post_init__(self) -> None:
         check_settings(self)
+        if self.restart_backoff_max_s < self.restart_backoff_s:
+            raise ConfigError(key_path="restart_backoff_max_s", value=self.restart_backoff_max_s,
+                              expected=f"at least service.restart_backoff_s ({self.restart_backoff_s:g} s)")
 
 
 @dataclass(frozen=True)

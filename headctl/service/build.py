@@ -50,6 +50,10 @@ class SimulatedServos(Protocol):
 
     def restore_bus(self) -> None: ...
 
+    def inject_power_loss(self) -> None: ...
+
+    def restore_power(self, bits: int = 0) -> None: ...
+
     def inject_hardware_error(self, joint: str, bits: int) -> None: ...
 
 
@@ -110,11 +114,13 @@ def sim_head_model(camera: CameraConfig, vergence_range: tuple[float, float] | N
     return HeadModel.default(int(camera.width or 320), int(camera.height or 240), lens=camera.lens, limits=limits)
 
 
-def build_servo_bus(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> ServoBus:
-    """The servo bus the config names (not opened)."""
+def build_servo_bus(config: HeadConfig, clock: Clock = SYSTEM_CLOCK, *,
+                    initial_positions: Mapping[str, float] | None = None) -> ServoBus:
+    """The servo bus the config names (not opened); a simulated one's servos start at
+    `initial_positions` (default `SIM_START_JOINTS`)."""
     resources: dict[str, object] = {}
     if config.simulated:
-        resources["initial_positions"] = SIM_START_JOINTS
+        resources["initial_positions"] = initial_positions or SIM_START_JOINTS
     return create_servo_bus(config.servo_bus, clock=clock, **resources)
 
 

@@ -75,6 +75,10 @@ class SimFault(enum.StrEnum):
     CAMERA_RESUME = "camera_resume"
     CAMERA_UNPLUG = "camera_unplug"  # the device node vanishes: reads and reopens fail
     CAMERA_REPLUG = "camera_replug"  # it is back: the camera reopens with its config
+    # A brown-out: every servo loses power (silent, torque off) until power_back, when they
+    # boot with RAM defaults and Hardware Error Status `bits` (1: input voltage).
+    POWER_LOSS = "power_loss"
+    POWER_BACK = "power_back"
 
 
 class MapAnswer(TypedDict):
@@ -373,6 +377,10 @@ class ServiceControl:
                 raise InvalidRequestError(f"hardware_error needs joint: one of {', '.join(JOINTS)}, got {joint!r}",
                                           "joint")
             world.servos.inject_hardware_error(joint, bits or 0b0010_0000)
+        elif fault is SimFault.POWER_LOSS:
+            world.servos.inject_power_loss()
+        elif fault is SimFault.POWER_BACK:
+            world.servos.restore_power(bits)
         elif camera not in ("left", "right"):
             raise InvalidRequestError(f"{fault} needs camera: left or right, got {camera!r}", "camera")
         elif fault is SimFault.CAMERA_STALL:

@@ -13,7 +13,9 @@
   dashboard): serving `control.ServiceControl` from before the head starts until after it
   stopped;
 - `supervisor` (`supervisor.Supervisor`): systemd's status and watchdog, fault events,
-  stalled cameras.
+  stalled cameras, and restarting the parts that died under one policy (`restarts`): the
+  servo process, the fixation thread, the adapter thread, the front end. Once the service
+  gives up, `run()` stops it and returns `restarts.EXIT_GAVE_UP`.
 
 `stop()` finishes the fixation in progress, saves the map, leaves the servos in the
 configured safe state and closes every device; it is idempotent. `run()` starts, waits for
@@ -22,6 +24,7 @@ SIGTERM/SIGINT (or `request_stop()`), and stops. A `Daemon` is also a context ma
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import sys
 import threading
@@ -50,6 +53,7 @@ from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
 from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
+from headctl.service.restarts import EXIT_GAVE_UP, Restartable, RestartRecord, Restarts, RestartSettings
 from headctl.service.servo_io.loop import ServoIO, ServoLoop
 from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.status import FaultWatcher
@@ -78,6 +82,89 @@ class FrontEnd(Protocol):
 FrontEndFactory = Callable[[HeadService], contextlib.AbstractContextManager[FrontEnd]]
 
 
+class _FixationPart:
+    """The fixation thread as a `Restartable`: a dead one is replaced by a new thread over the
+    same controller, head and look queue, its counts carried over."""
+
+    name = "fixation"
+    counts = True
+
+    def __init__(self, parts: ServiceParts, make: Callable[[], FixationThread]) -> None:
+        self.parts, self.make = parts, make
+
+    def failure(self) -> str | None:
+        running = self.parts.running
+        if running is None or running.fixation.is_alive() or running.fixation.abort.is_set():
+            return None
+        return f"fixation thread died: {running.fixation.error!r}"
+
+    def restart(self) -> dict[str, object]:
+        running = self.parts.running
+        assert running is not None
+        old, new = running.fixation, self.make()
+        new.carry_over(old)
+        new.start()
+        running.fixation = new
+        return {"fixations": new.done}
+
+
+class _AdapterPart:
+    """The adapter thread as a `Restartable` (`MapAdapter.restart`: its queue and map kept)."""
+
+    name = "gaze-adapter"
+    counts = True
+
+    def __init__(self, adapter: MapAdapter) -> None:
+        self.adapter = adapter
+
+    def failure(self) -> str | None:
+        return None if self.adapter.is_alive() else f"adapter thread died: {self.adapter.error!r}"
+
+    def restart(self) -> dict[str, object]:
+        self.adapter.restart()
+        return {"adaptations": self.adapter.progress.adaptations}
+
+
+class _ServoThreadPart:
+    """The servo loop as a thread of this process (`service.servo_process: false`, or a test's
+    manual clock) as a `Restartable`: a thread cannot be started twice and the loop's bus is in
+    an unknown state, so each restart fails; its failures run into the give-up rule, and systemd
+    starts the unit again."""
+
+    name = "servo-io"
+    counts = True
+
+    def __init__(self, loop: ServoLoop) -> None:
+        self.loop = loop
+
+    def failure(self) -> str | None:
+        if self.loop.is_alive() or self.loop.stopping:
+            return None
+        return f"servo loop thread died: {self.loop.error!r}"
+
+    def restart(self) -> dict[str, object]:
+        raise HeadctlError("a servo loop thread is not restarted in place (service.servo_process: true makes it "
+                           "a process that is)")
+
+
+class _FrontEndPart:
+    """The front end as a `Restartable`: one that stopped serving is closed and made again."""
+
+    name = "api-server"
+    counts = True
+
+    def __init__(self, daemon: "Daemon") -> None:
+        self.daemon = daemon
+
+    def failure(self) -> str | None:
+        faults = self.daemon._front_end_faults()
+        return faults.get("api")
+
+    def restart(self) -> dict[str, object]:
+        self.daemon._restart_front_end()
+        return {"url": self.daemon.parts.api_url}
+
+
 class Daemon:
     """The service for one head; see the module docstring. `front_end`: how to make its front
     end (None: the service has none, as with `api.enabled: false`)."""
@@ -98,7 +185,10 @@ class Daemon:
         self.stop_requested = threading.Event()
         self._abort = threading.Event()  # stops the fixation in progress, for good
         self._stack = contextlib.ExitStack()
+        self._front_stack = contextlib.ExitStack()  # the front end's own, so that it can be made again
         self._supervisor: Supervisor | None = None
+        self.restarts = Restarts(RestartSettings.of(config.service), clock, on_restart=self._restarted)
+        self.exit_code = 0  # what `run()` returns: EXIT_GAVE_UP once the service gave up
         self._lifecycle = threading.Lock()
         # The servo loop in a process of its own, unless the config says otherwise or time is
         # not the system's (a test's manual clock cannot cross into another process).
@@ -199,26 +289,63 @@ class Daemon:
         tracking = Tracking(head, adapter, adapter.map.params.disparity_range, cfg.tracking.params,
                             frame_period_s=1.0 / (cfg.cameras.left.fps or 30.0), publish=parts.hub.publish,
                             clock=clock)
-        fixation = FixationThread(controller, head, interrupt, parts.looks, parts.hub, self._paused_reason,
-                                  explore=cfg.fixation.explore, rate_hz=cfg.fixation.rate_hz, clock=clock,
-                                  tracking=tracking)
+        make_fixation = functools.partial(FixationThread, controller, head, interrupt, parts.looks, parts.hub,
+                                          self._paused_reason, explore=cfg.fixation.explore,
+                                          rate_hz=cfg.fixation.rate_hz, clock=clock, tracking=tracking)
+        fixation = make_fixation()
         parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
         fixation.start()
-        stack.callback(fixation.stop)
+        stack.callback(self._stop_fixation)
+        watched: list[Restartable] = [_FixationPart(parts, make_fixation), _AdapterPart(adapter)]
+        watched.insert(0, loop if isinstance(loop, ServoLoopProcess) else _ServoThreadPart(loop))
+        if self.front_end is not None:
+            watched.append(_FrontEndPart(self))
+        self.restarts.watch(watched)
         parts.phase = ServicePhase.RUNNING
-        self._supervisor = Supervisor(parts, self.notifier, self.faults)
+        self._supervisor = Supervisor(parts, self.notifier, self.faults, self.restarts, self._give_up)
         self._supervisor.start()
         log.info("headctl running: %s, state in %s, API %s", cfg.path, cfg.state_dir,
                  parts.api_url or "off (api.enabled: false)")
         self.notifier.notify(ready=1, status=status_line(parts, self.faults.check()))
 
+    def _stop_fixation(self) -> None:
+        if self.parts.running is not None:  # the thread running now (a restart replaces it)
+            self.parts.running.fixation.stop()
+
     def _start_front_end(self, make: FrontEndFactory) -> None:
         """Serve from now on; its URL in the status and in `api_url_path` (for local clients)."""
         cfg = self.config
-        front = self.front_end = self._stack.enter_context(make(self.control))
+        self._stack.callback(lambda: self._front_stack.close())
+        self._serve(make)
+        self._stack.callback(cfg.api_url_path.unlink, missing_ok=True)  # before the front end stops
+
+    def _serve(self, make: FrontEndFactory) -> None:
+        front = self.front_end = self._front_stack.enter_context(make(self.control))
         self.parts.api_url = front.url
-        write_atomically(cfg.api_url_path, front.url + "\n")
-        self._stack.callback(cfg.api_url_path.unlink, missing_ok=True)
+        write_atomically(self.config.api_url_path, front.url + "\n")
+
+    def _restart_front_end(self) -> None:
+        """A new front end in place of one that stopped serving (the supervisor's restart)."""
+        assert self._make_front_end is not None
+        self._front_stack.close()
+        self._front_stack = contextlib.ExitStack()
+        self._serve(self._make_front_end)
+
+    def _restarted(self, record: RestartRecord) -> None:
+        """A part restarted by the supervisor: counted, and told as an event."""
+        self.parts.restarts[record.part] += 1
+        kind = "servo_process_restarted" if record.part == ServoLoopProcess.name else "part_restarted"
+        self.parts.hub.publish(kind, part=record.part, cause=record.cause, restarts=record.restarts,
+                               **record.detail)
+        self.faults.check()
+
+    def _give_up(self, reason: str) -> None:
+        """Too many failures (`restarts`): stop, leaving the servos in the safe state as far as
+        possible, and exit `EXIT_GAVE_UP` for systemd to restart the unit."""
+        self.exit_code = EXIT_GAVE_UP
+        self.parts.hub.publish("service_gave_up", reason=reason, exit_code=EXIT_GAVE_UP)
+        self.notifier.notify(status=f"giving up: {reason}")
+        self.stop_requested.set()
 
     def _fault_changed(self) -> None:
         self.faults.check()  # the servo loop's bus went down or came back, a joint faulted or cleared
@@ -229,6 +356,8 @@ class Daemon:
             return "starting"
         if running.loop.down_reason is not None:
             return "servo bus down"
+        if not running.loop.is_alive():
+            return "servo loop down"
         if not running.loop.torque_enabled:
             return "torque off"
         return None
@@ -309,5 +438,9 @@ class Daemon:
                 pass
         finally:
             self.stop()
-        log.info("headctl stopped")
-        return 0
+        if self.exit_code:
+            log.critical("headctl stopped: it gave up (%s); exit code %d", self.restarts.give_up_reason,
+                         self.exit_code)
+        else:
+            log.info("headctl stopped")
+        return self.exit_code

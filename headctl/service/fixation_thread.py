@@ -133,6 +133,12 @@ class FixationThread(threading.Thread):
         self.abort.set()
         join_thread(self, timeout_s)
 
+    def carry_over(self, old: "FixationThread") -> None:
+        """Take the counts of `old`, the thread this one replaces (not started yet)."""
+        with old._lock:
+            self.done, self.taught, self.refused, self.last = old.done, old.taught, old.refused.copy(), old.last
+        self.landing_errors_px.extend(old.landing_errors_px)
+
     def tracking_status(self) -> TrackFigures | None:
         """The running track's figures (the patch's position, errors, latency), or None."""
         return self.tracking.status() if self.tracking is not None else None

@@ -125,4 +125,5 @@ class ServiceParts:
     map_origin: MapOrigin = dataclasses.field(default_factory=MapOrigin)
     api_url: str | None = None
     camera_restarts: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
+    restarts: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)  # by part (supervisor)
     hardware: HardwareFaults | None = None  # the servos' hardware-error episodes, told as events

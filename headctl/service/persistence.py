@@ -4,15 +4,20 @@ and the lock that allows one daemon per state directory.
 No map file can keep the service from starting: `restore_map` takes the main file, else its
 `.prev`, else a fresh random map, and reports what it refused. `Checkpointer` saves a map
 that changed every `checkpoint_every` adaptations or `checkpoint_interval_s` seconds,
-whichever comes first, so a daemon killed often loses little.
+whichever comes first, so a daemon killed often loses little. A state directory that is full
+or read-only makes checkpoints fail (a fault naming the directory and the errno) while the
+service goes on learning; the last good checkpoint stays as it was, and checkpoints resume by
+themselves once the directory takes writes again.
 """
 from __future__ import annotations
 
+import errno
 import fcntl
 import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from calib_free.map.gaze_map import GazeMap
@@ -99,12 +104,17 @@ class Checkpointer:
     `maybe()` runs on the adapter thread after each adaptation; `maybe_on_time()` is for a
     thread that runs whether or not adaptations come (the supervisor). Both skip a checkpoint
     while one is being written, and both count from the last attempt, so a failing disk is
-    retried at the same pace and not after every adaptation.
+    retried at the same pace and not after every adaptation. A failed save leaves the files as
+    they were (`calib_free.map.file.write_map` is atomic), so the last good checkpoint is never
+    lost; `error` names the directory and the errno until a save succeeds again. `writer` writes
+    one map file (tests give one that fails as a full or read-only disk does).
     """
 
     def __init__(self, adapter: MapAdapter, path: Path, every: int, clock: Clock = SYSTEM_CLOCK,
-                 interval_s: float = 30.0) -> None:
+                 interval_s: float = 30.0, writer: Callable[[GazeMap, Path], None] = write_map) -> None:
         self.adapter = adapter
+        self.writer = writer
+        self.failures = 0  # failed attempts since the last good checkpoint
         self.clock = clock
         self.path = path
         self.every = every
@@ -167,23 +177,37 @@ class Checkpointer:
             gm, adaptations = self.adapter.with_map(self._save_map)
         except OSError as err:
             self._attempt = (self.adapter.map, self.adapter.map.adaptations, started)
-            self.error = f"{self.path}: checkpoint failed: {err}"
+            self.failures += 1
+            self.error = self._failure(err)
             log.error("%s", self.error)
             return False
+        if self.failures:
+            log.warning("gaze map: checkpoints resume in %s after %d failed attempt(s)", self.path.parent,
+                        self.failures)
+            self.failures = 0
         self._saved = (gm, adaptations)
         self._attempt = (gm, adaptations, started)
         self.error = None
         self.count += 1
         self.last_adaptations = adaptations
-        self.last_time_s = time.time()
+        self.last_time_s = time.time()  # wall clock: when, for people; durations use self.clock
         self.last_duration_s = self.clock.monotonic() - started
         log.info("gaze map checkpoint %d: %s (%d adaptations, %.0f ms)", self.count, self.path,
                  adaptations, self.last_duration_s * 1e3)
         return True
 
     def _save_map(self, gm: GazeMap) -> tuple[GazeMap, int]:
-        write_map(gm, self.path)
+        self.writer(gm, self.path)
         return gm, gm.adaptations
+
+    def _failure(self, err: OSError) -> str:
+        """What a failed checkpoint tells: the directory, the errno and what is kept."""
+        code = errno.errorcode.get(err.errno, str(err.errno)) if err.errno is not None else type(err).__name__
+        kept = (f"the last good checkpoint ({self._saved[1]} adaptations) is kept" if self.count or
+                os.path.lexists(self.path) else "no checkpoint saved yet")
+        return (f"state directory {self.path.parent}: checkpoint of {self.path.name} failed: {code} "
+                f"({err.strerror or err}); {kept}; retried every {self.every} adaptations"
+                + (f" or {self.interval_s:g} s" if self.interval_s > 0 else ""))
 
 
 def write_atomically(path: Path, text: str) -> None:

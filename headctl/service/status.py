@@ -138,6 +138,7 @@ class StatusSnapshot:
     warnings: list[LogEntry]  # the last warnings and errors logged
     warning_counts: dict[str, int]
     event_counts: dict[str, int]  # events published, by type
+    restarts: dict[str, int] = dataclasses.field(default_factory=dict)  # by part, done by the supervisor
 
     def as_dict(self) -> JSONObject:
         """The JSON of `GET /api/v1/state` (valid JSON whatever the values: NaN becomes null)."""
@@ -152,7 +153,7 @@ class StatusSnapshot:
             "map": dataclasses.asdict(self.map),
             "cameras": {side: dataclasses.asdict(c) for side, c in self.cameras.items()},
             "hardware_errors": self.hardware_errors,
-            "events": self.warnings, "event_counts": self.warning_counts})
+            "events": self.warnings, "event_counts": self.warning_counts, "restarts": self.restarts})
         return out
 
 
@@ -266,7 +267,7 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
         hardware_errors=parts.hardware.status() if parts.hardware is not None else {"open": [], "ended": [],
                                                                                     "reboots": []},
         warnings=list(parts.warnings.events), warning_counts=dict(parts.warnings.counts),
-        event_counts=dict(parts.hub.counts))
+        event_counts=dict(parts.hub.counts), restarts=dict(parts.restarts))
 
 
 def _fixation_status(parts: ServiceParts) -> FixationStatus:

@@ -1,21 +1,28 @@
-"""The supervisor thread: systemd's STATUS and WATCHDOG, fault events, stalled cameras.
+"""The supervisor thread: systemd's STATUS and WATCHDOG, fault events, restarts, stalled cameras.
 
 Every `interval_s` (a quarter of a second, or a third of systemd's watchdog interval) it
-sends the status line when it changed, pets the watchdog while the servo loop is alive,
-publishes faults as they come and go, and restarts the stream of a camera that failed or has
-sent nothing for `service.camera_stall_s` (the backends reopen a lost device themselves; this
-covers a silent stall and a stream that gave up), at most once per that time per camera.
+sends the status line when it changed, publishes faults as they come and go, restarts the
+parts that died under the service's one restart policy (`restarts.Restarts`), pets the
+watchdog while the servo loop is alive or its restart is scheduled, and restarts the stream
+of a camera that failed or has sent nothing for `service.camera_stall_s` (the backends reopen
+a lost device themselves; this covers a silent stall and a stream that gave up), at most once
+per that time per camera. Once the policy gives up it pets the watchdog no more and calls
+`on_give_up` once (the daemon stops and exits `restarts.EXIT_GAVE_UP`).
 """
 from __future__ import annotations
 
 import logging
 import math
 import threading
+from collections.abc import Callable
+
 from drivers.cameras.camera import StreamHealth
 from drivers.errors import DriverError
 from headctl.service.fixation_thread import FixationCounts
 from headctl.service.parts import ServiceParts
+from headctl.service.restarts import Restarts
 from headctl.service.servo_io.loop import join_thread
+from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.status import FaultWatcher, service_state
 from headctl.service.systemd import SystemdNotifier
 
@@ -35,11 +42,15 @@ def status_line(parts: ServiceParts, faults: dict[str, str]) -> str:
 
 
 class Supervisor(threading.Thread):
-    def __init__(self, parts: ServiceParts, notifier: SystemdNotifier, faults: FaultWatcher) -> None:
+    def __init__(self, parts: ServiceParts, notifier: SystemdNotifier, faults: FaultWatcher,
+                 restarts: Restarts | None = None, on_give_up: Callable[[str], None] | None = None) -> None:
         super().__init__(name="supervisor", daemon=True)
         self.parts = parts
         self.notifier = notifier
         self.faults = faults
+        self.restarts = restarts
+        self.on_give_up = on_give_up
+        self._gave_up = False
         self.clock = parts.clock
         watchdog_s = notifier.watchdog_s
         self.interval_s = min(0.25, watchdog_s / 3) if watchdog_s else 0.25  # faults reach clients this fast
@@ -63,6 +74,13 @@ class Supervisor(threading.Thread):
 
     def tick(self) -> None:
         """One round of supervision (the thread's; a test may call it on a manual clock)."""
+        restarts = self.restarts
+        if restarts is not None:
+            restarts.tick()
+            if restarts.gave_up and not self._gave_up:
+                self._gave_up = True
+                if self.on_give_up is not None:
+                    self.on_give_up(restarts.give_up_reason or "")
         faults = self.faults.check()
         fields: dict[str, str | int] = {}
         now = self.clock.monotonic()
@@ -73,13 +91,22 @@ class Supervisor(threading.Thread):
         running = self.parts.running
         if running is not None:  # a map changed but not adapted since (loaded, reset) is saved on time too
             running.checkpointer.maybe_on_time(now)
-        # Only a live servo loop keeps systemd from restarting the service.
-        if (self.notifier.watchdog_s and running is not None and running.loop.is_alive()
-                and now - running.loop.last_cycle_s < WATCHDOG_LOOP_S):
+        if self.notifier.watchdog_s and self.healthy():
             fields["watchdog"] = 1
         if fields:
             self.notifier.notify(**fields)
         self.watch_cameras()
+
+    def healthy(self) -> bool:
+        """What keeps systemd from restarting the service: a live servo loop, or one whose
+        restart is scheduled; never once the restart policy gave up."""
+        running, restarts = self.parts.running, self.restarts
+        if running is None or (restarts is not None and restarts.gave_up):
+            return False
+        loop = running.loop
+        if loop.is_alive() and self.clock.monotonic() - loop.last_cycle_s < WATCHDOG_LOOP_S:
+            return True
+        return restarts is not None and restarts.pending(ServoLoopProcess.name)
 
     def watch_cameras(self) -> None:
         devices = self.parts.devices

@@ -19,6 +19,9 @@ skipped. A bad command is answered with an error and changes nothing.
                            nothing, as a servo missing at start
     add ID                 ID is back on the bus, just powered up: RAM defaults (torque off),
                            silent while it boots
+    brownout SECONDS [BITS]  every servo loses power: silent for SECONDS (at most 3600), then
+                           back with RAM defaults as after `powercycle`, and Hardware Error
+                           Status BITS if given (`voltage`: the Input Voltage error)
     vanish [SECONDS]       the adapter is unplugged (the pty closes, the link goes); back by
                            itself after SECONDS (real time), else on `reappear`
     reappear               the adapter is back now (a new pty; the link follows it)
@@ -50,12 +53,13 @@ MAX_LINE_BYTES = 1024
 MAX_COUNT = 1_000_000
 MAX_DELAY_S = 10.0  # a reply delay holds the emulator's thread: longer would look like a hang
 MAX_VANISH_S = 3600.0
+MAX_BROWNOUT_S = 3600.0
 
 # Hardware Error Status bits by short name (X-series address 70).
 BIT_NAMES: dict[str, int] = {"voltage": 0x01, "overheating": 0x04, "encoder": 0x08, "shock": 0x10, "overload": 0x20}
 
 USAGE = ("commands: drop ID [N] | corrupt ID [N] | delay ID SECONDS [N] | hwerror ID BITS | powercycle ID | "
-         "remove ID | add ID | vanish [SECONDS] | reappear | clear [ID] | status | help")
+         "remove ID | add ID | brownout SECONDS [BITS] | vanish [SECONDS] | reappear | clear [ID] | status | help")
 
 
 class CommandError(ValueError):
@@ -69,7 +73,8 @@ class EmulatorControl:
         self.emulator = emulator
         self._commands: dict[str, Callable[[list[str]], str]] = {
             "drop": self._drop, "corrupt": self._corrupt, "delay": self._delay, "hwerror": self._hwerror,
-            "powercycle": self._powercycle, "remove": self._remove, "add": self._add, "vanish": self._vanish, "reappear": self._reappear,
+            "powercycle": self._powercycle, "remove": self._remove, "add": self._add, "brownout": self._brownout,
+            "vanish": self._vanish, "reappear": self._reappear,
             "clear": self._clear, "status": self._status, "help": lambda args: self._no_args(args, USAGE),
         }
 
@@ -206,6 +211,13 @@ class EmulatorControl:
         servo_id = self._servo_id(args[0])
         self.emulator.add_servo(servo_id)
         return f"id {servo_id}: back on the bus (RAM defaults, torque off; booting)"
+    def _brownout(self, args: list[str]) -> str:
+        self._arity(args, 1, 2, "brownout SECONDS [BITS]")
+        seconds = self._seconds(args[0], MAX_BROWNOUT_S)
+        bits = self._bits(args[1]) if len(args) > 1 else 0
+        self.emulator.brown_out(seconds, bits)
+        return (f"every servo without power for {seconds:g} s, then back with RAM defaults"
+                + (f" and hardware error 0x{bits:02x}" if bits else ""))
 
     def _vanish(self, args: list[str]) -> str:
         self._arity(args, 0, 1, "vanish [SECONDS]")

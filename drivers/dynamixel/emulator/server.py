@@ -240,6 +240,19 @@ class DxlEmulator:
             servo = self.servos[servo_id]
             self._absent.discard(servo_id)
             servo.reboot(self.clock.monotonic())
+    def brown_out(self, seconds: float, bits: int = 0) -> None:
+        """Every servo loses power for `seconds` (the emulator's clock): silent all that time,
+        then back with RAM defaults (torque off, Goal Position := present, profiles and the
+        indirect map at their defaults) and Hardware Error Status `bits` (0x01: input voltage)."""
+        if not 0.0 <= seconds < float("inf"):
+            raise ValueError(f"brown-out of {seconds} s: expected a finite time >= 0")
+        with self._lock:
+            now = self.clock.monotonic()
+            for servo in self.servos.values():
+                servo.reboot(now)
+                servo.booting_until_s = now + max(seconds, servo.BOOT_TIME_S)
+                if bits:
+                    servo.set_hardware_error(bits)
 
     def clear_faults(self, servo_id: int | None = None) -> None:
         """Cancel the pending dropped, corrupted and delayed replies of `servo_id` (or of all).

@@ -30,7 +30,7 @@ from drivers.dynamixel.tables.v1 import (
     P1Addr,
     P1Model,
 )
-from drivers.sim.servos import ProfileAxis
+from drivers.sim.servo_motion import ProfileAxis
 
 log = logging.getLogger(__name__)
 

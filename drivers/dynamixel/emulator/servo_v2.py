@@ -27,7 +27,8 @@ from drivers.dynamixel.tables.x_series import (
     XAddr,
 )
 from drivers.dynamixel.protocol.v2 import ERR_ACCESS, ERR_DATA_LIMIT, ERR_DATA_RANGE, ERRBIT_ALERT
-from drivers.sim.servos import DEFAULT_SHUTDOWN_BITS, ProfileAxis
+from drivers.sim.servo_motion import ProfileAxis
+from drivers.sim.servos import DEFAULT_SHUTDOWN_BITS
 
 log = logging.getLogger(__name__)
 

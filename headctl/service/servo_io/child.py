@@ -15,7 +15,7 @@ import pickle
 import select
 import struct
 import sys
-from typing import Any, Callable, Protocol, cast
+from typing import Any, Callable, Mapping, Protocol, cast
 
 import numpy as np
 
@@ -51,6 +51,10 @@ class FaultInjection(Protocol):
 
     def inject_hardware_error(self, joint: str, bits: int) -> None: ...
 
+    def inject_power_loss(self) -> None: ...
+
+    def restore_power(self, bits: int = 0) -> None: ...
+
 
 class _PipeLogHandler(logging.Handler):
     def __init__(self, send: Callable[[Report], None]) -> None:
@@ -69,8 +73,10 @@ class _Child:
 
     def __init__(self, config: HeadConfig, inbox: multiprocessing.connection.Connection,
                  outbox: multiprocessing.connection.Connection, state_raw: Any, heartbeat_raw: Any,
-                 periods_raw: Any) -> None:
+                 periods_raw: Any, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
         self.config = config
+        self.enable = enable  # torque on at start (goal := present first); False: as the service had switched it
+        self.initial_positions = initial_positions  # a simulated bus: where its servos are
         self.inbox = inbox
         self.outbox = outbox
         self.shared = SharedState(state_raw)
@@ -122,9 +128,10 @@ class _Child:
         root.setLevel(logging.INFO)
         service = self.config.service
         try:
-            bus = self.bus = build_servo_bus(self.config)
+            bus = self.bus = build_servo_bus(self.config, initial_positions=self.initial_positions)
             bus.open()
-            bus.enable()
+            if self.enable:
+                bus.enable()
         except Exception as err:  # the service raises it again
             self.send(Failed(RemoteError.of(err)))
             self.send(Stopped())
@@ -132,6 +139,7 @@ class _Child:
             return
         loop = self.loop = ServoLoop(bus, service.servo_rate_hz, service.input_timeout_s,
                                      realtime_priority=service.realtime_priority, on_fault_change=self._faults)
+        loop.torque_enabled = self.enable
         loop.before_cycle = self._receive
         loop.after_cycle = self._publish
         self._truth = cast(TrueMotion, bus) if bus.reports_true_motion else None
@@ -259,10 +267,15 @@ def _inject(bus: ServoBus, fault: ServoFault, joint: str | None, bits: int) -> N
         case ServoFault.HARDWARE_ERROR:
             assert joint is not None
             faulty.inject_hardware_error(joint, bits)
+        case ServoFault.POWER_LOSS:
+            faulty.inject_power_loss()
+        case ServoFault.POWER_BACK:
+            faulty.restore_power(bits)
 
 
 def servo_main(config: HeadConfig, inbox: multiprocessing.connection.Connection,
                outbox: multiprocessing.connection.Connection, state_raw: Any, heartbeat_raw: Any,
-               periods_raw: Any) -> None:
-    """The child process's entry point."""
-    _Child(config, inbox, outbox, state_raw, heartbeat_raw, periods_raw).run()
+               periods_raw: Any, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
+    """The child process's entry point; a restarted one gets `enable` (torque on) and, on a
+    simulated bus, the servos' `initial_positions` from the service."""
+    _Child(config, inbox, outbox, state_raw, heartbeat_raw, periods_raw, enable, initial_positions).run()

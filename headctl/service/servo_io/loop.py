@@ -173,6 +173,7 @@ class ServoLoop(threading.Thread):
         self.write_errors = 0
         self.bus_down_count = 0
         self.last_read_error = ""
+        self._read_failing = False
         self.torque_enabled = True  # as the daemon enabled the bus; `set_torque` changes it
         self._actions: list[_LoopAction] = []
         self.last_read_s = self.clock.monotonic()
@@ -184,6 +185,11 @@ class ServoLoop(threading.Thread):
         self.last_cycle_s = self.clock.monotonic()
 
     # -- what the controller calls (through LoopBus) ----------------------------------------
+    @property
+    def power_losses(self) -> int:
+        """Times the bus found its servos had lost power and initialised them again."""
+        return self.bus.power_losses
+
     def touch(self) -> None:
         self._last_input_s = self.clock.monotonic()
 
@@ -289,6 +295,11 @@ class ServoLoop(threading.Thread):
     def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
         self.call(self.torque_switch(on), timeout_s)
 
+    @property
+    def stopping(self) -> bool:
+        """Whether it was asked to stop (a thread that ended then did not fail)."""
+        return self._stop_event.is_set()
+
     def stop(self, timeout_s: float = 2.0) -> None:
         self._stop_event.set()
         join_thread(self, timeout_s)
@@ -373,11 +384,21 @@ class ServoLoop(threading.Thread):
         except DriverError as err:  # a failed read: nothing is written on a stale state
             self.read_errors += 1
             self.last_read_error = str(err)
+            tell = not self._read_failing or self.read_errors % 100 == 1
+            self._read_failing = True
             if self.read_errors % 100 == 1:  # at 100 Hz a persistent fault would drown the log
                 log.warning("%s: read failed (%d so far): %s", self.name, self.read_errors, err)
             self._fail_requests(err)
+            if tell:  # the reason, for the status (across the process boundary too), not every cycle
+                self._fault_changed()
             return
+        self._read_failing = False
         self.last_read_s = self.clock.monotonic()
+        if self.torque_enabled and not self.bus.is_enabled:  # servo_bus.power_loss_torque: off
+            log.warning("%s: torque off after a power loss; goals dropped until torque is switched on", self.name)
+            self.torque_enabled = False
+            with self._cond:
+                self._goals = {}
         if self.down_reason is not None:
             log.warning("%s: servo bus back; motion resumes", self.name)
             self.down_reason = None
@@ -500,7 +521,7 @@ class ServoLoop(threading.Thread):
         return {"rate_hz": round(1.0 / self.period_s, 3), "cycles": self.cycles, "overruns": self.overruns,
                 "long_periods": self.long_periods,
                 "read_errors": self.read_errors, "write_errors": self.write_errors,
-                "bus_down_count": self.bus_down_count, **cached[1]}
+                "bus_down_count": self.bus_down_count, "power_losses": self.power_losses, **cached[1]}
 
 
     # -- what the head sees (headctl.service.head.JointBus) -------------------------------------------

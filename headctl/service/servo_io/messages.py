@@ -68,6 +68,8 @@ class ServoFault(enum.StrEnum):
     BUS_DOWN = "bus_down"
     RESTORE_BUS = "restore_bus"
     HARDWARE_ERROR = "hardware_error"
+    POWER_LOSS = "power_loss"
+    POWER_BACK = "power_back"
 
 
 # --- the service to the child ------------------------------------------------------------------

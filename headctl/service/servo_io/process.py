@@ -30,6 +30,9 @@ import collections
 import itertools
 import logging
 import multiprocessing
+import multiprocessing.connection
+import multiprocessing.context
+import multiprocessing.process
 import threading
 import time
 from typing import Any, Callable, Mapping
@@ -42,7 +45,7 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, DriverError
 from drivers.servo.bus import BusState, JointState
 from drivers.servo.faults import HardwareErrorEpisode
-from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH, joints_at
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, joints_at
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError, ServoLoopStoppedError, StaleStateError
 from headctl.service.servo_io.child import servo_main
@@ -55,7 +58,22 @@ from headctl.service.servo_io.shared import COUNTERS, HISTORY, TRACE_BASE, Share
 log = logging.getLogger(__name__)
 
 START_TIMEOUT_S = 60.0  # the child imports numpy and opens the bus
+# A restarted child (forked, modules imported) is ready in well under a second; one that is not
+# within this is a failed restart, retried after the next back-off, and the supervisor waiting on
+# it stays well within systemd's watchdog interval.
+RESTART_TIMEOUT_S = 5.0
 POLL_S = 0.001  # how often a reader waiting for a fresh state looks at the block
+
+
+def _servo_context() -> multiprocessing.context.ForkServerContext | multiprocessing.context.SpawnContext:
+    """How children are made: forked from a fork server that imported the child's modules once
+    (a clean single-threaded process, not this one), so that a restarted child is ready in tens of
+    milliseconds rather than the seconds a fresh interpreter takes to import numpy and the drivers."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("spawn")
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["headctl.service.servo_io.child", "headctl.service.build"])
+    return context
 
 
 class ServoProcessError(HeadctlError):
@@ -85,7 +103,7 @@ class ServoLoopProcess:
         self.clock = clock
         self.on_fault_change = on_fault_change
         self.period_s = 1.0 / config.service.servo_rate_hz
-        self._context = multiprocessing.get_context("spawn")
+        self._context = _servo_context()
         self._shared = SharedState.create()
         self._heartbeat_raw = self._context.RawArray("d", 1)
         self._heartbeat = np.frombuffer(self._heartbeat_raw, dtype=np.float64)
@@ -94,17 +112,13 @@ class ServoLoopProcess:
         self._periods = np.frombuffer(self._periods_raw, dtype=np.float64)
         self._periods[:] = np.nan  # not yet written
         self._timing_cache: tuple[float, dict[str, float | None]] | None = None
-        child_inbox, self._to_child = self._context.Pipe(duplex=False)
-        self._from_child, child_outbox = self._context.Pipe(duplex=False)
-        self._process = self._context.Process(target=servo_main, name="headctl-servo-io", daemon=True,
-                                              args=(config, child_inbox, child_outbox, self._shared.raw,
-                                                    self._heartbeat_raw, self._periods_raw))
-        self._child_ends = (child_inbox, child_outbox)
         self._send_lock = threading.Lock()
         self._ids = itertools.count(1)
         self._pending: dict[int, _Waiting] = {}
         self._pending_lock = threading.Lock()
-        self._reader = threading.Thread(target=self._read_forever, name="servo-link", daemon=True)
+        self._torque_wanted = True  # what a restarted child leaves the servos in (the last set_torque)
+        self.restarts = 0
+        self._spawn(None)
         self._stopping = False
         self.bus_name = config.servo_bus.port
         # The child's bus decodes hardware error bits; the states read here are decoded alike.
@@ -118,6 +132,78 @@ class ServoLoopProcess:
         self._records_lock = threading.Lock()
 
     # -- lifecycle ------------------------------------------------------------------------------
+    def _spawn(self, initial_positions: Mapping[str, float] | None) -> None:
+        """A new child (not started) with its own pipes, and the thread that reads its messages."""
+        child_inbox, self._to_child = self._context.Pipe(duplex=False)
+        self._from_child, child_outbox = self._context.Pipe(duplex=False)
+        self._process = self._context.Process(
+            target=servo_main, name="headctl-servo-io", daemon=True,
+            args=(self.config, child_inbox, child_outbox, self._shared.raw, self._heartbeat_raw, self._periods_raw),
+            kwargs={"enable": self._torque_wanted, "initial_positions": initial_positions})
+        self._child_ends = (child_inbox, child_outbox)
+        self._reader = threading.Thread(target=self._read_forever, args=(self._from_child, self._process),
+                                        name="servo-link", daemon=True)
+
+    @property
+    def pid(self) -> int | None:
+        """The child's process id (None before it started)."""
+        return self._process.pid
+
+    @property
+    def exitcode(self) -> int | None:
+        """The child's exit code once it exited (negative: killed by that signal), else None."""
+        return self._process.exitcode
+
+    # -- supervision (`headctl.service.restarts.Restartable`) -------------------------------------
+    counts = True  # its deaths count toward the service giving up
+
+    def failure(self) -> str | None:
+        """Why the child is not running (it died, or its restart failed), None while it runs or
+        while it is being stopped."""
+        if self._stopping:
+            return None
+        if self.error is not None:
+            return str(self.error)
+        if self._process.exitcode is not None:
+            return f"servo process {self._process.pid} exited (code {self._process.exitcode})"
+        return None
+
+    def restart(self, timeout_s: float = RESTART_TIMEOUT_S) -> dict[str, object]:
+        """Replace a child that died by a new one: the bus reopened, the servos initialised again,
+        the goals set to the present positions (the bus's `enable()`), torque on unless the service
+        had switched it off; returns once it is ready (its pid and the old one's exit code), or
+        raises its error. The simulated servos start where the dead child's were."""
+        if self._stopping:
+            raise ServoLoopStoppedError(f"{self.name}: stopping; not restarted")
+        old_pid, old_code = self._process.pid, self._process.exitcode
+        self._kill()
+        if self._reader.is_alive():
+            self._reader.join(5.0)
+        for end in (self._to_child, self._from_child):
+            end.close()
+        self._mark_dead()
+        simulated = self._shared.values[_H["has_state"]] == 1.0 and self.config.simulated
+        positions = {j: self.true_position(j) for j in JOINTS} if simulated else None
+        self._spawn(positions if positions and all(np.isfinite(list(positions.values()))) else None)
+        self.down_reason, self.faults, self.last_read_error = None, {}, ""
+        try:
+            self.start(timeout_s)
+        except BaseException as err:
+            self.error = err
+            raise
+        self.restarts += 1
+        self.error = None  # the fault lasts until the new child cycles
+        if self.on_fault_change is not None:
+            self.on_fault_change()
+        return {"old_pid": old_pid, "exit_code": old_code, "new_pid": self._process.pid}
+
+    def _mark_dead(self) -> None:
+        """The block as a dead child left it, readable again: a write its death cut short leaves
+        the sequence odd, on which readers would wait for ever."""
+        values = self._shared.values
+        values[_H["seq"]] += values[_H["seq"]] % 2
+        values[_H["alive"]] = 0.0
+
     def start(self, timeout_s: float = START_TIMEOUT_S) -> "ServoLoopProcess":
         """Start the child; returns once its bus is open and enabled, or raises its error."""
         self._process.start()
@@ -129,7 +215,13 @@ class ServoLoopProcess:
             if remaining <= 0 or not self._from_child.poll(remaining):
                 self._kill()
                 raise ServoProcessError(f"servo process: not ready within {timeout_s:g} s")
-            match self._from_child.recv():
+            try:
+                message = self._from_child.recv()
+            except (EOFError, OSError) as err:
+                self._process.join(5.0)
+                raise ServoProcessError(f"servo process {self._process.pid} exited before it was ready "
+                                        f"(code {self._process.exitcode})") from err
+            match message:
                 case LogRecord() as record:
                     self._relay_log(record)
                 case Failed(error):
@@ -139,6 +231,12 @@ class ServoLoopProcess:
                     self.bus_name = bus_name
                     break
         self._reader.start()
+        while not self.is_alive():  # its first cycle published: commands are taken from now on
+            if time.monotonic() > deadline or self._process.exitcode is not None:
+                self._kill()
+                raise ServoProcessError(f"servo process {self._process.pid}: no cycle within {timeout_s:g} s "
+                                        f"(exit code {self._process.exitcode})")
+            time.sleep(POLL_S)
         return self
 
     def stop(self, timeout_s: float = 5.0, safe_state: str = "hold") -> None:
@@ -167,10 +265,11 @@ class ServoLoopProcess:
         return self._process.is_alive() and not self._stopping and self._value("alive") == 1.0
 
     # -- the child's messages -------------------------------------------------------------------
-    def _read_forever(self) -> None:
+    def _read_forever(self, inbox: multiprocessing.connection.Connection,
+                      process: multiprocessing.process.BaseProcess) -> None:
         while True:
             try:
-                message = self._from_child.recv()
+                message = inbox.recv()
             except (EOFError, OSError):
                 break
             match message:
@@ -194,7 +293,9 @@ class ServoLoopProcess:
                 case Stopped():
                     break
         if not self._stopping:
-            self.error = ServoProcessError(f"servo process exited (code {self._process.exitcode})")
+            process.join(1.0)  # reaped, so that its exit code is known
+            self._mark_dead()
+            self.error = ServoProcessError(f"servo process {process.pid} exited (code {process.exitcode})")
             log.error("%s", self.error)
         with self._pending_lock:
             pending, self._pending = self._pending, {}
@@ -278,6 +379,8 @@ class ServoLoopProcess:
         self.touch()
         if self._value("down") == 1.0:
             raise BusDownError(f"{self.bus_name}: {self.down_reason or 'bus down'}")
+        if not self.is_alive():  # dead, or a new one not cycling yet: nothing queued for it to send later
+            raise ServoLoopStoppedError(f"{self.name}: the servo process is not running")
         sent = self._request(lambda rid: WriteGoals(rid, dict(goals)), timeout_s)
         assert sent is not None
         return sent
@@ -290,6 +393,7 @@ class ServoLoopProcess:
 
     def set_torque(self, on: bool, timeout_s: float = 2.0) -> None:
         self._request(lambda rid: SwitchTorque(rid, on), timeout_s)
+        self._torque_wanted = on
 
     def describe(self, joint: str) -> str:
         return f"joint {joint} (id {self.config.servo_bus.joints[joint].servo_id}) on {self.bus_name}"
@@ -320,7 +424,8 @@ class ServoLoopProcess:
         """Counters, and the period quantiles over the last `HISTORY` cycles (computed here, at
         most every `ServoLoop.TIMING_MAX_AGE_S`)."""
         v = self._shared.read()
-        out: dict[str, Any] = {"rate_hz": round(1.0 / self.period_s, 3)}
+        out: dict[str, Any] = {"rate_hz": round(1.0 / self.period_s, 3), "pid": self._process.pid,
+                               "restarts": self.restarts}
         for name in COUNTERS:
             out[name] = int(v[_H[name]]) if np.isfinite(v[_H[name]]) else 0
         now = self.clock.monotonic()
@@ -355,4 +460,10 @@ class ServoLoopProcess:
 
     def inject_hardware_error(self, joint: str, bits: int) -> None:
         self.inject("hardware_error", joint, bits)
+
+    def inject_power_loss(self) -> None:
+        self.inject("power_loss")
+
+    def restore_power(self, bits: int = 0) -> None:
+        self.inject("power_back", bits=bits)
 

@@ -15,10 +15,10 @@ import time
 import numpy as np
 
 from drivers.servo.joints import JOINTS
-from drivers.sim.servos import TRACE_SAMPLES, TRACE_WIDTH
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH
 
 HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
-               "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state")
+               "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state", "power_losses")
 JOINT_FIELDS = ("position", "velocity", "moving", "torque_on", "hardware_error_bits", "temperature_c",
                 "input_voltage_v", "goal", "true_position")
 _H = {name: i for i, name in enumerate(HEAD_FIELDS)}
@@ -26,7 +26,7 @@ _J = {name: i for i, name in enumerate(JOINT_FIELDS)}
 TRACE_BASE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)
 SIZE = TRACE_BASE + TRACE_SAMPLES * TRACE_WIDTH
 # The loop's counters in the block, by their `ServoLoop` attribute names.
-COUNTERS = ("cycles", "overruns", "long_periods", "read_errors", "write_errors", "bus_down_count")
+COUNTERS = ("cycles", "overruns", "long_periods", "read_errors", "write_errors", "bus_down_count", "power_losses")
 HISTORY = 6000  # periods in the ring beside the block, for the quantiles (as ServoLoop keeps them)
 
 

@@ -10,7 +10,7 @@ import time
 import dynamixel_sdk as sdk
 import pytest
 
-from drivers.dynamixel.tables.x_series import READ_BLOCK_ADDRESSES, XAddr
+from drivers.dynamixel.tables.x_series import DPS_PER_VELOCITY_UNIT, READ_BLOCK_ADDRESSES, XAddr
 from drivers.dynamixel.emulator.server import DxlEmulator
 from drivers.dynamixel.sdk import BlockingPortHandler, port_access_hint
 from drivers.dynamixel.scan import scan
@@ -260,9 +260,55 @@ def test_a_power_cycled_servo_is_configured_again_and_re_torqued(rig, caplog):
         r.advance(0.5)  # it boots
         with caplog.at_level(logging.WARNING):
             state = bus.read_state()
-        assert "indirect mapping lost" in caplog.text and "torque found off" in caplog.text
+        assert "indirect mapping lost" in caplog.text and "lost power and came back" in caplog.text
         assert state["tilt"].torque_on
         assert state["tilt"].position == pytest.approx(10.0, abs=0.1)
+
+
+def test_a_brown_out_is_healed_settings_written_again_goals_at_present_torque_restored(rig, caplog):
+    r = rig()
+    with r.bus as bus:
+        bus.enable()
+        bus.write_goals({"tilt": 10.0, "pan": -5.0})
+        r.advance(2.0)
+        bus.read_state()
+        r.emulator.brown_out(1.0)  # every servo: silent for 1 s, then RAM defaults
+        r.advance(0.3)
+        with pytest.raises(ServoTimeoutError, match="no servo answered"):
+            bus.read_state()
+        r.advance(1.0)
+        with caplog.at_level(logging.WARNING):
+            state = bus.read_state()
+        assert "lost power and came back" in caplog.text and "torque restored" in caplog.text
+        assert bus.power_losses == 1
+        r.emulator.wait_idle()
+        for joint in JOINTS:
+            servo = _servo(r, joint)
+            assert state[joint].torque_on and servo.torque_on
+            # The config's RAM settings again, and the goal where the servo is: no jump.
+            assert servo.get(XAddr.PROFILE_VELOCITY, 4) == round(100 / DPS_PER_VELOCITY_UNIT)
+            assert servo.get(XAddr.PROFILE_ACCELERATION, 4) > 0
+            assert servo.get(XAddr.GOAL_POSITION, 4, signed=True) == servo.get(XAddr.PRESENT_POSITION, 4, signed=True)
+        assert state["tilt"].position == pytest.approx(10.0, abs=0.1)
+        assert state["pan"].position == pytest.approx(-5.0, abs=0.1)
+        bus.write_goals({"tilt": 0.0})
+        r.advance(2.0)
+        assert bus.read_state()["tilt"].position == pytest.approx(0.0, abs=0.1)
+        assert bus.power_losses == 1
+
+
+def test_a_brown_out_with_an_input_voltage_error_is_healed(rig):
+    r = rig()
+    with r.bus as bus:
+        bus.enable()
+        bus.read_state()
+        r.emulator.brown_out(0.5, bits=0x01)
+        r.advance(0.6)
+        bus.read_state()
+        r.advance(1.5)
+        state = bus.read_state()
+        assert not state.faults and all(state[joint].torque_on for joint in JOINTS)
+        assert bus.power_losses == 1
 
 
 def test_reconnecting_uses_a_new_port_handler(rig):

@@ -162,6 +162,24 @@ def test_every_command_through_a_real_socket_answers_one_line_and_acts(served):
     assert _answers(port, 4)
 
 
+def test_a_brown_out_silences_every_servo_then_they_boot_with_ram_defaults(served):
+    emulator, client, port, clock, _server = served
+    packet = sdk.PacketHandler(2.0)
+    assert _retried(port, packet.write4ByteTxRx, 2, XAddr.PROFILE_VELOCITY, 50)[1] == sdk.COMM_SUCCESS
+    assert _retried(port, packet.write1ByteTxRx, 2, XAddr.TORQUE_ENABLE, 1)[0] == sdk.COMM_SUCCESS
+    assert client.ask("brownout 2 voltage") == (
+        "ok every servo without power for 2 s, then back with RAM defaults and hardware error 0x01")
+    assert all(servo["booting"] for servo in client.status()["servos"].values())
+    assert _ping(port, 1) == sdk.COMM_RX_TIMEOUT and _ping(port, 4) == sdk.COMM_RX_TIMEOUT
+    clock.advance(1.0)
+    assert _ping(port, 2) == sdk.COMM_RX_TIMEOUT  # still without power
+    clock.advance(1.5)
+    servos = client.status()["servos"]
+    assert all((s["booting"], s["hardware_error"], s["torque_on"]) == (False, 1, False) for s in servos.values())
+    assert _retried(port, packet.read4ByteTxRx, 2, XAddr.PROFILE_VELOCITY)[0] == 0  # RAM default
+    assert client.ask("brownout 0.5") == "ok every servo without power for 0.5 s, then back with RAM defaults"
+
+
 def test_vanish_for_a_while_then_back_by_itself_and_vanish_until_told(served):
     emulator, client, port, _clock, _server = served
     assert client.ask("vanish 0.2") == "ok port vanished for 0.2 s"
@@ -200,6 +218,9 @@ def test_vanish_for_a_while_then_back_by_itself_and_vanish_until_told(served):
     ("powercycle", "error powercycle: expected powercycle ID"),
     ("remove", "error remove: expected remove ID"),
     ("add 9", "error add: no servo with id 9; ids: 1, 2, 3, 4"),
+    ("brownout", "error brownout: expected brownout SECONDS [BITS]"),
+    ("brownout -1", "error brownout: -1 s: expected 0 to 3600 s"),
+    ("brownout 1 fizz", "error brownout: bits 'fizz': expected a number"),
     ("vanish soon", "error vanish: 'soon' is not a number of seconds"),
     ("vanish inf", "error vanish: inf s: expected 0 to 3600 s"),
     ("reappear now", "error reappear: takes no arguments"),

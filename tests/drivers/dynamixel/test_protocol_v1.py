@@ -19,7 +19,7 @@ from drivers.dynamixel.scan import scan
 from drivers.backends import check_servo_bus_config, servo_bus_backend
 from drivers.dynamixel.factory import create_dynamixel_bus
 from drivers.servo.bus import ServoBus
-from drivers.errors import ServoConfigError, ServoError
+from drivers.errors import ServoConfigError, ServoError, ServoTimeoutError
 from drivers.servo.config import ServoBusConfig
 from tests.support.servo_rigs import IDS, EmulatorRig, config_mapping
 
@@ -134,6 +134,31 @@ def test_a_power_cycled_servo_is_configured_again(tmp_path, caplog):
             r.advance(0.3)
             # Moving Speed is back: 50 deg/s, not the servo's top speed.
             assert bus.read_state()["pan"].velocity == pytest.approx(50.0, rel=0.05)
+    finally:
+        r.close()
+
+
+def test_a_brown_out_of_protocol_1_servos_is_healed_with_torque_restored(tmp_path, caplog):
+    r = EmulatorRig(tmp_path, protocol=1.0, model="MX-28", joints={"pan": {"profile_velocity": 50.0}})
+    try:
+        with r.bus as bus:
+            bus.enable()
+            bus.write_goals({"pan": 20.0})
+            r.advance(2.0)
+            bus.read_state()
+            r.emulator.brown_out(0.5)
+            r.advance(0.2)
+            with pytest.raises(ServoTimeoutError):
+                bus.read_state()
+            r.advance(0.5)
+            with caplog.at_level(logging.WARNING):
+                state = bus.read_state()
+            assert "lost power and came back" in caplog.text and bus.power_losses == 1
+            assert all(state[joint].torque_on for joint in IDS)
+            assert state["pan"].position == pytest.approx(20.0, abs=0.5)  # goal := present: no jump
+            bus.write_goals({"pan": 0.0})
+            r.advance(0.2)
+            assert bus.read_state()["pan"].velocity == pytest.approx(-50.0, rel=0.05)  # Moving Speed again
     finally:
         r.close()
 

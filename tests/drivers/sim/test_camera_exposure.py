@@ -17,7 +17,8 @@ from drivers.servo.config import ServoBusConfig
 from drivers.sim.camera import SimulatedCamera, TimedPoseSource, fixed_pose
 from drivers.sim.motion import MovingObject, moving_scene
 from drivers.sim.scene import Scene
-from drivers.sim.servos import JointTrace, SimulatedServoBus
+from drivers.sim.servo_motion import JointTrace
+from drivers.sim.servos import SimulatedServoBus
 from tests.support.servo_rigs import config_mapping
 
 HEAD = HeadModel.default(160, 120)

@@ -212,3 +212,87 @@ def test_a_servo_off_the_bus_while_running_is_dropped_after_half_a_second_and_ba
         assert state["left_eye"].torque_on  # restored by the bus, at the position read back
         clock.advance(1.0)
         assert bus.true_position("left_eye") == pytest.approx(8.0), "the servo jumped when it came back"
+
+
+# --- a brown-out: every servo loses power and comes back ---------------------------------
+def _brown_out_rig(**bus):
+    clock = ManualClock(100.0)
+    bus_ = SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping(**bus)), clock=clock)
+    bus_.open()
+    bus_.enable()
+    bus_.write_goals({"pan": 20.0, "tilt": -10.0})
+    clock.advance(2.0)
+    bus_.read_state()
+    return clock, bus_
+
+
+def test_a_brown_out_is_silence_then_the_servos_are_initialised_again_without_a_jump(caplog):
+    from drivers.errors import ServoTimeoutError
+    clock, bus = _brown_out_rig()
+    with bus:
+        bus.inject_power_loss()
+        clock.advance(0.5)
+        with pytest.raises(ServoTimeoutError, match="no servo answered"):
+            bus.read_state()
+        resting = {joint: bus.true_position(joint) for joint in ("pan", "tilt")}
+        bus.restore_power()
+        assert all(servo.axis.max_velocity == bus.max_velocity_dps for servo in bus._servos.values())  # RAM defaults
+        with caplog.at_level("WARNING"):
+            state = bus.read_state()
+        assert "lost power and came back" in caplog.text and "torque restored" in caplog.text
+        assert bus.power_losses == 1 and bus.is_enabled
+        assert all(state[joint].torque_on for joint in state.joints)
+        # The settings are the config's again and the goals are where the servos were: no jump.
+        assert all(servo.axis.max_velocity == 100.0 and servo.axis.max_acceleration == 1000.0
+                   for servo in bus._servos.values())
+        clock.advance(1.0)
+        assert bus.read_state()["pan"].position == pytest.approx(resting["pan"], abs=1e-6)
+        assert bus.true_position("tilt") == pytest.approx(resting["tilt"], abs=1e-6)
+        bus.write_goals({"pan": 0.0})  # and it obeys again
+        clock.advance(2.0)
+        assert bus.read_state()["pan"].position == pytest.approx(0.0, abs=1e-6)
+        assert bus.power_losses == 1  # healed once, not on every read
+
+
+def test_a_brown_out_that_leaves_an_input_voltage_error_is_healed_too():
+    clock, bus = _brown_out_rig()
+    with bus:
+        bus.inject_power_loss()
+        clock.advance(0.2)
+        bus.restore_power(bits=0x01)  # Input Voltage error
+        bus.read_state()
+        clock.advance(1.5)  # an error that leaves torque on is rebooted once it lasted 1 s
+        state = bus.read_state()
+        assert not state.faults and all(state[joint].torque_on for joint in state.joints)
+        assert bus.power_losses == 1
+        assert all(servo.axis.max_velocity == 100.0 for servo in bus._servos.values())
+
+
+def test_with_power_loss_torque_off_the_head_stays_limp_until_enabled_by_hand():
+    from drivers.errors import DeviceStateError
+    clock, bus = _brown_out_rig(power_loss_torque="off")
+    with bus:
+        bus.inject_power_loss()
+        clock.advance(0.2)
+        bus.restore_power()
+        state = bus.read_state()
+        assert not bus.is_enabled and not any(state[joint].torque_on for joint in state.joints)
+        assert "torque off on every joint" in (bus.last_power_loss or "")
+        with pytest.raises(DeviceStateError):
+            bus.write_goals({"pan": 0.0})
+        before = state["pan"].position
+        bus.enable()  # goal := present first: no jump
+        clock.advance(1.0)
+        assert bus.read_state()["pan"].position == pytest.approx(before, abs=1e-6)
+
+
+def test_servos_found_at_ram_defaults_on_a_bus_not_enabled_get_their_settings_back():
+    clock = ManualClock(100.0)
+    bus = SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping()), clock=clock)
+    with bus:
+        bus.inject_power_loss()
+        bus.restore_power()
+        state = bus.read_state()
+        assert bus.power_losses == 1 and not bus.is_enabled
+        assert not any(state[joint].torque_on for joint in state.joints)
+        assert all(servo.axis.max_velocity == 100.0 for servo in bus._servos.values())

@@ -256,7 +256,7 @@ def _dynamixel(data):
      "simulated camera, named sim"),
     (lambda d: d["servo_bus"].update(baud=57600), "servo_bus.baud: got 57600, expected nothing: baud is not used by "
                                                   "the 'sim' backend, which uses backend, joints, limit_policy, port, "
-                                                  "reboot_on_hardware_error, torque_on_close, watchdog_ms"),
+                                                  "power_loss_torque, reboot_on_hardware_error, torque_on_close, watchdog_ms"),
     (lambda d: d["servo_bus"].update(retries=2), "servo_bus.retries: got 2, expected nothing: retries is not used"),
     (lambda d: d["servo_bus"]["joints"]["tilt"].update(model="XM430-W350"),
      "servo_bus.joints.tilt.model: got 'XM430-W350', expected nothing: model is not used by the 'sim' backend"),

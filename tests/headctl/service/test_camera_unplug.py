@@ -27,13 +27,16 @@ def test_an_unplugged_camera_degrades_the_service_and_is_picked_up_when_plugged_
         assert "device node is gone (unplugged)" in s.faults["camera:left"]
         assert "camera:right" not in s.faults and s.cameras["left"].health == "reconnecting"
         assert left.opens == opens  # no reopen succeeds while it is gone
+
+        def told():
+            return [(e["type"], e.get("key")) for e in daemon.parts.hub.recent(512)]
+
+        # The supervisor tells faults on its rounds: the fault is told before it is healed.
+        wait_until(lambda: ("fault", "camera:left") in told(), 5, "the fault event")
         control.inject_fault(SimFault.CAMERA_REPLUG, camera="left")
         s = wait_until(lambda: (snap := control.snapshot()).state is ServicePhase.RUNNING and snap, 15,
                        "running again")
         assert s.cameras["left"].health == "streaming" and s.cameras["left"].stats["reconnects"] == 1
         assert left.opens == opens + 1
-        def told():
-            return [(e["type"], e.get("key")) for e in daemon.parts.hub.recent(512)]
-
         wait_until(lambda: ("fault_cleared", "camera:left") in told(), 5, "the fault_cleared event")
         assert told().index(("fault", "camera:left")) < told().index(("fault_cleared", "camera:left"))

@@ -30,8 +30,8 @@ def test_a_front_end_serves_from_before_the_head_starts_until_after_it_stopped(t
 
     @contextlib.contextmanager
     def serving(service: HeadService) -> Iterator[FakeFrontEnd]:
-        seen["service"] = service
-        seen["devices at start"] = daemon.parts.devices
+        seen.setdefault("service", service)
+        seen.setdefault("devices at start", daemon.parts.devices)
         yield front
         running = daemon.parts.running
         seen["fixation alive at stop"] = running is not None and running.fixation.is_alive()
@@ -46,6 +46,9 @@ def test_a_front_end_serves_from_before_the_head_starts_until_after_it_stopped(t
         front.alive, front.error = False, RuntimeError("gone")
         wait_until(lambda: daemon.control.snapshot().faults.get("api"), 5.0, "the api fault")
         assert daemon.control.snapshot().faults["api"] == "control API stopped: RuntimeError('gone')"
+        # The supervisor makes it again (test_supervision.py); this fake serves again once made.
+        wait_until(lambda: daemon.parts.restarts["api-server"] >= 1, 5.0, "the front end made again")
+        front.alive, front.error = True, None
     assert daemon.phase is ServicePhase.STOPPED
     assert seen["fixation alive at stop"] is False and seen["url file at stop"] is False
     assert not config.api_url_path.exists()

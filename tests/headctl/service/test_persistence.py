@@ -2,9 +2,13 @@
 time (headctl.service.persistence)."""
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import errno
 import io
 import json
 import logging
+import os
 import re
 import zipfile
 from pathlib import Path
@@ -13,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from calib_free.map.file import read_map, write_map
+from calib_free.map.file import read_map, temporary_files, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter, Sample
 from drivers.clock import ManualClock
@@ -22,7 +26,7 @@ from headctl.config.head import load_config
 from headctl.errors import ConfigError, ControlError
 from headctl.service.parts import MapOrigin
 from headctl.service.persistence import Checkpointer, restore_map
-from tests.conftest import sim_head_config
+from tests.conftest import sim_head_config, wait_until
 from tests.support import CONFIGS
 
 
@@ -206,6 +210,19 @@ def _learn(adapter, count):
     assert adapter.wait_idle(10)
 
 
+@contextlib.contextmanager
+def _checkpointing(tmp_path, every, interval_s=30.0):
+    """(config, clock, adapter, checkpointer): a map adapting on its thread, checkpointed after
+    each adaptation on a manual clock."""
+    config = _config(tmp_path)
+    clock = ManualClock()
+    gm, _, _ = restore_map(config)
+    with MapAdapter(gm) as adapter:
+        cp = Checkpointer(adapter, config.map_path, every=every, clock=clock, interval_s=interval_s)
+        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+        yield config, clock, adapter, cp
+
+
 def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
     config = _config(tmp_path)
     clock = ManualClock()
@@ -229,12 +246,7 @@ def test_checkpoints_come_on_time_as_well_and_only_for_a_changed_map(tmp_path):
 
 
 def test_the_count_and_the_time_whichever_comes_first(tmp_path):
-    config = _config(tmp_path)
-    clock = ManualClock()
-    gm, _, _ = restore_map(config)
-    with MapAdapter(gm) as adapter:
-        cp = Checkpointer(adapter, config.map_path, every=4, clock=clock, interval_s=30.0)
-        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+    with _checkpointing(tmp_path, every=4) as (config, clock, adapter, cp):
         _learn(adapter, 6)
         assert cp.count == 1 and cp.last_adaptations == 4  # by count, at 4
         clock.advance(30.0)
@@ -244,12 +256,7 @@ def test_the_count_and_the_time_whichever_comes_first(tmp_path):
 
 
 def test_an_interval_of_0_checkpoints_by_count_only(tmp_path):
-    config = _config(tmp_path)
-    clock = ManualClock()
-    gm, _, _ = restore_map(config)
-    with MapAdapter(gm) as adapter:
-        cp = Checkpointer(adapter, config.map_path, every=50, clock=clock, interval_s=0.0)
-        adapter.on_adapted = lambda s, r: cp.maybe(adapter.map.adaptations)
+    with _checkpointing(tmp_path, every=50, interval_s=0.0) as (config, clock, adapter, cp):
         _learn(adapter, 3)
         clock.advance(1e6)
         assert cp.changed() and not cp.due() and not cp.maybe_on_time() and cp.count == 0
@@ -264,11 +271,109 @@ def test_a_failing_checkpoint_is_retried_at_the_same_pace_not_after_every_adapta
         attempts = []
         adapter.on_adapted = lambda s, r: attempts.append(cp.maybe(adapter.map.adaptations))
         _learn(adapter, 3)
-        assert cp.error and "checkpoint failed" in cp.error and cp.count == 0
+        assert cp.error and "checkpoint of gaze_map.npz failed: ENOENT" in cp.error and cp.count == 0
         assert attempts == [False, False, False]
         (tmp_path / "absent").mkdir()
         _learn(adapter, 1)  # 2 adaptations since the failed attempt
         assert cp.count == 1 and cp.error is None and cp.last_adaptations == 4
+
+
+# --- a state directory full or read-only, then writable again --------------------------------------
+class _FailingDisk:
+    """The state directory refusing writes as a full (ENOSPC: the temporary file's bytes do not
+    fit, half of them written) or a read-only (EROFS: no file can be created) file system does.
+    Root ignores permissions, so the failure goes in at the file operations, for that directory only."""
+
+    def __init__(self, monkeypatch, directory, code):
+        self.directory, self.code, self.failed = str(directory), code, 0
+        real_open, real_fdopen = os.open, os.fdopen
+
+        def guarded_open(path, flags, *args, **kwargs):
+            if self.active and code == errno.EROFS and flags & os.O_CREAT and str(path).startswith(self.directory):
+                self.failed += 1
+                raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+            return real_open(path, flags, *args, **kwargs)
+
+        def guarded_fdopen(fd, *args, **kwargs):
+            f = real_fdopen(fd, *args, **kwargs)
+            if self.active and code == errno.ENOSPC and os.readlink(f"/proc/self/fd/{fd}").startswith(self.directory):
+                return _FullFile(f, self)
+            return f
+
+        self.active = True
+        monkeypatch.setattr(os, "open", guarded_open)
+        monkeypatch.setattr(os, "fdopen", guarded_fdopen)
+
+
+class _FullFile:
+    def __init__(self, f, disk):
+        self.f, self.disk = f, disk
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+    def write(self, data):
+        self.f.write(bytes(data)[:len(data) // 2])
+        self.f.flush()
+        self.disk.failed += 1
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+@pytest.mark.parametrize("code", [errno.ENOSPC, errno.EROFS], ids=["full", "read-only"])
+def test_checkpoints_fail_naming_the_directory_keep_the_last_good_one_and_resume(tmp_path, monkeypatch, code):
+    with _checkpointing(tmp_path, every=2) as (config, clock, adapter, cp):
+        _learn(adapter, 2)
+        assert cp.count == 1 and read_map(config.map_path).adaptations == 2
+        good = config.map_path.read_bytes()
+        disk = _FailingDisk(monkeypatch, tmp_path, code)
+        _learn(adapter, 4)  # two attempts, both refused
+        assert disk.failed == 2 and cp.failures == 2 and cp.count == 1
+        name = errno.errorcode[code]
+        assert cp.error == (f"state directory {tmp_path}: checkpoint of gaze_map.npz failed: {name} "
+                            f"({os.strerror(code)}); the last good checkpoint (2 adaptations) is kept; "
+                            "retried every 2 adaptations or 30 s")
+        clock.advance(30.0)
+        assert not cp.maybe_on_time() and cp.failures == 3  # on time too, at the same pace
+        assert adapter.map.adaptations == 6  # learning goes on
+        assert config.map_path.read_bytes() == good  # the last good checkpoint, intact
+        assert not temporary_files(tmp_path)  # no half-written file left behind
+        disk.active = False  # writable again
+        _learn(adapter, 2)
+        assert cp.count == 2 and cp.error is None and cp.failures == 0
+        assert read_map(config.map_path).adaptations == 8
+        assert read_map(f"{config.map_path}.prev").adaptations == 2  # the last good one, now the previous
+
+
+@pytest.mark.timeout(180)
+def test_a_service_whose_state_directory_fills_up_is_degraded_goes_on_learning_and_heals(tmp_path, monkeypatch):
+    from headctl.service.daemon import Daemon
+    config = sim_head_config(tmp_path / "state")
+    config = dataclasses.replace(config, service=dataclasses.replace(config.service, checkpoint_every=1))
+    daemon = Daemon(config).start()
+    try:
+        cp = daemon.parts.running.checkpointer
+        wait_until(lambda: cp.count >= 1, 90, "a first checkpoint")
+        disk = _FailingDisk(monkeypatch, config.state_dir, errno.ENOSPC)
+        faults = wait_until(lambda: daemon.control.snapshot().faults.get("checkpoint"), 90,
+                            "the checkpoint fault")
+        assert faults.startswith(f"state directory {config.state_dir}: checkpoint of gaze_map.npz failed: ENOSPC")
+        assert daemon.control.snapshot().as_dict()["state"] == "degraded"
+        good, kept = config.map_path.read_bytes(), cp.last_adaptations
+        learned = daemon.parts.running.adapter.map.adaptations
+        wait_until(lambda: daemon.parts.running.adapter.map.adaptations >= learned + 2, 90, "learning while degraded")
+        assert config.map_path.read_bytes() == good and read_map(config.map_path).adaptations == kept
+        disk.active = False
+        wait_until(lambda: cp.error is None and cp.last_adaptations > kept, 90, "checkpoints resumed")
+        wait_until(lambda: "checkpoint" not in daemon.control.snapshot().faults, 10, "the fault cleared")
+        assert read_map(config.map_path).adaptations > kept
+    finally:
+        daemon.stop()
 
 
 @pytest.mark.parametrize("value, error", [(None, None), (0, None), (5.5, None), (-1, "got -1"),

@@ -149,3 +149,34 @@ def test_the_shared_block_is_never_read_torn():
         stop.set()
         writer.join(10)
     assert all(np.all(r == r[0]) for r in reads)  # every copy from one write
+
+
+def test_a_killed_child_is_replaced_where_the_servos_are_with_torque_as_switched():
+    import signal
+
+    from headctl.errors import ServoLoopStoppedError
+
+    process = ServoLoopProcess(load_config()).start()
+    try:
+        process.request_goals({"pan": 20.0})
+        wait_until(lambda: abs(process.fresh_state()["pan"].position - 20.0) < 0.1 and
+                   not process.latest_state().moving, 10.0, "pan at 20 deg")
+        process.set_torque(False)  # switched off through the API: stays off in the new child
+        old_pid = process.pid
+        os.kill(old_pid, signal.SIGKILL)
+        wait_until(lambda: process.failure(), 5.0, "the death noticed")
+        assert f"servo process {old_pid} exited (code -9)" in (process.failure() or "")
+        with pytest.raises(ServoLoopStoppedError):  # nothing is queued for a child not running
+            process.request_goals({"pan": 0.0})
+        detail = process.restart()
+        assert detail == {"old_pid": old_pid, "exit_code": -9, "new_pid": process.pid} and process.pid != old_pid
+        assert process.failure() is None and process.is_alive() and process.restarts == 1
+        state = process.fresh_state()
+        assert state["pan"].position == pytest.approx(20.0, abs=0.1)  # the simulated servos did not jump
+        assert not process.torque_enabled and not state["pan"].torque_on
+        process.set_torque(True)  # goal := present, then torque on: still no jump
+        wait_until(lambda: process.fresh_state()["pan"].torque_on, 5.0, "torque on")
+        assert process.goals().get("pan", 20.0) == pytest.approx(20.0, abs=0.1)  # none written, or the hold
+        assert process.fresh_state()["pan"].position == pytest.approx(20.0, abs=0.1)
+    finally:
+        process.stop()

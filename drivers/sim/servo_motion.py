@@ -1,0 +1,150 @@
+"""The simulated servos' motion: a trapezoidal velocity profile toward the goal, and the trace of it.
+
+`ProfileAxis` is the motion model the simulated bus and the Dynamixel emulator share (an
+X-series servo in position mode with a velocity-based profile). `JointTrace` records the
+motion model's state of the four joints at every change of course and at reads into a short
+ring, and `joints_at` replays the model from it: where the joints were at a past time (a
+simulated frame's exposure, rendered later).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from drivers.servo.joints import JOINTS
+
+# Integration step of the motion model: fine enough that a profile ends within a
+# millisecond of the analytic one, coarse enough that a 10 s jump of a ManualClock costs
+# a few thousand steps.
+_STEP_S = 0.001
+# The trace of the joints' true motion: a row each time the motion changes course (goals
+# written, torque, a hold) and at each read, at least 2 ms apart (a read sooner after the
+# newest row is not kept, a change replaces it), so 128 rows span over a second at the servo
+# loop's 100 Hz, longer than a simulated frame waits for its rendering.
+TRACE_SAMPLES = 128
+_TRACE_SPACING_S = 0.002
+TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
+TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
+# A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
+# loop writes goals every 10 ms, so past rows are a cycle apart).
+_REPLAY_MAX_S = 0.1
+
+
+class ProfileAxis:
+    """One joint moving toward its goal under a velocity and an acceleration limit.
+
+    Unit-agnostic (degrees for the simulator, ticks for the emulator). A limit of
+    `math.inf` means unlimited. Not thread-safe: its owner serialises access.
+    """
+
+    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
+                 max_acceleration: float = math.inf) -> None:
+        self.position = float(position)
+        self.velocity = 0.0
+        self.goal = float(position)
+        self.max_velocity = max_velocity
+        self.max_acceleration = max_acceleration
+        self.time_s = time_s
+
+    @property
+    def moving(self) -> bool:
+        return self.position != self.goal or self.velocity != 0.0
+
+    def set_goal(self, goal: float) -> None:
+        self.goal = float(goal)
+
+    def hold(self) -> None:
+        """Stop where the axis is now (torque off, watchdog, reboot)."""
+        self.goal = self.position
+        self.velocity = 0.0
+
+    def advance_to(self, time_s: float) -> None:
+        """Move the model forward to `time_s` (earlier times are ignored)."""
+        dt_total = time_s - self.time_s
+        if dt_total <= 0.0:
+            return
+        self.time_s = time_s
+        remaining = dt_total
+        while remaining > 0.0 and self.moving:
+            dt = min(_STEP_S, remaining)
+            remaining -= dt
+            self._step(dt)
+
+    def _step(self, dt: float) -> None:
+        distance = self.goal - self.position
+        direction = math.copysign(1.0, distance) if distance else -math.copysign(1.0, self.velocity)
+        accel = self.max_acceleration
+        # The fastest speed from which the axis can still stop at the goal.
+        stop_speed = math.sqrt(2.0 * accel * abs(distance)) if math.isfinite(accel) else math.inf
+        target_v = direction * min(self.max_velocity, stop_speed)
+        if math.isinf(target_v):
+            self.position, self.velocity = self.goal, 0.0
+            return
+        max_dv = accel * dt
+        self.velocity += min(max(target_v - self.velocity, -max_dv), max_dv)
+        new_position = self.position + self.velocity * dt
+        if (self.goal - new_position) * direction <= 0.0:
+            # Reached (or would pass) the goal: settle exactly on it.
+            self.position, self.velocity = self.goal, 0.0
+            return
+        self.position = new_position
+
+
+class JointTrace:
+    """The joints' true motion at past times: rows of the motion model's state (time, then for
+    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
+    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
+    have a NaN time), a ring of the last `size`.
+
+    `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
+    `time_s`: exact as long as every change of course is a row (the bus records one at each);
+    before the oldest row, the oldest position. Not thread-safe: its owner serialises access
+    (a reader in another process copies `rows` under its own lock)."""
+
+    def __init__(self, size: int = TRACE_SAMPLES) -> None:
+        self.rows = np.full((size, TRACE_WIDTH), np.nan)
+        self._next = 0
+
+    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
+            change: bool = False) -> None:
+        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
+        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
+        sample is not kept."""
+        newest = self.rows[(self._next - 1) % len(self.rows)]
+        if time_s - newest[0] < _TRACE_SPACING_S:
+            if not change:
+                return
+            row = newest
+        else:
+            row = self.rows[self._next]
+            self._next = (self._next + 1) % len(self.rows)
+        row[0] = time_s
+        for j, joint in enumerate(JOINTS):
+            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
+
+    def at(self, time_s: float) -> dict[str, float] | None:
+        return joints_at(self.rows, time_s)
+
+
+def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
+    """The joint angles at `time_s` from `JointTrace` rows (in any order); None without a row."""
+    times = rows[:, 0]
+    known = np.isfinite(times)
+    if not known.any():
+        return None
+    before = known & (times <= time_s)
+    if not before.any():  # older than the trace: the oldest position known
+        row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
+        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
+    row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
+    joints = {}
+    for j, joint in enumerate(JOINTS):
+        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
+                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
+        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
+        axis.velocity, axis.goal = float(velocity), float(goal)
+        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
+        joints[joint] = axis.position
+    return joints
