@@ -114,7 +114,8 @@ class SimulatedServoBus(ServoBus):
         self._sim_lock = threading.Lock()
         self._linked = False
         self._adapter_present = True
-        self._absent: set[str] = set()  # joints whose servo is off the bus: it answers nothing
+        # Joints whose servo is off the bus (it answers nothing): `wiring.<id>.off_bus` at start.
+        self._absent = {joint for joint in JOINTS if self._wiring[config.joints[joint].servo_id].off_bus}
         self._last_contact_s = now
         self._trace = JointTrace()
         self._sample(now, change=True)
