@@ -7,7 +7,7 @@ port, servo id, joint or camera involved.
 from __future__ import annotations
 
 import os
-from typing import Any
+from typing import Any, TypeVar
 
 
 class DriverError(Exception):
@@ -78,7 +78,19 @@ class DeviceIOError(DriverError, OSError):
 
 # --- servo buses -------------------------------------------------------------------------
 class ServoError(DriverError):
-    """Root of servo-bus errors."""
+    """Root of servo-bus errors. `joints` names the joints a failed transaction blames, when
+    it blames some (set by the bus that raises it; empty otherwise)."""
+
+    joints: tuple[str, ...] = ()
+
+
+_E = TypeVar("_E", bound=ServoError)
+
+
+def blaming(err: _E, *joints: str) -> _E:
+    """`err` with `joints` as the joints it blames."""
+    err.joints = joints
+    return err
 
 
 class ServoCommError(ServoError, DeviceIOError):

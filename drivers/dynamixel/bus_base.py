@@ -62,6 +62,7 @@ from drivers.errors import (
     ServoError,
     ServoModelError,
     ServoTimeoutError,
+    blaming,
 )
 from drivers.servo.bus import ServoBus, ServoBusConfig
 from drivers.servo.joints import JOINTS
@@ -142,13 +143,22 @@ class DynamixelBusBase(ServoBus):
             raise BusDownError(f"{self.name}: {port_access_hint(self.config.port, err)}") from err
         if not opened:
             raise ServoConfigError(f"{self.config.key_path}.baud: dynamixel-sdk refused {self.config.baud} baud")
-        for joint in JOINTS:
-            self._check_model(joint)
-        self._setup_group_transactions(port)
+
+    def _probe_servo(self, joint: str) -> None:
+        self._check_model(joint)
+
+    def _joints_changed(self) -> None:
+        self._setup_group_transactions(self._require(self._port))
+
+    @property
+    def _present_ids(self) -> dict[str, int]:
+        """joint -> id of the joints that answer, in `JOINTS` order."""
+        return {joint: self._ids[joint] for joint in self.present_joints}
 
     @abc.abstractmethod
     def _setup_group_transactions(self, port: BlockingPortHandler) -> None:
-        """The per-cycle state read and goal write on a port just opened."""
+        """The per-cycle state read and goal write over the present joints' servos, which
+        are configured."""
 
     def _disconnect(self) -> None:
         port, self._port = self._port, None
@@ -272,7 +282,7 @@ class DynamixelBusBase(ServoBus):
         if not blamed:  # the request itself failed to go out: the bus, not a servo
             self._raise_comm(None, read_name, result)
         late = {servo_id for attempt in attempts for servo_id in attempt.late}
-        order = list(self._ids.values())
+        order = list(self._present_ids.values())
         held: list[int] = []
         timeouts = all(r in _COMM_TIMEOUT_RESULTS for r in blamed.values())
         first_late = next((i for i in order if i in blamed and i in late), None)
@@ -294,7 +304,7 @@ class DynamixelBusBase(ServoBus):
         if len(blamed) == len(order) and not any(attempt.answered for attempt in attempts):
             # No servo ever answered, and none late: the first in turn, which the others
             # wait for, or a bus without power.
-            first_joint = next(iter(self._ids))
+            first_joint = next(iter(self._present_ids))
             message = (f"{self.describe(first_joint)}: {failed}: no servo answered: this one, the first in turn "
                        f"(the others wait for its reply), or all of them (power, wiring): "
                        f"{self._packet.getTxRxResult(result)}")
@@ -308,17 +318,15 @@ class DynamixelBusBase(ServoBus):
                 f"joint {self._joint_of.get(i, '?')} (id {i}): {what(i, r)}" for i, r in blamed.items()
             )
             message = f"{self.name}: {failed}: {each}"
-        if timeouts:
-            raise ServoTimeoutError(message)
-        raise ServoCommError(message)
+        raise blaming(ServoTimeoutError(message) if timeouts else ServoCommError(message),
+                      *(j for j in JOINTS if self._ids[j] in blamed))
 
     def _raise_comm(self, joint: str | None, what: str, result: int) -> NoReturn:
         where = self.describe(joint) if joint else self.name
         message = (f"{where}: {what} failed after {self.config.retries + 1} attempt(s): "
                    f"{self._packet.getTxRxResult(result)}")
-        if result in _COMM_TIMEOUT_RESULTS:
-            raise ServoTimeoutError(message)
-        raise ServoCommError(message)
+        raise blaming(ServoTimeoutError(message) if result in _COMM_TIMEOUT_RESULTS else ServoCommError(message),
+                      *((joint,) if joint else ()))
 
     def _drain(self) -> bytes:
         """Discard late replies before a retry; returns them."""

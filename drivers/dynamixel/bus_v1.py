@@ -124,7 +124,8 @@ class Protocol1Bus(DynamixelBusBase):
 
     def _setup_group_transactions(self, port: BlockingPortHandler) -> None:
         if self._all_bulk_read:
-            self._bulk_read = BulkRead1(port, self._packet, [(self._ids[j], READ_START, READ_SIZE) for j in JOINTS])
+            self._bulk_read = BulkRead1(port, self._packet, [(servo_id, READ_START, READ_SIZE)
+                                                             for servo_id in self._present_ids.values()])
         log.debug("%s: reading state by %s", self.name, self.read_method)
         self._sync_write = GroupSyncWrite(port, self._packet, P1Addr.GOAL_POSITION, 2)
 
@@ -156,9 +157,9 @@ class Protocol1Bus(DynamixelBusBase):
         if self._bulk_read is not None:
             group = self._group_read(self._bulk_read, self._bulk_read, "bulk read")
             return {joint: (P1Block.unpack(bytes(group.data_dict[servo_id])), group.errors.get(servo_id, 0))
-                    for joint, servo_id in self._ids.items()}
+                    for joint, servo_id in self._present_ids.items()}
         blocks: dict[str, tuple[P1Block, int]] = {}
-        for joint, servo_id in self._ids.items():
+        for joint, servo_id in self._present_ids.items():
             def read(servo_id: int = servo_id) -> tuple[Any, int, int]:
                 data, result, error = self._packet.readTxRx(self._port, servo_id, READ_START, READ_SIZE)
                 if result == COMM_SUCCESS and len(data) != READ_SIZE:

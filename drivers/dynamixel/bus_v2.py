@@ -76,7 +76,6 @@ class DynamixelBus(DynamixelBusBase):
         super().__init__(config, clock=clock, name=name)
         self._sync_read: SyncRead | None = None
         self._fast_read: FastSyncRead | None = None
-        self._fast_read_probed = False
         self._want_fast_read = fast_sync_read
 
     @classmethod
@@ -92,23 +91,22 @@ class DynamixelBus(DynamixelBusBase):
     # -- hooks ---------------------------------------------------------------------------
     def _setup_group_transactions(self, port: BlockingPortHandler) -> None:
         """The per-cycle state read and goal write. Whether the read can be a Fast Sync
-        Read is found out once the servos are configured (their Return Delay Time is in the
-        reply timeout only then)."""
+        Read is found out here, the servos being configured (their Return Delay Time is in
+        the reply timeout only then)."""
         self._sync_read = SyncRead(port, self._packet, XAddr.INDIRECT_DATA_1, READ_BLOCK_SIZE)
-        for servo_id in self._ids.values():
+        for servo_id in self._present_ids.values():
             self._sync_read.addParam(servo_id)
         self._fast_read = None
-        self._fast_read_probed = False
         self.read_method = "sync read"
         self._sync_write = GroupSyncWrite(port, self._packet, XAddr.GOAL_POSITION, 4)
+        self._probe_fast_sync_read()
 
     def _probe_fast_sync_read(self) -> None:
         """Fast Sync Read where every servo's firmware has it and one read of their ids
         through it comes back right; else Sync Read."""
-        self._fast_read_probed = True
         port = self._require(self._port)
-        ids = list(self._ids.values())
-        old = {j: fw for j, fw in self.firmware.items() if fw < FAST_SYNC_READ_MIN_FIRMWARE}
+        ids = list(self._present_ids.values())
+        old = {j: fw for j, fw in self.firmware.items() if fw < FAST_SYNC_READ_MIN_FIRMWARE and j in self._present_ids}
         if self._want_fast_read and not old:
             # The firmware says it has it; one read of the servos' ids confirms it.
             probe = FastSyncRead(port, XAddr.ID, 1, ids)
@@ -131,11 +129,6 @@ class DynamixelBus(DynamixelBusBase):
     def _disconnect(self) -> None:
         self._sync_read = self._fast_read = None
         super()._disconnect()
-
-    def _configure(self, joints: Iterable[str]) -> None:
-        super()._configure(joints)
-        if not self._fast_read_probed:
-            self._probe_fast_sync_read()
 
     def _read_servos(self) -> dict[str, JointState]:
         states = self._sync_read_states()
@@ -247,7 +240,7 @@ class DynamixelBus(DynamixelBusBase):
         sync_read = self._group_read(self._fast_read or plain, plain, "sync read")
         states: dict[str, JointState | None] = {}
         watchdog_units = self.config.watchdog_ms // MS_PER_WATCHDOG_UNIT
-        for joint, servo_id in self._ids.items():
+        for joint, servo_id in self._present_ids.items():
             (mapped_id, hw_error, torque, watchdog, moving, velocity, position, voltage,
              temperature) = READ_BLOCK_FORMAT.unpack(bytes(sync_read.data_dict[servo_id]))
             if mapped_id != servo_id:

@@ -11,10 +11,11 @@ This module owns everything a servo backend shares:
 * the abstract `ServoBus`, whose public methods are template methods working in joint
   units (degrees, degrees/s, never ticks). Joint <-> servo frame conversion (direction,
   zero offset), limits (clamp or refuse), logging, the lifecycle, reboot recovery and
-  reopening a bus that went down live here, once. A backend implements the small hooks
-  `_connect`, `_disconnect`, `_configure`, `_read_servos`, `_write_servo_goals`,
-  `_set_torque` and `_reboot_servo`, all in the servo frame: degrees from the servo's
-  centre position, before direction and zero offset are applied.
+  reopening a bus that went down, or driving around a missing servo, live here, once. A
+  backend implements the small hooks `_connect`, `_probe_servo`, `_joints_changed`,
+  `_disconnect`, `_configure`, `_read_servos`, `_write_servo_goals`, `_set_torque` and
+  `_reboot_servo`, over the joints that answer (`present_joints`), in the servo frame:
+  degrees from the servo's centre position, before direction and zero offset are applied.
 
 All methods are safe to call from several threads: one lock serialises bus traffic.
 """
@@ -26,36 +27,35 @@ import functools
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 from drivers import backends
 from drivers.base import Device, Lifecycle
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.servo.faults import (
-    BY_AUTOMATIC_REBOOT,
-    BY_HAND,
-    BY_ITSELF,
-    HELD_OFF,
     LEFT_TO_A_PERSON,
     REBOOT_FAILED,
     REBOOTED,
     REBOOTING,
     REPORTED,
-    WAITING,
     EpisodeRecorder,
     FaultLog,
-    HardwareErrorEpisode,
+    cleared_detail,
 )
 from drivers.servo.config import ServoBusConfig as ServoBusConfig
 from drivers.servo.joints import JOINTS as JOINTS
+from drivers.servo.missing import MissingServo, MissingServos
+from drivers.servo.state import BusState as BusState, JointState as JointState
 from drivers.servo.recovery import Fault, FaultRecovery
 from drivers.errors import (
     BusDownError,
     DriverError,
     JointLimitError,
+    ServoCommError,
     ServoConfigError,
+    ServoError,
     ServoHardwareError,
+    ServoTimeoutError,
 )
 
 log = logging.getLogger(__name__)
@@ -70,51 +70,6 @@ REOPEN_BACKOFF_MAX_S = 5.0
 T = TypeVar("T")
 
 
-# --- state -----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class JointState:
-    """One servo's state. From `ServoBus.read_state()` in joint units (degrees, deg/s), with
-    `hardware_errors` the meanings of `hardware_error_bits` as the backend decodes them
-    (`ServoBus.decode_hardware_error`); from a backend's `_read_servos()` hook in the servo
-    frame, `hardware_errors` left empty."""
-
-    position: float
-    velocity: float
-    moving: bool
-    torque_on: bool
-    hardware_error_bits: int
-    temperature_c: float
-    input_voltage_v: float
-    hardware_errors: tuple[str, ...] = ()
-    # The backend found the servo's RAM at its power-on defaults (it lost power and came back
-    # since the bus configured it); the bus then initialises it again (`ServoBus.power_losses`).
-    power_cycled: bool = False
-
-
-@dataclass(frozen=True)
-class BusState:
-    """All joints, read in one bus transaction; `time_s` is the monotonic clock at the
-    middle of that transaction."""
-
-    time_s: float
-    joints: Mapping[str, JointState]
-
-    def __getitem__(self, joint: str) -> JointState:
-        return self.joints[joint]
-
-    @property
-    def positions(self) -> dict[str, float]:
-        return {joint: s.position for joint, s in self.joints.items()}
-
-    @property
-    def moving(self) -> bool:
-        return any(s.moving for s in self.joints.values())
-
-    @property
-    def faults(self) -> dict[str, tuple[str, ...]]:
-        return {joint: s.hardware_errors for joint, s in self.joints.items() if s.hardware_error_bits}
-
-
 # --- the interface ---------------------------------------------------------------------
 class ServoBus(Device, abc.ABC):
     """The four joints of the head on one bus, in joint units.
@@ -126,6 +81,12 @@ class ServoBus(Device, abc.ABC):
     If the bus goes down (adapter unplugged), calls raise `BusDownError` and the bus
     reopens itself with a growing back-off on later calls; once back, torque is restored
     (if the bus was enabled) only after positions have been read back.
+
+    A servo silent at open (a reopen), or whose reads fail alone for 0.5 s, is recorded in
+    `missing` (`drivers.servo.missing`); only a port that cannot open, a wrong model or no
+    servo answering fail the open. The others are driven; a missing joint has no state (it
+    is named in `BusState.missing`), is sent no goal, and is pinged from `read_state()` with
+    back-off; once it answers it is configured and, if enabled, torqued at goal := present.
 
     Hardware errors: `fault_log` (`drivers.servo.faults.FaultLog`) records every episode,
     even one rebooted away inside a single `read_state()`, with what recovery did and when
@@ -168,6 +129,7 @@ class ServoBus(Device, abc.ABC):
         self._episodes = EpisodeRecorder(self.fault_log, self.name)
         self._clamping: set[str] = set()
         self._torque_off_pending = False  # disable() failed while the bus was down
+        self._missing = MissingServos({j: c.servo_id for j, c in config.joints.items()}, self.name)
         self.power_losses = 0  # times servos were found to have lost power and come back
         self.last_power_loss: str | None = None  # what the last one was and what was done
 
@@ -176,6 +138,16 @@ class ServoBus(Device, abc.ABC):
     def is_down(self) -> bool:
         """True while the bus is down and being reopened."""
         return self._down_reason is not None
+
+    @property
+    def missing(self) -> Mapping[str, MissingServo]:
+        """The joints whose servo does not answer (any thread may read it)."""
+        return self._missing.snapshot()
+
+    @property
+    def present_joints(self) -> tuple[str, ...]:
+        """The joints whose servo answers, in `JOINTS` order."""
+        return tuple(j for j in JOINTS if j not in self._missing)
 
     def describe(self, joint: str) -> str:
         """'joint pan (id 1) on /dev/head-servos': how messages name a joint."""
@@ -188,27 +160,30 @@ class ServoBus(Device, abc.ABC):
         A hardware error is logged with its meaning and recorded in `fault_log`; with
         `reboot_on_hardware_error` the servo is rebooted as the recovery policy says and (if
         enabled) re-torqued before the state is returned, so the state may read clear while
-        the log holds the episode.
+        the log holds the episode. Missing joints due a ping are pinged first.
         """
         with self._lifecycle_lock:
             self.require_open()
-            state = self._io(self._read_state_once)
+            state = self._io(self._read_watching_missing)
             return self._after_read(state)
 
     def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
         """Send goal positions (degrees) for some or all joints in one transaction.
 
         Goals outside a joint's limits are clamped (and logged) or the whole command is
-        refused with `JointLimitError`, as configured; such a goal is never sent. Returns
-        the goals actually sent. Needs an enabled bus.
+        refused with `JointLimitError`, as configured; such a goal, or one for a missing
+        joint, is never sent. Returns the goals actually sent. Needs an enabled bus.
         """
         with self._lifecycle_lock:
             self.require_enabled()
             checked = self._check_goals(goals)
-            servo_goals = {j: self.config.joints[j].servo_angle(a) for j, a in checked.items()}
-            log.log(TRACE, "%s: goals %s", self.name, checked)
-            self._io(lambda: self._write_servo_goals(servo_goals))
-            return checked
+            missing = self._missing.snapshot()
+            sent = {j: a for j, a in checked.items() if j not in missing}
+            servo_goals = {j: self.config.joints[j].servo_angle(a) for j, a in sent.items()}
+            log.log(TRACE, "%s: goals %s (missing: %s)", self.name, sent, sorted(set(checked) - set(sent)))
+            if servo_goals:
+                self._io(lambda: self._write_servo_goals(servo_goals))
+            return sent
 
     def reboot(self, joint: str) -> None:
         """Reboot one servo (clears its hardware error, restores RAM defaults), configure
@@ -216,6 +191,9 @@ class ServoBus(Device, abc.ABC):
         with self._lifecycle_lock:
             self.require_open()
             self._check_joint(joint)
+            missing = self._missing.snapshot().get(joint)
+            if missing is not None:
+                raise ServoTimeoutError(f"{missing.describe()}; not rebooted (it is pinged again with back-off)")
             self._io(lambda: self._reboot_and_restore(joint, "requested"))
             self.recovery.rebooted_by_hand(joint)
             self._episodes.rebooted_by_hand(joint)
@@ -225,10 +203,21 @@ class ServoBus(Device, abc.ABC):
         self._down_reason = None
         self._faults.clear()
         self._shut_down.clear()
+        self._connect_servos()
+        log.info("%s: servo bus open (%s)%s", self.name, ", ".join(self.describe(j) for j in self.present_joints),
+                 "; missing: " + ", ".join(self._missing.snapshot()) if self._missing.snapshot() else "")
+
+    def _connect_servos(self) -> None:
+        """Connect, ping each servo, record the silent ones, configure the others."""
         self._connect()
         self._connected = True
-        self._configure(JOINTS)
-        log.info("%s: servo bus open (%s)", self.name, ", ".join(self.describe(j) for j in JOINTS))
+        try:
+            self._missing.probe_all(JOINTS, self._probe_servo, self.clock.monotonic(), self.name)
+        except ServoCommError:
+            self._connected = False  # no servo answered: nothing to leave in a safe state
+            raise
+        self._configure(self.present_joints)
+        self._joints_changed()
 
     def _enable(self) -> None:
         self._io(self._enable_now)
@@ -254,11 +243,11 @@ class ServoBus(Device, abc.ABC):
         try:
             # A servo whose error cut its torque refuses it: the backend raises
             # ServoHardwareError naming it.
-            self._restore_torque(JOINTS)
+            self._restore_torque(self.present_joints)
         except DriverError:
             # All or nothing: do not leave some joints torqued on a bus that is not enabled.
             try:
-                self._set_torque(JOINTS, False)
+                self._set_torque(self.present_joints, False)
             except DriverError as err:
                 log.warning("%s: could not undo a partial enable: %s", self.name, err)
             raise
@@ -267,7 +256,7 @@ class ServoBus(Device, abc.ABC):
 
     def _disable(self) -> None:
         try:
-            self._io(lambda: self._set_torque(JOINTS, False))
+            self._io(lambda: self._set_torque(self.present_joints, False))
         except BusDownError:
             # Torque goes off as soon as the bus is back (see _reopen_if_due).
             self._torque_off_pending = True
@@ -278,7 +267,7 @@ class ServoBus(Device, abc.ABC):
         try:
             if self._connected and not self.is_down:
                 if not self.config.torque_on_close:
-                    self._set_torque(JOINTS, False)
+                    self._set_torque(self.present_joints, False)
                 elif self.is_enabled:
                     log.info("%s: leaving torque on at close (torque_on_close: true)", self.name)
         except (DriverError, OSError) as err:
@@ -318,13 +307,11 @@ class ServoBus(Device, abc.ABC):
         try:
             self._connected = False
             self._disconnect()
-            self._connect()
-            self._connected = True
-            self._configure(JOINTS)
+            self._connect_servos()
             if self.is_enabled:
-                self._restore_torque(JOINTS)
+                self._restore_torque(self.present_joints)
             elif self._torque_off_pending:
-                self._set_torque(JOINTS, False)
+                self._set_torque(self.present_joints, False)
                 self._torque_off_pending = False
         except (DriverError, OSError) as err:
             self._reopen_backoff_s = min(self._reopen_backoff_s * 2.0, REOPEN_BACKOFF_MAX_S)
@@ -337,19 +324,69 @@ class ServoBus(Device, abc.ABC):
                     "; torque restored" if self.is_enabled else "")
         self._down_reason = None
 
+    def _read_watching_missing(self) -> BusState:
+        """Ping the missing joints that are due, then read; a joint failing alone long
+        enough is recorded missing and the others read at once."""
+        self._ping_missing()
+        present = self.present_joints
+        try:
+            state = self._read_state_once()
+        except BusDownError:
+            raise
+        except ServoError as err:
+            now_s = self.clock.monotonic()
+            dropped = self._missing.read_failed(err.joints, present, now_s)
+            if not dropped:
+                raise
+            for joint in dropped:
+                self._missing.add(joint, err, now_s, f": left the bus (its reads failed alone for "
+                                                     f"{self._missing.drop_after_s:g} s)")
+                self._faults.pop(joint, None)
+                self._shut_down.discard(joint)
+            self._joints_changed()
+            state = self._read_state_once()
+        self._missing.read_ok()
+        return state
+
+    def _ping_missing(self) -> None:
+        """Ping each missing joint whose back-off has passed; one that answers is configured,
+        and given goal := present position and torque if the bus is enabled."""
+        now_s = self.clock.monotonic()
+        for entry in self._missing.ping_due(now_s, self._probe_and_configure):
+            joint, torque = entry.joint, ""
+            try:
+                self._joints_changed()
+                if self.is_enabled:
+                    self._restore_torque([joint])
+                    torque = "; torque on at its present position"
+            except BusDownError:
+                raise
+            except ServoError as err:
+                torque = f"; torque not restored: {err}"
+            log.warning("%s: answers again after %.1f s; configured%s", self.describe(joint), now_s - entry.since_s,
+                        torque)
+
+    def _probe_and_configure(self, joint: str) -> None:
+        self._probe_servo(joint)
+        self._configure([joint])
+
     def _read_state_once(self) -> BusState:
         start_s = self.clock.monotonic()
         servo_states = self._read_servos()
         end_s = self.clock.monotonic()
         joints = {}
+        missing = self._missing.snapshot()
         for joint in JOINTS:
+            if joint in missing:
+                continue
             jc = self.config.joints[joint]
             raw = servo_states[joint]
             joints[joint] = dataclasses.replace(
                 raw, position=jc.joint_angle(raw.position), velocity=jc.direction * raw.velocity,
                 hardware_errors=self.decode_hardware_error(raw.hardware_error_bits),
             )
-        return BusState(time_s=(start_s + end_s) / 2.0, joints=joints)
+        return BusState(time_s=(start_s + end_s) / 2.0, joints=joints,
+                        missing={j: m.describe() for j, m in missing.items()})
 
     def _after_read(self, state: BusState) -> BusState:
         """Log hardware errors once per change; reboot as the recovery policy says
@@ -408,7 +445,7 @@ class ServoBus(Device, abc.ABC):
             self._write_servo_goals({j: present[j].position for j in joints})
             torque = "torque left off"
             if self.is_enabled:
-                self._set_torque(JOINTS, False)
+                self._set_torque(self.present_joints, False)
                 self._state = Lifecycle.OPEN
                 torque = "torque off on every joint (servo_bus.power_loss_torque: off): enable it again by hand"
         self.power_losses += 1
@@ -424,7 +461,7 @@ class ServoBus(Device, abc.ABC):
         for joint, joint_state in state.joints.items():
             bits = joint_state.hardware_error_bits
             if not bits:
-                self._episodes.clear(joint, now_s, functools.partial(self._cleared_detail, now_s))
+                self._episodes.clear(joint, now_s, functools.partial(cleared_detail, self.describe, now_s))
                 continue
             verdict = verdicts.get(joint)
             current = self._episodes.current(joint)
@@ -446,25 +483,9 @@ class ServoBus(Device, abc.ABC):
                              + (", torque restored at the position read back" if self.is_enabled else ""))
 
     def _episode_detail(self, joint: str, bits: int, torque_on: bool, recovery: str) -> str:
-        limits = self.recovery.limits
-        what = {
-            REPORTED: "reported (automatic reboot is off: reboot it by hand)",
-            WAITING: f"torque kept; rebooted if it lasts {limits.persist_s:g} s",
-            HELD_OFF: f"back within {limits.holdoff_s:g} s of a reboot; reported, rebooted once that has passed",
-            REBOOTING: "rebooting",
-            REBOOTED: "rebooted, and the error is back",
-            LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
-                              "person (reboot it by hand once the cause is fixed)",
-        }.get(recovery, recovery)
         meanings = "; ".join(self.decode_hardware_error(bits))
-        torque = "torque on" if torque_on else "torque off"
-        return f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), {torque}: {what}"
-
-    def _cleared_detail(self, now_s: float, episode: HardwareErrorEpisode, by: str) -> str:
-        how = {BY_AUTOMATIC_REBOOT: "by an automatic reboot", BY_HAND: "by a reboot by hand",
-               BY_ITSELF: "without a reboot by this bus"}.get(by, by)
-        return (f"{self.describe(episode.joint)}: hardware error 0x{episode.bits:02x} "
-                f"({'; '.join(episode.meanings)}) cleared {how} after {now_s - episode.first_seen_s:.3f} s")
+        return (f"{self.describe(joint)}: hardware error 0x{bits:02x} ({meanings}), "
+                f"{'torque on' if torque_on else 'torque off'}: {self.recovery.explain(recovery)}")
 
     def _note_faults(self, state: BusState) -> None:
         self._faults = {j: s.hardware_error_bits for j, s in state.joints.items() if s.hardware_error_bits}
@@ -530,7 +551,15 @@ class ServoBus(Device, abc.ABC):
     # -- hooks for backends (servo frame: degrees from the servo's centre) ---------------
     @abc.abstractmethod
     def _connect(self) -> None:
-        """Open the transport and check the servos are there and of the configured model."""
+        """Open the transport (the servos are pinged one by one after it: `_probe_servo`)."""
+
+    def _probe_servo(self, joint: str) -> None:
+        """Check that `joint`'s servo answers (else `ServoCommError`: it is recorded missing)
+        and is of the configured model (else `ServoModelError`: the open fails)."""
+
+    def _joints_changed(self) -> None:
+        """`present_joints` changed (open, reopen, a servo missing or back) and are
+        configured: build the group transactions over them."""
 
     def _disconnect(self) -> None:
         """Release the transport. Must tolerate a partial connect and a dead port."""
@@ -540,7 +569,8 @@ class ServoBus(Device, abc.ABC):
 
     @abc.abstractmethod
     def _read_servos(self) -> dict[str, JointState]:
-        """All joints' states in the servo frame, in one transaction."""
+        """The present joints' states in the servo frame, in one transaction; a failure
+        blaming some servos names their joints in the error's `joints`."""
 
     @abc.abstractmethod
     def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:

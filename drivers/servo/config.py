@@ -88,12 +88,14 @@ class JointConfig:
 class WiredServo:
     """How one servo of the simulated head is really mounted (`servo_bus.wiring.<id>`): the
     joint it turns (`none`: a servo on the bus that turns nothing the cameras see), and
-    `direction` and `zero_offset` as in `JointConfig`. The simulated world's truth, which
-    `headctl setup` has to find out from the bus and the cameras."""
+    `direction` and `zero_offset` as in `JointConfig`; `off_bus`: it answers nothing when the
+    simulation starts (a servo missing at start, until the `servo_add` fault). The simulated
+    world's truth, which `headctl setup` has to find out from the bus and the cameras."""
 
     joint: str = field(metadata=config_meta(choices=(*JOINTS, "none")))
     direction: int = setting(1, choices=(1, -1))
     zero_offset: float = setting(0.0, lo=-180.0, hi=180.0)
+    off_bus: bool = setting(False)
 
     CONFIG_ERROR: ClassVar[type[ServoConfigError]] = ServoConfigError
 

@@ -240,3 +240,11 @@ class EpisodeRecorder:
             current, seq=seq, change=CLEARED, time_s=now_s, cleared_s=now_s, cleared_by=by,
             detail=detail(current, by),
         ))
+
+
+def cleared_detail(describe: Callable[[str], str], now_s: float, episode: HardwareErrorEpisode, by: str) -> str:
+    """The fault log's words for an episode that ended (`by`: how), `describe` naming the joint."""
+    how = {BY_AUTOMATIC_REBOOT: "by an automatic reboot", BY_HAND: "by a reboot by hand",
+           BY_ITSELF: "without a reboot by this bus"}.get(by, by)
+    return (f"{describe(episode.joint)}: hardware error 0x{episode.bits:02x} "
+            f"({'; '.join(episode.meanings)}) cleared {how} after {now_s - episode.first_seen_s:.3f} s")

@@ -31,7 +31,7 @@ import logging
 import math
 from collections.abc import Mapping
 
-from drivers.servo.faults import HELD_OFF, LEFT_TO_A_PERSON, REBOOTING, WAITING
+from drivers.servo.faults import HELD_OFF, LEFT_TO_A_PERSON, REBOOTED, REBOOTING, REPORTED, WAITING
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,19 @@ class FaultRecovery:
         self.given_up: frozenset[str] = frozenset()
         self._since: dict[str, float] = {}  # faulted joints, since when
         self._reboot_times: dict[str, collections.deque[float]] = collections.defaultdict(collections.deque)
+
+    def explain(self, verdict: str) -> str:
+        """What a verdict means for the joint, in the words of the fault log."""
+        limits = self.limits
+        return {
+            REPORTED: "reported (automatic reboot is off: reboot it by hand)",
+            WAITING: f"torque kept; rebooted if it lasts {limits.persist_s:g} s",
+            HELD_OFF: f"back within {limits.holdoff_s:g} s of a reboot; reported, rebooted once that has passed",
+            REBOOTING: "rebooting",
+            REBOOTED: "rebooted, and the error is back",
+            LEFT_TO_A_PERSON: f"{limits.max_reboots} automatic reboots within {limits.window_s:g} s; left to a "
+                              "person (reboot it by hand once the cause is fixed)",
+        }.get(verdict, verdict)
 
     def due(self, faults: Mapping[str, Fault], now_s: float) -> list[tuple[str, str]]:
         """The (joint, reason) pairs to reboot now, given the faults just read; each is counted."""

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError
+from drivers.errors import BusDownError, JointLimitError, ServoConfigError, ServoHardwareError, ServoTimeoutError, blaming
 from drivers.dynamixel.tables import x_series
 from drivers.servo.bus import JointState, ServoBus
 from drivers.servo.config import ServoBusConfig, WiredServo
@@ -114,7 +114,8 @@ class SimulatedServoBus(ServoBus):
         self._sim_lock = threading.Lock()
         self._linked = False
         self._adapter_present = True
-        self._absent: set[str] = set()  # joints whose servo is off the bus: it answers nothing
+        # Joints whose servo is off the bus (it answers nothing): `wiring.<id>.off_bus` at start.
+        self._absent = {joint for joint in JOINTS if self._wiring[config.joints[joint].servo_id].off_bus}
         self._last_contact_s = now
         self._trace = JointTrace()
         self._sample(now, change=True)
@@ -163,7 +164,9 @@ class SimulatedServoBus(ServoBus):
         """As a servo that does not answer: the first absent one of `joints` times out."""
         for joint in joints:
             if joint in self._absent:
-                raise ServoTimeoutError(f"{self.describe(joint)}: no reply (the simulated servo is off the bus)")
+                err = ServoTimeoutError(f"{self.describe(joint)}: no reply (the simulated servo is off the bus)")
+                raise blaming(err, joint)
+
     def inject_power_loss(self) -> None:
         """Every servo loses power (a brown-out): torque off where it is, and no answer to any
         packet (reads time out) until `restore_power()`."""
@@ -254,7 +257,11 @@ class SimulatedServoBus(ServoBus):
                 raise BusDownError(f"{self.name}: simulated adapter is unplugged")
             self._linked = True
             self._last_contact_s = self.clock.monotonic()
-            self._require_present(JOINTS)  # the servos are pinged
+
+    def _probe_servo(self, joint: str) -> None:
+        with self._sim_lock:
+            self._contact()
+            self._require_present([joint])
 
     def _disconnect(self) -> None:
         with self._sim_lock:
@@ -277,19 +284,16 @@ class SimulatedServoBus(ServoBus):
     def _read_servos(self) -> dict[str, JointState]:
         with self._sim_lock:
             now = self._contact()
-            self._require_present(self._servos)
+            self._require_present(self.present_joints)
             self._sample(now)
             states = {}
-            for joint, servo in self._servos.items():
+            for joint in self.present_joints:
+                servo = self._servos[joint]
                 servo.axis.advance_to(now)
                 states[joint] = JointState(
-                    position=servo.axis.position,
-                    velocity=servo.axis.velocity,
-                    moving=servo.axis.moving,
-                    torque_on=servo.torque_on,
-                    hardware_error_bits=servo.hardware_error_bits,
-                    temperature_c=servo.temperature_c,
-                    input_voltage_v=servo.input_voltage_v,
+                    position=servo.axis.position, velocity=servo.axis.velocity, moving=servo.axis.moving,
+                    torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
+                    temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
                     power_cycled=servo.ram_defaults,
                 )
             return states

@@ -56,6 +56,10 @@ class SimulatedServos(Protocol):
 
     def inject_hardware_error(self, joint: str, bits: int) -> None: ...
 
+    def remove_servo(self, joint: str) -> None: ...
+
+    def add_servo(self, joint: str) -> None: ...
+
 
 class SimulatedWorld:
     """What the simulated backends share: the head model the cameras render through, the

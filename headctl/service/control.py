@@ -79,6 +79,8 @@ class SimFault(enum.StrEnum):
     # boot with RAM defaults and Hardware Error Status `bits` (1: input voltage).
     POWER_LOSS = "power_loss"
     POWER_BACK = "power_back"
+    SERVO_REMOVE = "servo_remove"  # `joint`'s servo leaves the bus (silent) until servo_add
+    SERVO_ADD = "servo_add"  # it is back, just powered up (torque off)
 
 
 class MapAnswer(TypedDict):
@@ -170,6 +172,8 @@ class ServiceControl:
         state = running.loop.latest_state()
         if state is None:
             raise UnavailableError("no servo state read yet")
+        if state.missing:
+            raise UnavailableError(f"no pose: servo missing: {'; '.join(state.missing.values())}")
         return running.head.pose_from(state.positions)
 
     # -- looks ------------------------------------------------------------------------------
@@ -368,15 +372,18 @@ class ServiceControl:
         world = devices.world if devices is not None else None
         if world is None:
             raise UnavailableError("fault injection needs the simulated head (servo_bus.backend: sim)", "fault")
+        servos = world.servos
+        of_a_joint: dict[SimFault, Callable[[str], None]] = {
+            SimFault.HARDWARE_ERROR: lambda j: servos.inject_hardware_error(j, bits or 0b0010_0000),
+            SimFault.SERVO_REMOVE: servos.remove_servo, SimFault.SERVO_ADD: servos.add_servo}
         if fault is SimFault.BUS_DOWN:
             world.servos.inject_bus_down()
         elif fault is SimFault.RESTORE_BUS:
             world.servos.restore_bus()
-        elif fault is SimFault.HARDWARE_ERROR:
+        elif fault in of_a_joint:
             if joint not in JOINTS:
-                raise InvalidRequestError(f"hardware_error needs joint: one of {', '.join(JOINTS)}, got {joint!r}",
-                                          "joint")
-            world.servos.inject_hardware_error(joint, bits or 0b0010_0000)
+                raise InvalidRequestError(f"{fault} needs joint: one of {', '.join(JOINTS)}, got {joint!r}", "joint")
+            of_a_joint[fault](joint)
         elif fault is SimFault.POWER_LOSS:
             world.servos.inject_power_loss()
         elif fault is SimFault.POWER_BACK:

@@ -37,7 +37,6 @@ from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
 from calib_free.gaze.fixation import FixationController
 from calib_free.map.gaze_map import AdaptResult
-from drivers.servo.joints import JOINTS
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
 from drivers.cameras.stereo import StereoPair
@@ -358,6 +357,8 @@ class Daemon:
             return "servo bus down"
         if not running.loop.is_alive():
             return "servo loop down"
+        if running.loop.missing:
+            return "servo missing: " + "; ".join(running.loop.missing.values())
         if not running.loop.torque_enabled:
             return "torque off"
         return None
@@ -409,7 +410,7 @@ class Daemon:
         state = loop.latest_state()
         if state is not None and loop.down_reason is None and loop.is_alive():
             try:
-                loop.request_goals({j: state[j].position for j in JOINTS if state[j].torque_on}, timeout_s=0.5)
+                loop.request_goals({j: s.position for j, s in state.joints.items() if s.torque_on}, timeout_s=0.5)
             except (DriverError, HeadctlError) as err:
                 log.warning("could not hold the present position at shutdown: %s", err)
         loop.stop()

@@ -188,6 +188,8 @@ def fault_items(parts: ServiceParts) -> dict[str, str]:
             out["servo_bus"] = f"servo bus down: {loop.down_reason}"
         for joint, meanings in loop.faults.items():
             out[f"servo:{joint}"] = f"{loop.describe(joint)}: hardware error: {', '.join(meanings)} (joint held)"
+        for joint, description in loop.missing.items():
+            out[f"servo_missing:{joint}"] = f"servo missing: {description} (the other joints go on)"
         if loop.down_reason is None and now - loop.last_read_s > FAILING_READS_S:
             out["servo_reads"] = f"servo reads failing for {now - loop.last_read_s:.1f} s: {loop.last_read_error}"
         if loop.error is not None:
@@ -237,8 +239,9 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
                 joints[joint] = JointStatus(round(js.position, 4), round(js.velocity, 3), js.moving, js.torque_on,
                                             goals.get(joint), tuple(js.hardware_errors), js.temperature_c,
                                             js.input_voltage_v)
-            pose = dict(zip(("pan", "tilt", "vergence"),
-                            running.head.pose_from(state.positions).round(4).tolist()))
+            if not state.missing:  # a pose needs every joint
+                pose = dict(zip(("pan", "tilt", "vergence"),
+                                running.head.pose_from(state.positions).round(4).tolist()))
         torque = loop.torque_enabled
         servo_loop = loop.timing()
         bus_down = loop.down_reason is not None

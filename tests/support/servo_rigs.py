@@ -83,6 +83,12 @@ class SimRig:
     def hardware_error(self, joint: str, bits: int) -> None:
         self.bus.inject_hardware_error(joint, bits)
 
+    def remove_servo(self, joint: str) -> None:
+        self.bus.remove_servo(joint)
+
+    def add_servo(self, joint: str) -> None:
+        self.bus.add_servo(joint)
+
     def bus_down(self) -> None:
         self.bus.inject_bus_down()
 
@@ -146,6 +152,12 @@ class EmulatorRig:
 
     def hardware_error(self, joint: str, bits: int) -> None:
         self.emulator.set_hardware_error(IDS[joint], bits)
+
+    def remove_servo(self, joint: str) -> None:
+        self.emulator.remove_servo(IDS[joint])
+
+    def add_servo(self, joint: str) -> None:
+        self.emulator.add_servo(IDS[joint])
 
     def bus_down(self) -> None:
         self.emulator.vanish()

@@ -55,6 +55,10 @@ class FaultInjection(Protocol):
 
     def restore_power(self, bits: int = 0) -> None: ...
 
+    def remove_servo(self, joint: str) -> None: ...
+
+    def add_servo(self, joint: str) -> None: ...
+
 
 class _PipeLogHandler(logging.Handler):
     def __init__(self, send: Callable[[Report], None]) -> None:
@@ -156,7 +160,7 @@ class _Child:
         state = loop.latest_state()
         try:
             if self.safe_state == "hold" and state is not None and loop.down_reason is None:
-                bus.write_goals({j: state[j].position for j in JOINTS if state[j].torque_on})
+                bus.write_goals({j: s.position for j, s in state.joints.items() if s.torque_on})
             elif self.safe_state == "torque_off":
                 bus.disable()
         except DriverError as err:
@@ -174,7 +178,7 @@ class _Child:
     def _faults(self) -> None:
         loop = self.loop
         assert loop is not None
-        self.send(FaultsChanged(loop.down_reason, dict(loop.faults), loop.last_read_error))
+        self.send(FaultsChanged(loop.down_reason, dict(loop.faults), loop.last_read_error, dict(loop.missing)))
 
     def _receive(self) -> None:
         loop = self.loop
@@ -236,9 +240,11 @@ class _Child:
         for j, joint in enumerate(JOINTS):
             base = _joint_base(j)
             if state is not None:
-                js = state[joint]
-                v[base:base + 7] = (js.position, js.velocity, js.moving, js.torque_on, js.hardware_error_bits,
-                                    js.temperature_c, js.input_voltage_v)
+                js = state.joints.get(joint)
+                v[base + _J["missing"]] = float(js is None)
+                if js is not None:
+                    v[base:base + 7] = (js.position, js.velocity, js.moving, js.torque_on, js.hardware_error_bits,
+                                        js.temperature_c, js.input_voltage_v)
             v[base + _J["goal"]] = goals.get(joint, np.nan)
             if truth is not None:
                 v[base + _J["true_position"]] = truth.true_position(joint)
@@ -271,6 +277,12 @@ def _inject(bus: ServoBus, fault: ServoFault, joint: str | None, bits: int) -> N
             faulty.inject_power_loss()
         case ServoFault.POWER_BACK:
             faulty.restore_power(bits)
+        case ServoFault.SERVO_REMOVE:
+            assert joint is not None
+            faulty.remove_servo(joint)
+        case ServoFault.SERVO_ADD:
+            assert joint is not None
+            faulty.add_servo(joint)
 
 
 def servo_main(config: HeadConfig, inbox: multiprocessing.connection.Connection,

@@ -13,12 +13,12 @@ import collections
 import logging
 import os
 import threading
-from typing import Callable, Mapping, Protocol, Self, TypeVar, cast
+from typing import Callable, Iterable, Mapping, Protocol, Self, TypeVar, cast
 
 import numpy as np
 
 from drivers.clock import SYSTEM_CLOCK, Clock
-from drivers.errors import BusDownError, DriverError, JointLimitError, ServoHardwareError
+from drivers.errors import BusDownError, DriverError, JointLimitError, ServoCommError, ServoHardwareError
 from drivers.servo.bus import BusState, ServoBus
 from drivers.servo.faults import HardwareErrorEpisode
 from headctl.errors import ServoLoopStoppedError, StaleStateError
@@ -41,6 +41,11 @@ class ServoIO(Protocol):
 
     @property
     def faults(self) -> dict[str, tuple[str, ...]]: ...
+
+    @property
+    def missing(self) -> dict[str, str]:
+        """The joints whose servo does not answer, each with its description (`BusState.missing`)."""
+        ...
 
     @property
     def last_read_error(self) -> str: ...
@@ -89,6 +94,22 @@ def period_quantiles(periods_s: np.ndarray, nominal_s: float) -> dict[str, float
         for label, q in zip(("p50", "p99", "max"), qs):
             quantiles[f"{name}_{label}_ms"] = None if q is None else round(float(q) * 1e3, 3)
     return quantiles
+
+
+def missing_error(name: str, missing: Mapping[str, str], joints: Iterable[str] | None = None) -> ServoCommError:
+    """What a command naming a missing joint (`joints`: the ones it names), or a read of the
+    whole head (`joints` None), fails with."""
+    named = set(missing) if joints is None else set(joints) & set(missing)
+    return ServoCommError(f"{name}: servo missing: {'; '.join(missing[j] for j in missing if j in named)}"
+                          + ("" if joints is None else "; nothing sent"))
+
+
+def complete(state: BusState, name: str) -> BusState:
+    """`state` if every joint answered, else the error naming the missing ones: what the head
+    and the tracker read (a pose needs all four joints)."""
+    if state.missing:
+        raise missing_error(name, state.missing)
+    return state
 
 
 def join_thread(thread: threading.Thread, timeout_s: float) -> None:
@@ -167,6 +188,7 @@ class ServoLoop(threading.Thread):
         self._holding = False
         self.down_reason: str | None = None
         self.faults: dict[str, tuple[str, ...]] = {}
+        self.missing: dict[str, str] = {}  # joint -> its description, as the last state named them
         self.error: BaseException | None = None
         self._fault_since: dict[str, float] = {}  # faulted joints held, since when
         self.read_errors = 0
@@ -405,9 +427,11 @@ class ServoLoop(threading.Thread):
             with self._cond:
                 self._goals = {}  # the bus restored torque at the positions read back
             self._fault_changed()
-        faults = state.faults
+        faults, missing = state.faults, dict(state.missing)
         now = self.clock.monotonic()
         with self._cond:
+            for joint in set(missing) | set(self.missing):
+                self._goals.pop(joint, None)  # missing, or back with goal := present (the bus did it)
             for joint in faults:
                 if joint not in self.faults:
                     # That joint is held where it is until the error clears; the fault is
@@ -419,8 +443,8 @@ class ServoLoop(threading.Thread):
             for joint in set(self._fault_since) - set(faults):
                 log.warning("%s: %s: hardware error cleared; joint free again", self.name, self.bus.describe(joint))
                 del self._fault_since[joint]
-            changed = set(faults) != set(self.faults)
-            self.faults = faults
+            changed = set(faults) != set(self.faults) or set(missing) != set(self.missing)
+            self.faults, self.missing = faults, missing
             self._state = state
             self._state_seq += 1
             requests, self._requests = self._requests, []
@@ -429,7 +453,7 @@ class ServoLoop(threading.Thread):
         if stale and not self._holding and self._goals:
             log.info("%s: no input for %.2f s: holding the present position", self.name, self.input_timeout_s)
             with self._cond:
-                self._goals = {j: state[j].position for j in self._goals}
+                self._goals = {j: state[j].position for j in self._goals if j in state.joints}
         self._holding = stale
         self._write(state, requests)
         if changed:
@@ -445,6 +469,10 @@ class ServoLoop(threading.Thread):
     def _write(self, state: BusState, requests: list[_WriteRequest]) -> None:
         with self._cond:
             for request in requests:
+                if any(j in self.missing for j in request.goals):  # the others hold where they are
+                    request.error = missing_error(self.bus.name, self.missing, request.goals)
+                    request.finish()
+                    continue
                 held = [j for j in request.goals if j in self.faults]
                 if held:  # a faulted joint keeps its hold; the command fails as a whole
                     request.error = ServoHardwareError(
@@ -454,7 +482,7 @@ class ServoLoop(threading.Thread):
                     continue
                 self._goals.update(request.goals)
             requests = [r for r in requests if not r.done.is_set()]
-            goals = {j: a for j, a in self._goals.items() if state[j].torque_on}
+            goals = {j: a for j, a in self._goals.items() if j in state.joints and state[j].torque_on}
         if not goals:
             for request in requests:
                 request.error = ServoHardwareError(f"{self.bus.name}: torque off on {', '.join(request.goals)}")
@@ -526,7 +554,7 @@ class ServoLoop(threading.Thread):
 
     # -- what the head sees (headctl.service.head.JointBus) -------------------------------------------
     def read_state(self) -> BusState:
-        return self.fresh_state()
+        return complete(self.fresh_state(), self.bus.name)
 
     def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
         return self.request_goals(goals)

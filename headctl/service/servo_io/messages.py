@@ -70,6 +70,8 @@ class ServoFault(enum.StrEnum):
     HARDWARE_ERROR = "hardware_error"
     POWER_LOSS = "power_loss"
     POWER_BACK = "power_back"
+    SERVO_REMOVE = "servo_remove"  # one servo off the bus (`joint`)
+    SERVO_ADD = "servo_add"  # back, just powered up
 
 
 # --- the service to the child ------------------------------------------------------------------
@@ -138,6 +140,7 @@ class FaultsChanged:
     down_reason: str | None
     faults: dict[str, tuple[str, ...]]
     last_read_error: str
+    missing: dict[str, str] = dataclasses.field(default_factory=dict)  # joint -> its description
 
 
 @dataclasses.dataclass(frozen=True)

@@ -49,7 +49,7 @@ from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, joints_at
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError, ServoLoopStoppedError, StaleStateError
 from headctl.service.servo_io.child import servo_main
-from headctl.service.servo_io.loop import ServoLoop, period_quantiles
+from headctl.service.servo_io.loop import ServoLoop, complete, period_quantiles
 from headctl.service.servo_io.messages import (Done, Episode, ErrorKind, Failed, FaultsChanged, InjectFault,
                                                LogRecord, Ready, RemoteError, Request, ServoFault, Stop, Stopped,
                                                SwitchTorque, WriteGoals)
@@ -126,6 +126,7 @@ class ServoLoopProcess:
         self._decode_errors: Callable[[int], tuple[str, ...]] = bus_class.decode_hardware_error
         self.down_reason: str | None = None
         self.faults: dict[str, tuple[str, ...]] = {}
+        self.missing: dict[str, str] = {}  # joint -> its description, as the child last told
         self.last_read_error = ""
         self.error: BaseException | None = None
         self._records: collections.deque[HardwareErrorEpisode] = collections.deque(maxlen=1024)
@@ -185,7 +186,7 @@ class ServoLoopProcess:
         simulated = self._shared.values[_H["has_state"]] == 1.0 and self.config.simulated
         positions = {j: self.true_position(j) for j in JOINTS} if simulated else None
         self._spawn(positions if positions and all(np.isfinite(list(positions.values()))) else None)
-        self.down_reason, self.faults, self.last_read_error = None, {}, ""
+        self.down_reason, self.faults, self.missing, self.last_read_error = None, {}, {}, ""
         try:
             self.start(timeout_s)
         except BaseException as err:
@@ -278,8 +279,9 @@ class ServoLoopProcess:
                         waiting = self._pending.pop(rid, None)
                     if waiting is not None:
                         waiting.finish(message)
-                case FaultsChanged(down_reason, faults, last_read_error):
+                case FaultsChanged(down_reason, faults, last_read_error, missing):
                     self.down_reason, self.faults, self.last_read_error = down_reason, dict(faults), last_read_error
+                    self.missing = dict(missing)
                     if self.on_fault_change is not None:
                         try:
                             self.on_fault_change()
@@ -343,14 +345,17 @@ class ServoLoopProcess:
     def _state(self, v: np.ndarray) -> BusState | None:
         if v[_H["has_state"]] != 1.0:
             return None
-        joints = {}
+        joints, missing = {}, {}
         for j, joint in enumerate(JOINTS):
             b = _joint_base(j)
+            if v[b + _J["missing"]] == 1.0:  # its description comes with the child's fault message
+                missing[joint] = self.missing.get(joint, f"joint {joint} on {self.bus_name}: not answering")
+                continue
             joints[joint] = JointState(position=float(v[b]), velocity=float(v[b + 1]), moving=bool(v[b + 2]),
                                        torque_on=bool(v[b + 3]), hardware_error_bits=int(v[b + 4]),
                                        temperature_c=float(v[b + 5]), input_voltage_v=float(v[b + 6]),
                                        hardware_errors=self._decode_errors(int(v[b + 4])))
-        return BusState(time_s=float(v[_H["time_s"]]), joints=joints)
+        return BusState(time_s=float(v[_H["time_s"]]), joints=joints, missing=missing)
 
     def fresh_state(self, timeout_s: float = 1.0) -> BusState:
         """The first state read after this call."""
@@ -386,7 +391,7 @@ class ServoLoopProcess:
         return sent
 
     def read_state(self) -> BusState:
-        return self.fresh_state()
+        return complete(self.fresh_state(), self.bus_name)
 
     def write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
         return self.request_goals(goals)
@@ -466,4 +471,10 @@ class ServoLoopProcess:
 
     def restore_power(self, bits: int = 0) -> None:
         self.inject("power_back", bits=bits)
+
+    def remove_servo(self, joint: str) -> None:
+        self.inject("servo_remove", joint)
+
+    def add_servo(self, joint: str) -> None:
+        self.inject("servo_add", joint)
 

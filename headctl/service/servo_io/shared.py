@@ -20,7 +20,7 @@ from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH
 HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
                "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state", "power_losses")
 JOINT_FIELDS = ("position", "velocity", "moving", "torque_on", "hardware_error_bits", "temperature_c",
-                "input_voltage_v", "goal", "true_position")
+                "input_voltage_v", "goal", "true_position", "missing")
 _H = {name: i for i, name in enumerate(HEAD_FIELDS)}
 _J = {name: i for i, name in enumerate(JOINT_FIELDS)}
 TRACE_BASE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)

@@ -293,6 +293,26 @@ class TestFaultContract:
             bus.write_goals({"pan": 0.0})
             assert _settle(rig, bus)["pan"].position == pytest.approx(0.0, abs=rig.tick_deg)
 
+    def test_a_servo_missing_at_open_is_never_commanded_and_picked_up_where_it_is(self, make):
+        rig = make()
+        rig.remove_servo("left_eye")
+        with rig.bus as bus:
+            assert bus.present_joints == ("pan", "tilt", "right_eye")
+            bus.enable()
+            assert bus.write_goals({"pan": 10.0, "left_eye": 10.0}) == {"pan": 10.0}
+            state = _settle(rig, bus)
+            assert "left_eye" not in state.joints and "joint left_eye (id 3)" in state.missing["left_eye"]
+            assert state["pan"].position == pytest.approx(10.0, abs=rig.tick_deg)
+            where = rig.servo_angle("left_eye")
+            rig.add_servo("left_eye")
+            rig.advance(5.0)  # its boot and the ping back-off
+            state = bus.read_state()
+            assert not state.missing and state["left_eye"].torque_on and rig.torque_on("left_eye")
+            rig.advance(1.0)
+            assert rig.servo_angle("left_eye") == pytest.approx(where, abs=rig.tick_deg), "it jumped when it came back"
+            bus.write_goals({"left_eye": 10.0})
+            assert _settle(rig, bus)["left_eye"].position == pytest.approx(10.0, abs=rig.tick_deg)
+
     def test_disable_while_the_bus_is_down_takes_effect_when_it_is_back(self, make):
         rig = make()
         with rig.bus as bus:

@@ -169,15 +169,30 @@ def test_the_probe_moves_servos_by_id_safely():
         assert probe.torque_limit(2) is None
 
 
-def test_a_servo_off_the_bus_times_out_naming_it_and_comes_back_without_a_jump():
+def test_a_servo_missing_at_open_is_driven_around_and_picked_up_without_a_jump():
     clock = ManualClock(0.0)
     bus = SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping()), clock=clock)
     bus.remove_servo("left_eye")  # missing at start
-    with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\) on .*: no reply \(the simulated servo is "
-                                                r"off the bus\)"):
-        bus.open()
-    assert not bus.is_open
-    bus.add_servo("left_eye")
+    with bus:
+        missing = bus.missing["left_eye"]
+        assert (missing.servo_id, missing.port) == (3, bus.name)
+        assert "no reply (the simulated servo is off the bus)" in missing.reason
+        bus.enable()
+        assert bus.write_goals({"pan": 10.0, "left_eye": 8.0}) == {"pan": 10.0}
+        clock.advance(2.0)
+        state = bus.read_state()
+        assert set(state.joints) == {"pan", "tilt", "right_eye"} and set(state.missing) == {"left_eye"}
+        assert bus.true_position("pan") == pytest.approx(10.0) and bus.true_position("left_eye") == 0.0
+        bus.add_servo("left_eye")
+        clock.advance(5.0)  # past the next ping of its back-off
+        state = bus.read_state()
+        assert state["left_eye"].torque_on and state["left_eye"].position == pytest.approx(0.0)
+        assert not bus.missing
+
+
+def test_a_servo_off_the_bus_while_running_is_dropped_after_half_a_second_and_back_without_a_jump():
+    clock = ManualClock(0.0)
+    bus = SimulatedServoBus(ServoBusConfig.from_mapping(config_mapping()), clock=clock)
     with bus:
         bus.enable()
         bus.write_goals({"pan": 10.0, "left_eye": 8.0})
@@ -185,11 +200,14 @@ def test_a_servo_off_the_bus_times_out_naming_it_and_comes_back_without_a_jump()
         bus.remove_servo("left_eye")  # unplugged while running: it stops, torque gone
         with pytest.raises(ServoTimeoutError, match=r"joint left_eye \(id 3\)"):
             bus.read_state()
-        bus.write_goals({"pan": -10.0, "left_eye": -8.0})  # a write expects no reply: the others move
+        clock.advance(0.5)
+        assert set(bus.read_state().missing) == {"left_eye"}
+        bus.write_goals({"pan": -10.0, "left_eye": -8.0})
         clock.advance(2.0)
         assert bus.true_position("pan") == pytest.approx(-10.0)
         assert bus.true_position("left_eye") == pytest.approx(8.0)
         bus.add_servo("left_eye")  # back, just powered up: torque off, goal at its position
+        clock.advance(5.0)
         state = bus.read_state()
         assert state["left_eye"].torque_on  # restored by the bus, at the position read back
         clock.advance(1.0)
