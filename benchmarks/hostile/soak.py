@@ -37,6 +37,7 @@ import argparse
 import csv
 import json
 import os
+import signal
 import random
 import statistics
 import sys
@@ -429,11 +430,17 @@ def main(argv: list[str] | None = None) -> int:
         except SoakError as err:
             print(f"soak: {err}", file=sys.stderr)
             return 2
+        # SIGTERM (a soak stopped from outside) ends it as Ctrl-C does: its daemon is stopped.
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
         try:
             soak.run()
         except SoakError as err:
             soak.daemon.stop()
             print(f"soak: {err}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            soak.daemon.stop()
+            print("soak: stopped before its end", file=sys.stderr)
             return 2
         result = verdict(soak)
     print_verdict(result)
