@@ -15,7 +15,7 @@ import pickle
 import select
 import struct
 import sys
-from typing import Any, Callable, Mapping, Protocol, cast
+from typing import Callable, Mapping, Protocol, cast
 
 import numpy as np
 
@@ -27,7 +27,8 @@ from headctl.service.servo_io.loop import ServoLoop, _WriteRequest
 from headctl.service.servo_io.messages import (Done, Episode, Failed, FaultsChanged, InjectFault, LogRecord, Ready,
                                                RemoteError, Report, Request, ServoFault, Stop, Stopped, SwitchTorque,
                                                WriteGoals)
-from headctl.service.servo_io.shared import COUNTERS, HISTORY, SIZE, TRACE_BASE, SharedState, _H, _J, _joint_base
+from headctl.service.servo_io.shared import (COUNTERS, HISTORY, SIZE, TRACE_BASE, DoubleArray, SharedState, _H, _J,
+                                              _joint_base)
 
 log = logging.getLogger(__name__)
 
@@ -76,16 +77,16 @@ class _Child:
     """The child's side: runs the loop in its main thread; answers after each cycle."""
 
     def __init__(self, config: HeadConfig, inbox: multiprocessing.connection.Connection,
-                 outbox: multiprocessing.connection.Connection, state_raw: Any, heartbeat_raw: Any,
-                 periods_raw: Any, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
+                 outbox: multiprocessing.connection.Connection, state_raw: DoubleArray, heartbeat_raw: DoubleArray,
+                 periods_raw: DoubleArray, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
         self.config = config
         self.enable = enable  # torque on at start (goal := present first); False: as the service had switched it
         self.initial_positions = initial_positions  # a simulated bus: where its servos are
         self.inbox = inbox
         self.outbox = outbox
         self.shared = SharedState(state_raw)
-        self.periods = np.frombuffer(periods_raw, dtype=np.float64)
-        self.heartbeat = np.frombuffer(heartbeat_raw, dtype=np.float64)
+        self.periods = np.frombuffer(memoryview(periods_raw), dtype=np.float64)
+        self.heartbeat = np.frombuffer(memoryview(heartbeat_raw), dtype=np.float64)
         self.values = np.full(SIZE, np.nan)
         # What is on its way to the service: written without blocking (the pipe's framing,
         # a 4-byte length and the pickle), the rest kept for the next cycle. No second thread:
@@ -286,8 +287,8 @@ def _inject(bus: ServoBus, fault: ServoFault, joint: str | None, bits: int) -> N
 
 
 def servo_main(config: HeadConfig, inbox: multiprocessing.connection.Connection,
-               outbox: multiprocessing.connection.Connection, state_raw: Any, heartbeat_raw: Any,
-               periods_raw: Any, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
+               outbox: multiprocessing.connection.Connection, state_raw: DoubleArray, heartbeat_raw: DoubleArray,
+               periods_raw: DoubleArray, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
     """The child process's entry point; a restarted one gets `enable` (torque on) and, on a
     simulated bus, the servos' `initial_positions` from the service."""
     _Child(config, inbox, outbox, state_raw, heartbeat_raw, periods_raw, enable, initial_positions).run()

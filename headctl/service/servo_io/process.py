@@ -35,7 +35,7 @@ import multiprocessing.context
 import multiprocessing.process
 import threading
 import time
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -53,6 +53,7 @@ from headctl.service.servo_io.loop import ServoLoop, complete, period_quantiles
 from headctl.service.servo_io.messages import (Done, Episode, ErrorKind, Failed, FaultsChanged, InjectFault,
                                                LogRecord, Ready, RemoteError, Request, ServoFault, Stop, Stopped,
                                                SwitchTorque, WriteGoals)
+from headctl.json_types import JSONObject
 from headctl.service.servo_io.shared import COUNTERS, HISTORY, TRACE_BASE, SharedState, _H, _J, _joint_base
 
 log = logging.getLogger(__name__)
@@ -425,11 +426,11 @@ class ServoLoopProcess:
         value = self._value("cycles")
         return int(value) if np.isfinite(value) else 0
 
-    def timing(self) -> dict[str, Any]:
+    def timing(self) -> JSONObject:
         """Counters, and the period quantiles over the last `HISTORY` cycles (computed here, at
         most every `ServoLoop.TIMING_MAX_AGE_S`)."""
         v = self._shared.read()
-        out: dict[str, Any] = {"rate_hz": round(1.0 / self.period_s, 3), "pid": self._process.pid,
+        out: JSONObject = {"rate_hz": round(1.0 / self.period_s, 3), "pid": self._process.pid,
                                "restarts": self.restarts}
         for name in COUNTERS:
             out[name] = int(v[_H[name]]) if np.isfinite(v[_H[name]]) else 0

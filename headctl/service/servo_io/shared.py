@@ -30,6 +30,10 @@ COUNTERS = ("cycles", "overruns", "long_periods", "read_errors", "write_errors",
 HISTORY = 6000  # periods in the ring beside the block, for the quantiles (as ServoLoop keeps them)
 
 
+# A block of shared doubles (multiprocessing RawArray("d", n)), as the child is handed it.
+DoubleArray = ctypes.Array[ctypes.c_double]
+
+
 def _joint_base(j: int) -> int:
     """Where joint `j`'s fields start in the block."""
     return len(HEAD_FIELDS) + j * len(JOINT_FIELDS)
