@@ -41,7 +41,7 @@ MAX_BLOCKING_S = 0.1  # a reliable writer whose readers lag waits at most this l
 
 LOCALHOST_XML = """<?xml version="1.0" encoding="UTF-8"?>
 <CycloneDDS xmlns="https://cdds.io/config">
-  <Domain Id="any">
+  <Domain id="any">
     <General>
       <Interfaces><NetworkInterface address="127.0.0.1" multicast="false"/></Interfaces>
       <AllowMulticast>false</AllowMulticast>

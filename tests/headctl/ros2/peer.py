@@ -29,15 +29,17 @@ class Peer:
         self.readers: dict[str, DataReader[Any]] = {}
         self.writers: dict[str, DataWriter[Any]] = {}
 
-    def _topic(self, spec: TopicSpec[Any], qos: QosKind) -> Topic[Any]:
-        name = spec.dds_name(self.config)
+    def _topic(self, spec: TopicSpec[Any], qos: QosKind, dds_name: str | None = None) -> Topic[Any]:
+        name = dds_name or spec.dds_name(self.config)
         if name not in self._topics:
             self._topics[name] = Topic(self.participant, name, spec.type, qos=qos_of(qos, self.config))
         return self._topics[name]
 
-    def subscribe(self, spec: TopicSpec[Any], qos: QosKind | None = None) -> DataReader[Any]:
+    def subscribe(self, spec: TopicSpec[Any], qos: QosKind | None = None, dds_name: str | None = None) -> DataReader[Any]:
+        """Read `spec` (its samples kept under its ROS 2 name, or `dds_name` for a topic outside
+        ROS 2's names, such as ros_discovery_info)."""
         qos = qos or spec.qos
-        name = spec.ros_name(self.config)
+        name = dds_name or spec.ros_name(self.config)
 
         def on_data_available(reader: DataReader[Any] | None) -> None:
             if reader is None:  # data while the reader is made (transient local): taken below
@@ -48,7 +50,7 @@ class Peer:
                 self.samples[name].extend((now, s) for s in got)
                 self._cond.notify_all()
 
-        reader = DataReader(self.participant, self._topic(spec, qos), qos=qos_of(qos, self.config),
+        reader = DataReader(self.participant, self._topic(spec, qos, dds_name), qos=qos_of(qos, self.config),
                             listener=Listener(on_data_available=on_data_available))
         self.readers[name] = reader
         on_data_available(reader)

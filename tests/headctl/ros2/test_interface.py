@@ -243,3 +243,23 @@ def test_the_api_still_serves_beside_ros2(running: tuple[Daemon, Peer]) -> None:
     assert daemon.api_url is not None and daemon.api_url.startswith("http://127.0.0.1:")
     assert interface(daemon).is_alive() and daemon.front_end is not None and daemon.front_end.is_alive()
     assert "api" not in daemon.control.snapshot().faults
+
+
+@pytest.mark.ros2(commands=True)
+def test_a_peer_in_another_process_over_loopback(running: tuple[Daemon, Peer]) -> None:
+    """The same over the wire: another process, loopback only, unicast discovery."""
+    import json
+    import subprocess
+    import sys
+
+    daemon, _ = running
+    out = subprocess.run([sys.executable, "-m", "tests.headctl.ros2.wire_peer", str(DOMAIN)], capture_output=True,
+                         text=True, timeout=90, env={**os.environ, "PYTHONPATH": os.getcwd()})
+    assert out.returncode == 0, out.stderr[-3000:]
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert 80 <= seen["joint_states_hz"] <= 110, seen
+    assert 24 <= seen["images_fps"] <= 33 and seen["image_bytes"] in (320 * 240, 320 * 240 * 3), seen
+    assert seen["look_done"]["state"] == "done", seen["look_done"]
+    # ros_discovery_info: the node, its writers and readers (what `ros2 node list` / `topic info -v` read)
+    namespace, name, writers, readers = seen["node"]
+    assert (namespace, name) == ("/", "headctl") and writers == 11 and readers == 3
