@@ -1,8 +1,9 @@
 """The published streams, each a named thread: joint states with the moving frames, the
 eyes' images, the diagnostics.
 
-- `ros2-joint-states`: at `ros2.rates.joint_states_hz` (default the servo loop's rate), the
-  servo loop's latest state if it is new: `/joint_states` stamped at the read, and `/tf`.
+- `ros2-joint-states`: each new state of the servo loop (looked for twice a servo period),
+  at most `ros2.rates.joint_states_hz` a second (default the servo loop's rate):
+  `/joint_states` stamped at the read, and `/tf`.
 - `ros2-images`: each new frame of each eye (at most `ros2.rates.images_fps`):
   `image_raw`, `image_raw/compressed`, `camera_info`, stamped at the exposure. The service
   offers the newest frame; it is looked at every `IMAGE_POLL_S`.
@@ -36,7 +37,7 @@ JOINT_STATES = TopicSpec("joint_states", m.JointState, QosKind.DEFAULT)
 TF = TopicSpec("tf", m.TFMessage, QosKind.TF)
 TF_STATIC = TopicSpec("tf_static", m.TFMessage, QosKind.TF_STATIC)
 DIAGNOSTICS = TopicSpec("diagnostics", m.DiagnosticArray, QosKind.DEFAULT)
-IMAGE_POLL_S = 0.002
+IMAGE_POLL_S = 0.003
 LATENCIES_KEPT = 2000
 
 
@@ -92,7 +93,7 @@ class Streams:
         self.frames = HeadFrames(config)
         self.clock = clock
         self.latencies_s: dict[str, collections.deque[float]] = {
-            k: collections.deque(maxlen=LATENCIES_KEPT) for k in ("joint_states", "images")}
+            k: collections.deque(maxlen=LATENCIES_KEPT) for k in ("joint_states", "images", "images_seen")}
         self.published: collections.Counter[str] = collections.Counter()
         self._joint_states = node.writer(JOINT_STATES)
         self._tf = node.writer(TF)
@@ -105,8 +106,10 @@ class Streams:
                                   node.writer(jpeg) if config.images.compressed else None, node.writer(info))
         self._last_read_s: float | None = None
         self._last_frame: dict[str, tuple[int, float]] = {}
-        joints_hz = config.rates.joint_states_hz or servo_rate_hz
-        self.threads = [Periodic("ros2-joint-states", 1.0 / joints_hz, self.publish_joints, clock),
+        self.joints_hz = config.rates.joint_states_hz or servo_rate_hz
+        # Each new state, looked for twice a servo period (the loop's phase is not ours).
+        poll_s = min(0.5 / servo_rate_hz, 1.0 / self.joints_hz)
+        self.threads = [Periodic("ros2-joint-states", poll_s, self.publish_joints, clock),
                         Periodic("ros2-images", IMAGE_POLL_S, self.publish_images, clock),
                         Periodic("ros2-diagnostics", 1.0 / config.rates.diagnostics_hz, self.publish_diagnostics,
                                  clock)]
@@ -127,7 +130,8 @@ class Streams:
 
     def publish_joints(self) -> None:
         state = self.service.joint_state()
-        if state is None or state.time_s == self._last_read_s:
+        last = self._last_read_s
+        if state is None or state.time_s == last or (last is not None and state.time_s - last < 0.9 / self.joints_hz):
             return
         self._last_read_s = state.time_s
         stamp = self.stamps.of(state.time_s)
@@ -147,6 +151,7 @@ class Streams:
                                      (fps is not None and frame.time_s - last[1] < 0.9 / fps)):
                 continue
             self._last_frame[side] = (frame.counter, frame.time_s)
+            seen_s = self.clock.monotonic()
             stamp = self.stamps.of(frame.time_s)
             frame_id = self.frames.optical[side]
             raw, jpeg, info = self._images[side]
@@ -157,7 +162,9 @@ class Streams:
                             f"{side}/image_raw/compressed", stamp)
             height, width = frame.image.shape[:2]
             self._write(info, convert.camera_info(width, height, stamp, frame_id), f"{side}/camera_info", stamp)
-            self.latencies_s["images"].append(self.clock.monotonic() - frame.time_s)
+            done_s = self.clock.monotonic()
+            self.latencies_s["images"].append(done_s - frame.time_s)
+            self.latencies_s["images_seen"].append(done_s - seen_s)
 
     def publish_diagnostics(self) -> None:
         self._write(self._diagnostics, convert.diagnostics(self.service.snapshot(), self.stamps.now(),
