@@ -151,14 +151,13 @@ class Ros2Node:
 
     def writer(self, spec: TopicSpec[M]) -> DataWriter[M]:
         with self._lock:
-            assert self.participant is not None, "the node is not open"
             writer = DataWriter(self.participant, self._topic(spec), qos=qos_of(spec.qos, self.config))
             self._writers.append(writer)
             return writer
 
     def reader(self, spec: TopicSpec[M]) -> DataReader[M]:
+        """A reader of `spec` (its samples taken by the caller)."""
         with self._lock:
-            assert self.participant is not None, "the node is not open"
             reader = DataReader(self.participant, self._topic(spec), qos=qos_of(spec.qos, self.config))
             self._readers.append(reader)
             return reader

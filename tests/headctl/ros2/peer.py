@@ -74,6 +74,14 @@ class Peer:
                     raise AssertionError(f"{name}: {len(got)} samples of {n} in {timeout_s} s")
                 self._cond.wait(left)
 
+    def rate_hz(self, name: str, n: int) -> float:
+        """The rate of the next `n` samples on `name`, by their arrivals (after 2 to settle)."""
+        self.wait_for(name, 2)
+        start = len(self.samples[name])
+        self.wait_for(name, start + n)
+        arrivals = [t for t, _ in self.samples[name][start - 1:start + n]]
+        return n / (arrivals[-1] - arrivals[0])
+
     def matched(self, name: str) -> int:
         return int(self.readers[name].get_subscription_matched_status().current_count)
 

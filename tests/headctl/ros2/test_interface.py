@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -87,13 +88,8 @@ def test_topics_types_and_qos_as_ros2_names_them(running: tuple[Daemon, Peer]) -
 def test_joint_states_at_the_servo_rate_stamped_at_the_read_in_radians(running: tuple[Daemon, Peer]) -> None:
     daemon, peer = running
     peer.subscribe(JOINT_STATES)
-    peer.wait_for("/joint_states", 20)
-    start = len(peer.samples["/joint_states"])
-    t0 = peer.samples["/joint_states"][start - 1][0]
-    peer.wait_for("/joint_states", start + 100)
-    arrivals = [t for t, _ in peer.samples["/joint_states"][start - 1:start + 100]]
-    rate_hz = 100 / (arrivals[-1] - t0)
-    assert 80 <= rate_hz <= 110, f"joint states at {rate_hz:.1f} Hz, configured 100"
+    rate_hz = peer.rate_hz("/joint_states", 100)
+    assert 85 <= rate_hz <= 110, f"joint states at {rate_hz:.1f} Hz, the servo loop's 100"
     msg = peer.samples["/joint_states"][-1][1]
     assert msg.name == ["pan", "tilt", "left_eye", "right_eye"] and msg.effort == []
     state = daemon.control.joint_state()
@@ -101,7 +97,6 @@ def test_joint_states_at_the_servo_rate_stamped_at_the_read_in_radians(running: 
     assert all(abs(p) <= math.radians(45) for p in msg.position)  # radians, within the sim's limits
     stamps = [s.header.stamp.sec + s.header.stamp.nanosec * 1e-9 for _, s in peer.samples["/joint_states"][-50:]]
     assert all(b > a for a, b in zip(stamps, stamps[1:]))  # a new read each time
-    import time
     assert abs(stamps[-1] - time.time()) < 1.0  # ROS time: the wall clock
 
 
@@ -109,11 +104,7 @@ def test_joint_states_at_the_servo_rate_stamped_at_the_read_in_radians(running: 
 def test_joint_states_at_the_configured_rate(running: tuple[Daemon, Peer]) -> None:
     daemon, peer = running
     peer.subscribe(JOINT_STATES)
-    peer.wait_for("/joint_states", 2)
-    start = len(peer.samples["/joint_states"])
-    peer.wait_for("/joint_states", start + 25)
-    arrivals = [t for t, _ in peer.samples["/joint_states"][start - 1:start + 25]]
-    rate_hz = 25 / (arrivals[-1] - arrivals[0])
+    rate_hz = peer.rate_hz("/joint_states", 25)
     assert 20 <= rate_hz <= 28, f"joint states at {rate_hz:.1f} Hz, configured 25"
 
 
@@ -122,11 +113,7 @@ def test_images_at_the_camera_rate_with_camera_info_and_jpeg(running: tuple[Daem
     for side in ("left", "right"):
         for spec in image_topics(side):
             peer.subscribe(spec)
-    peer.wait_for("/head/left/image_raw", 5)
-    start = len(peer.samples["/head/left/image_raw"])
-    peer.wait_for("/head/left/image_raw", start + 30)
-    arrivals = [t for t, _ in peer.samples["/head/left/image_raw"][start - 1:start + 30]]
-    fps = 30 / (arrivals[-1] - arrivals[0])
+    fps = peer.rate_hz("/head/left/image_raw", 30)
     assert 24 <= fps <= 33, f"left images at {fps:.1f} fps, the camera's 30"
     img = peer.samples["/head/left/image_raw"][-1][1]
     assert (img.width, img.height, img.header.frame_id) == (320, 240, "left_camera_optical_frame")
@@ -263,3 +250,20 @@ def test_a_peer_in_another_process_over_loopback(running: tuple[Daemon, Peer]) -
     # ros_discovery_info: the node, its writers and readers (what `ros2 node list` / `topic info -v` read)
     namespace, name, writers, readers = seen["node"]
     assert (namespace, name) == ("/", "headctl") and writers == 11 and readers == 3
+
+
+@pytest.mark.ros2(commands=True)
+def test_track_the_fovea_then_stop(running: tuple[Daemon, Peer]) -> None:
+    daemon, peer = running
+    peer.subscribe(GAZE_STATE)
+    track = peer.publisher(TRACK)
+    wait_until(lambda: track.get_publication_matched_status().current_count == 1, 10.0, "the command matched")
+    wait_until(lambda: daemon.control.latest_frame("left") is not None, 10.0, "a frame")
+    track.write(m.PointStamped(point=m.Point(x=math.nan, y=math.nan)))
+    queued = peer.wait_for("/head/gaze_state", where=lambda s: s.name == "track_queued")[0]
+    track_id = {kv.key: kv.value for kv in queued.values}["id"]
+    peer.wait_for("/head/gaze_state", where=lambda s: s.name in ("track_started", "track_stopped"), timeout_s=15.0)
+    track.write(m.PointStamped(header=m.Header(frame_id="stop")))
+    stopped = peer.wait_for("/head/gaze_state", where=lambda s: s.name == "track_stopped", timeout_s=15.0)[0]
+    assert {kv.key: kv.value for kv in stopped.values}["id"] == track_id
+    wait_until(lambda: daemon.control.get_track()["state"].finished, 5.0, "the track finished")
