@@ -38,8 +38,9 @@ class Rule:
 FORBIDDEN = (
     Rule("drivers", "calib_free"), Rule("drivers", "headctl"),
     Rule("calib_free", "drivers"), Rule("calib_free", "headctl"),
-    Rule("headctl.service", "headctl.api"),
-    *(Rule(f"headctl.{part}", "headctl.cli") for part in ("service", "experiments", "setup", "config", "api")),
+    Rule("headctl.service", "headctl.api"), Rule("headctl.service", "headctl.ros2"),
+    Rule("headctl.config", "headctl.ros2"), Rule("headctl.ros2", "headctl.api"),
+    *(Rule(f"headctl.{part}", "headctl.cli") for part in ("service", "experiments", "setup", "config", "api", "ros2")),
     Rule("benchmarks", "tests"),
 )
 

@@ -1,18 +1,21 @@
-"""The service with its HTTP control API, as `headctl run` runs it.
+"""The service with its HTTP control API and its ROS 2 interface, as `headctl run` runs it.
 
 The daemon (`headctl.service.daemon.Daemon`) knows its front end only as a factory
 (`FrontEndFactory`); `api_front_end` is the one that serves the config's API
-(`headctl.api.server.ApiServer`), and `serve` composes the two.
+(`headctl.api.server.ApiServer`), `headctl.ros2.interface.ros2_front_end` the ROS 2 topics;
+`front_ends` makes one of those the config enables (`Composite`), and `serve` gives it to the
+daemon.
 """
 from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from drivers.clock import SYSTEM_CLOCK, Clock
 from headctl.config.api import ApiConfig, is_loopback
 from headctl.config.head import HeadConfig
+from headctl.ros2.interface import ros2_front_end
 from headctl.service.control import HeadService
 from headctl.service.daemon import Daemon, FrontEnd, FrontEndFactory
 
@@ -38,6 +41,42 @@ def api_front_end(api: ApiConfig) -> FrontEndFactory | None:
     return serving
 
 
+class Composite:
+    """Several front ends as one: the first's URL (the API's, which clients find in
+    `api.url`; '' when there is no API), the first error of any, alive while all are."""
+
+    def __init__(self, parts: Sequence[FrontEnd], has_api: bool) -> None:
+        self.parts = tuple(parts)
+        self.has_api = has_api
+
+    @property
+    def url(self) -> str:
+        return self.parts[0].url if self.has_api else ""
+
+    @property
+    def error(self) -> BaseException | None:
+        return next((p.error for p in self.parts if p.error is not None), None)
+
+    def is_alive(self) -> bool:
+        return all(p.is_alive() for p in self.parts)
+
+
+def front_ends(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> FrontEndFactory | None:
+    """The front end of what `config` enables: the API, the ROS 2 interface, both or none. The
+    API alone is given to the daemon as it is."""
+    api, ros2 = api_front_end(config.api), ros2_front_end(config, clock)
+    if ros2 is None:
+        return api
+    makers = [f for f in (api, ros2) if f is not None]
+
+    @contextlib.contextmanager
+    def serving(service: HeadService) -> Iterator[FrontEnd]:
+        with contextlib.ExitStack() as stack:
+            yield Composite([stack.enter_context(make(service)) for make in makers], has_api=api is not None)
+
+    return serving
+
+
 def serve(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> Daemon:
-    """The service for `config` with the API it configures (not started)."""
-    return Daemon(config, clock, front_end=api_front_end(config.api))
+    """The service for `config` with the API and the ROS 2 interface it configures (not started)."""
+    return Daemon(config, clock, front_end=front_ends(config, clock))

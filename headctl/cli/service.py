@@ -1,8 +1,8 @@
 """Subcommands of `headctl` for the service: `run` (the daemon), `check` (a config), `status`.
 
-`run [--config F]` runs the daemon (`headctl.service.daemon.Daemon`), its front end the HTTP
-API (`headctl.api.compose`), until SIGTERM/SIGINT; without `--config` it runs the simulated
-head of `configs/sim.yaml`. `check --config F` validates a config and connects to the servos
+`run [--config F]` runs the daemon (`headctl.service.daemon.Daemon`), its front ends the HTTP
+API and the ROS 2 interface the config enables (`headctl.api.compose`), until SIGTERM/SIGINT;
+without `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a config and connects to the servos
 and cameras it names, reporting each. Both prepare the
 config in one way (`_prepare`), so `check`, with or without `--no-connect`, refuses a config
 exactly where `run` would: exit 2 naming the file, the key path, the value and what was
@@ -148,6 +148,10 @@ def _prepare(args: argparse.Namespace, command: str) -> tuple[HeadConfig | None,
                   file=sys.stderr)
             return None, 2
         config = config.with_api(port=api_port)
+    missing = _ros2_missing(config)
+    if missing is not None:
+        print(f"headctl {command}: {config.path}: {missing}", file=sys.stderr)
+        return None, 1
     try:
         check_runtime(config)
         _build_devices(config)
@@ -163,6 +167,15 @@ def _prepare(args: argparse.Namespace, command: str) -> tuple[HeadConfig | None,
         print(f"headctl {command}: {config.path}: building the devices failed: {err!r}", file=sys.stderr)
         return None, 1
     return config, 0
+
+
+def _ros2_missing(config: HeadConfig) -> str | None:
+    """Why the ROS 2 interface the config enables cannot run here (its extra not installed)."""
+    if not config.ros2.enabled:
+        return None
+    from headctl.ros2.interface import missing_dependency
+
+    return missing_dependency()
 
 
 def _build_devices(config: HeadConfig) -> None:
@@ -186,7 +199,7 @@ def _apply_logging(config: HeadConfig, args: argparse.Namespace) -> None:
 
 # --- run -------------------------------------------------------------------------------------
 def _run(args: argparse.Namespace) -> int:
-    from headctl.api.compose import api_front_end
+    from headctl.api.compose import front_ends
     from headctl.service.daemon import Daemon
 
     config, status = _prepare(args, "run")
@@ -199,7 +212,7 @@ def _run(args: argparse.Namespace) -> int:
               f"written ({err.strerror})", file=sys.stderr)
         return 2
     try:
-        return Daemon(config, front_end=api_front_end(config.api)).run()
+        return Daemon(config, front_end=front_ends(config)).run()
     except (HeadctlError, DriverError, OSError) as err:
         log.error("headctl run: %s", err)
         print(f"headctl run: {err}", file=sys.stderr)
@@ -220,6 +233,11 @@ def _check(args: argparse.Namespace) -> int:
         print(f"  camera {side}: {cam.backend} {where} {cam.width} x {cam.height} at {cam.fps or 'default'} fps")
     print(f"  gaze map: {params.profile} profile, grid {params.grid_shape}, disparity {params.disparity_range} px; "
           f"state in {config.state_dir}")
+    ros2 = config.ros2
+    if ros2.enabled:
+        print(f"  ros2: node {ros2.namespace}/{ros2.node_name} on DDS domain {ros2.domain_id} ({ros2.distro}), "
+              f"{'localhost only' if ros2.localhost_only else 'all interfaces'}, "
+              f"commands {'accepted' if ros2.commands else 'off'}")
     if args.no_connect:
         return 0
     return _connect_and_report(config, args.timeout)

@@ -4,7 +4,8 @@ Sections (docs/config.md): `servo_bus` and `cameras` (the drivers' `ServoBusConf
 `StereoCamerasConfig`), `gaze_map` (profile, seed, Table I parameters), `fixation`
 (`calib_free.gaze.fixation.FixationParams` fields plus exploration on/off and rate), `service`
 (servo loop rate, stale-input timeout, checkpoints, safe state), `api` (the HTTP control
-API's address, token, TLS, streams), `state_dir` and `logging`.
+API's address, token, TLS, streams), `ros2` (the ROS 2 interface, `headctl.config.ros2`),
+`state_dir` and `logging`.
 Every section is read by the one reader, `drivers.config.reader`; checks across sections and the
 files the config names are done here, at load time (the `api` section's token file and TLS
 certificate and key by `headctl.config.api`).
@@ -46,6 +47,7 @@ from drivers.servo.bus import ServoBus
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.motion import MovingObject
 from headctl.config.api import ApiChanges, ApiConfig, beside, resolve_api, scrub, secrets_in
+from headctl.config.ros2 import Ros2Config
 from headctl.config.tracking import TrackingConfig
 from headctl.errors import ConfigError
 from headctl.json_types import JSON
@@ -232,6 +234,7 @@ class HeadConfig:
     logging: LoggingConfig = field(default_factory=LoggingConfig)
     api: ApiConfig = field(default_factory=ApiConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)  # the ROS 2 interface (headctl.ros2)
     sim_objects: tuple[MovingObject, ...] = ()  # moving objects in the simulated room
 
     @property

@@ -26,6 +26,7 @@ from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
 from calib_free.gaze.look import TargetDisparity
 from calib_free.gaze.look import target_disparity as look_disparity
+from drivers.servo.bus import BusState
 from drivers.servo.joints import JOINTS
 from drivers.cameras.camera import Frame
 from drivers.errors import DriverError
@@ -122,6 +123,8 @@ class HeadService(Protocol):
 
     def latest_frame(self, side: str) -> Frame | None: ...
 
+    def joint_state(self) -> BusState | None: ...
+
     def last_fixation(self) -> FixationRecord | None: ...
 
     def track(self, x: float | None, y: float | None) -> LookJob: ...
@@ -156,6 +159,12 @@ class ServiceControl:
         devices = self.parts.devices
         camera = devices.cameras.get(side) if devices is not None else None
         return camera.latest() if camera is not None else None
+
+    def joint_state(self) -> BusState | None:
+        """The servo loop's latest state (all joints, stamped at the read), without waiting; None
+        before the first read or while the service does not run."""
+        running = self.parts.running
+        return running.loop.latest_state() if running is not None else None
 
     def last_fixation(self) -> FixationRecord | None:
         running = self.parts.running
