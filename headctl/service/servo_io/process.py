@@ -27,6 +27,7 @@ service died): the bus's own watchdog and the stale-input hold cover the time be
 from __future__ import annotations
 
 import collections
+import dataclasses
 import itertools
 import logging
 import multiprocessing
@@ -132,6 +133,10 @@ class ServoLoopProcess:
         self.error: BaseException | None = None
         self._records: collections.deque[HardwareErrorEpisode] = collections.deque(maxlen=1024)
         self._records_lock = threading.Lock()
+        # Each child numbers its fault log from 1: the records of a restarted child are moved
+        # past the dead one's, so that the log stays one sequence (readers keep a cursor in it).
+        self._seq_offset = 0
+        self._last_seq = 0
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _spawn(self, initial_positions: Mapping[str, float] | None) -> None:
@@ -184,6 +189,8 @@ class ServoLoopProcess:
         for end in (self._to_child, self._from_child):
             end.close()
         self._mark_dead()
+        with self._records_lock:
+            self._seq_offset = self._last_seq
         simulated = self._shared.values[_H["has_state"]] == 1.0 and self.config.simulated
         positions = {j: self.true_position(j) for j in JOINTS} if simulated else None
         self._spawn(positions if positions and all(np.isfinite(list(positions.values()))) else None)
@@ -292,6 +299,10 @@ class ServoLoopProcess:
                     self._relay_log(message)
                 case Episode(record):
                     with self._records_lock:
+                        offset = self._seq_offset
+                        record = dataclasses.replace(record, seq=record.seq + offset,
+                                                     episode=record.episode + offset)
+                        self._last_seq = max(self._last_seq, record.seq)
                         self._records.append(record)
                 case Stopped():
                     break

@@ -16,7 +16,7 @@ import pytest
 from prometheus_client import generate_latest
 
 from headctl.api.metrics import registry_for
-from headctl.service.control import HeadService
+from headctl.service.control import HeadService, SimFault
 from headctl.service.daemon import Daemon
 from headctl.service.events import Event
 from tests.conftest import sim_head_config, wait_until
@@ -48,6 +48,13 @@ def test_a_killed_servo_process_is_replaced_within_5_s_and_the_service_runs_agai
         before = control.snapshot().servo_loop or {}
         old_pid = before["pid"]
         assert isinstance(old_pid, int) and old_pid != os.getpid() and before["restarts"] == 0
+        def episodes_of(joint: str) -> list[dict[str, object]]:
+            hardware = control.snapshot().hardware_errors
+            return [e for e in hardware["open"] + hardware["ended"] if e["joint"] == joint]
+
+        # An episode of the first child's fault log, so that the service's cursor is past 1.
+        control.inject_fault(SimFault.HARDWARE_ERROR, joint="pan", bits=0x20)
+        wait_until(lambda: episodes_of("pan"), 10.0, "the pan episode in the status")
         recorder = Recorder("servo_process_restarted")
         daemon.parts.hub.subscribe(recorder)
 
@@ -73,6 +80,11 @@ def test_a_killed_servo_process_is_replaced_within_5_s_and_the_service_runs_agai
         # The new process moves the head: the fixations go on.
         done = control.snapshot().fixation.done
         wait_until(lambda: control.snapshot().fixation.done > done, 30.0, "a fixation after the restart")
+        # The new child numbers its fault log from 1 again: its hardware-error episodes still reach
+        # the status, after the dead child's.
+        control.inject_fault(SimFault.HARDWARE_ERROR, joint="tilt", bits=0x20)
+        episodes = wait_until(lambda: episodes_of("tilt"), 10.0, "the tilt episode in the status")
+        assert episodes[-1]["bits"] == 0x20
 
 
 @dataclasses.dataclass
