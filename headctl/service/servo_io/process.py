@@ -137,6 +137,7 @@ class ServoLoopProcess:
         # past the dead one's, so that the log stays one sequence (readers keep a cursor in it).
         self._seq_offset = 0
         self._last_seq = 0
+        self._death_code: int | None = None  # the dead child's exit code, as the link first read it
 
     # -- lifecycle ------------------------------------------------------------------------------
     def _spawn(self, initial_positions: Mapping[str, float] | None) -> None:
@@ -182,7 +183,9 @@ class ServoLoopProcess:
         raises its error. The simulated servos start where the dead child's were."""
         if self._stopping:
             raise ServoLoopStoppedError(f"{self.name}: stopping; not restarted")
-        old_pid, old_code = self._process.pid, self._process.exitcode
+        old_pid = self._process.pid
+        old_code = self._death_code if self._death_code is not None else self._process.exitcode
+        self._death_code = None
         self._kill()
         if self._reader.is_alive():
             self._reader.join(5.0)
@@ -309,7 +312,9 @@ class ServoLoopProcess:
         if not self._stopping:
             process.join(1.0)  # reaped, so that its exit code is known
             self._mark_dead()
-            self.error = ServoProcessError(f"servo process {process.pid} exited (code {process.exitcode})")
+            # Kept as first read: a fork server's child's status can be read only once for sure.
+            self._death_code = process.exitcode
+            self.error = ServoProcessError(f"servo process {process.pid} exited (code {self._death_code})")
             log.error("%s", self.error)
         with self._pending_lock:
             pending, self._pending = self._pending, {}
