@@ -11,16 +11,15 @@ reaches `max_bytes` or its messages span `max_duration_ns`.
 from __future__ import annotations
 
 import dataclasses
-import io
 import logging
 import shutil
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import yaml
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
-from ruamel.yaml import YAML
 
 from headctl.ros2 import bagtypes
 
@@ -53,12 +52,6 @@ WriterFactory = Callable[[Path], Writer]
 
 def mcap_writer(path: Path) -> Writer:
     return Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-
-
-def _yaml() -> YAML:
-    yaml = YAML(typ="safe")
-    yaml.default_flow_style = False
-    return yaml
 
 
 class SplitBag:
@@ -116,7 +109,7 @@ class SplitBag:
             return
         writer.close()
         folder = writer.path
-        info = _yaml().load((folder / METADATA).read_text())["rosbag2_bagfile_information"]
+        info = yaml.safe_load((folder / METADATA).read_text())["rosbag2_bagfile_information"]
         for name in info["relative_file_paths"]:
             (folder / name).replace(self.path / name)
         shutil.rmtree(folder)
@@ -158,8 +151,6 @@ class SplitBag:
                   "topics_with_message_count": [
                       {**t, "message_count": counts.get(t["topic_metadata"]["name"], 0)} for t in topics],
                   "files": [file for f in files for file in f["files"]]}
-        text = io.StringIO()
-        _yaml().dump({"rosbag2_bagfile_information": merged}, text)
         tmp = self.path / (METADATA + ".tmp")
-        tmp.write_text(text.getvalue())
+        tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": merged}, sort_keys=False))
         tmp.replace(self.path / METADATA)

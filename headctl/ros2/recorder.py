@@ -193,13 +193,15 @@ class Recordings:
             self.config.state_dir / "recordings"
 
     def start(self, directory: str | None = None, seconds: float | None = None) -> JSONObject:
-        """Start a bag in `directory` (absolute; default `ros2.recording.directory`)."""
+        """Start a bag in `directory` (an existing directory, absolute; default
+        `ros2.recording.directory`, made if missing)."""
         if seconds is not None and not 0 < seconds <= self.settings.max_seconds:
             raise InvalidRequestError(f"seconds: got {seconds}, expected (0, {self.settings.max_seconds:g}] "
                                       "(ros2.recording.max_seconds)", "seconds")
         parent = Path(directory) if directory else self.default_directory()
-        if directory and not parent.is_absolute():
-            raise InvalidRequestError(f"directory: got {directory!r}, expected an absolute path", "directory")
+        if directory and not (parent.is_absolute() and parent.is_dir()):
+            raise InvalidRequestError(f"directory: got {directory!r}, expected the absolute path of an existing "
+                                      "directory", "directory")
         with self._lock:
             if self.current is not None and self.current.is_alive():
                 raise ControlError(f"already recording to {self.current.bag.path}: stop it first")
@@ -208,6 +210,7 @@ class Recordings:
             while path.exists():
                 path, n = parent / f"{time.strftime('headctl_%Y%m%d_%H%M%S')}_{n}", n + 1
             try:
+                parent.mkdir(parents=True, exist_ok=True)
                 bag = SplitBag(path, bag_topics(self.config), int(self.settings.max_bag_size_mb * 1e6),
                                int(self.settings.max_bag_duration_s * 1e9), self.writer)
             except OSError as err:

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from tests.headctl.ros2.support import need
 
@@ -19,7 +20,6 @@ need("mcap")
 from mcap.reader import make_reader  # noqa: E402
 from rosbags.rosbag2 import Reader, Writer  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
-from ruamel.yaml import YAML  # noqa: E402
 
 from headctl.api.client import ApiClient, ApiError  # noqa: E402
 from headctl.api.compose import serve  # noqa: E402
@@ -101,7 +101,7 @@ def test_a_bag_is_split_by_duration_into_files_of_one_metadata(tmp_path: Path, d
     bag = Path(status["path"])
     files = sorted(p.name for p in bag.glob("*.mcap"))
     assert len(files) >= 4, files
-    listed = YAML(typ="safe").load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    listed = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert sorted(listed["relative_file_paths"]) == files == sorted(f["path"] for f in listed["files"])
     with Reader(bag) as reader:
         total = sum(c.msgcount for c in reader.connections if c.topic == "/joint_states")
@@ -150,6 +150,9 @@ def test_the_routes_start_stop_and_refuse_clearly(tmp_path: Path, daemon: Daemon
     relative = refusal(lambda: api.record_start(directory="here"))
     assert relative.status == 422 and "absolute" in str(relative)
     assert refusal(api.record_stop).status == 409
+    missing = refusal(lambda: api.record_start(directory=str(tmp_path / "missing")))
+    assert missing.status == 422 and missing.field == "directory" and "existing directory" in str(missing)
+    (tmp_path / "bags").mkdir()
     started = api.record_start(directory=str(tmp_path / "bags"))
     assert started["state"] == "recording"
     again = refusal(api.record_start)
@@ -157,3 +160,19 @@ def test_the_routes_start_stop_and_refuse_clearly(tmp_path: Path, daemon: Daemon
     stopped = api.record_stop()
     assert stopped["state"] == "stopped"
     assert (Path(str(stopped["path"])) / "metadata.yaml").exists()
+
+
+def test_headctl_record_seconds_prints_the_bag(tmp_path: Path, daemon: Daemon,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    from headctl.cli.main import main
+
+    url = daemon.front_end.url if daemon.front_end else ""
+    assert main(["record", "--seconds", "2", "--out", str(tmp_path / "out"), "--url", url]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    bag = Path(lines[-1])
+    assert bag.parent == tmp_path / "out" and lines[0].startswith("stopped: ")
+    with Reader(bag) as reader:
+        assert reader.duration > 1.5e9
+        assert {c.topic for c in reader.connections} >= {"/joint_states", "/head/right/image_raw/compressed"}
+    assert main(["record", "stop", "--url", url]) == 1  # nothing recording: the daemon's reason
+    assert "not recording" in capsys.readouterr().err
