@@ -7,8 +7,9 @@ and writes the same messages (`convert`, `frames`) to a `SplitBag`: `/joint_stat
 `/tf` at `ros2.rates.joint_states_hz` (default the servo rate), `/tf_static` at the start of
 each file, each eye's `image_raw/compressed` and `camera_info` at each new frame,
 `/diagnostics`, `/head/gaze_state` (looks and tracks) and `/head/events` (every other event:
-fixations, saccades, the map's learning, faults), each a `diagnostic_msgs/DiagnosticStatus`
-named by the event's type. It needs no DDS: without `cyclonedds` the messages are
+fixations, saccades, the map's saves and resets, faults; and each new point of the learning
+curve as a `learning` event), each a `diagnostic_msgs/DiagnosticStatus` named by the event's
+type with its fields as KeyValues. It needs no DDS: without `cyclonedds` the messages are
 `bagtypes`'. The event hub's subscriber only appends to a bounded deque, so the fixation
 thread never waits for the disk. A write that fails (ENOSPC, EDQUOT, any `OSError`) ends the
 recording as `failed` with the reason in its status and a `recording_failed` event; the
@@ -67,6 +68,10 @@ def bag_topics(config: HeadConfig) -> list[BagTopic]:
     return topics
 
 
+def _int(value: object, default: int = 0) -> int:
+    return value if isinstance(value, int) else default
+
+
 class Recording(threading.Thread):
     """One bag being written; see the module docstring. `stop(timeout_s)` closes the bag."""
 
@@ -86,11 +91,13 @@ class Recording(threading.Thread):
         self.error: str | None = None
         self.counts: collections.Counter[str] = collections.Counter()
         self.events_dropped = 0
+        self.cpu_s = 0.0  # this thread's CPU time, once it has ended
         self._events: collections.deque[tuple[Any, Event]] = collections.deque(maxlen=EVENTS_KEPT)
         self._stop_flag = threading.Event()
         self._last_read_s: float | None = None
         self._last_frame: dict[str, int] = {}
         self._next_diagnostics_s = self.started_s
+        self._learning_next = _int(service.learning_since(0, 0).get("next"))
         self._unsubscribe = service.events.subscribe(self._on_event)
         bag.on_new_file = self._write_static
 
@@ -108,6 +115,7 @@ class Recording(threading.Thread):
         self._write("tf_static", self.frames.static(stamp), stamp)
 
     def run(self) -> None:
+        cpu0_s = time.thread_time()
         try:
             while not self._stop_flag.is_set():
                 self.step()
@@ -124,6 +132,7 @@ class Recording(threading.Thread):
             self.service.events.publish("recording_failed", path=str(self.bag.path), reason=self.error)
         finally:
             self._unsubscribe()
+            self.cpu_s = time.thread_time() - cpu0_s
         log.info("record: %s: %s, %d messages", self.bag.path, self.state, sum(self.counts.values()))
 
     def step(self) -> None:
@@ -135,11 +144,22 @@ class Recording(threading.Thread):
             stamp = self.stamps.now()
             self._write("diagnostics", convert.diagnostics(self.service.snapshot(), stamp, self.ros2.frame_prefix),
                         stamp)
+            self._learning(stamp)
         while self._events:
             stamp, event = self._events.popleft()
             gaze = str(event.get("type", "")).startswith(convert.GAZE_EVENTS)
             self._write("head/gaze_state" if gaze else "head/events",
                         convert.gaze_state(event, self.ros2.frame_prefix), stamp)
+
+    def _learning(self, stamp: Any) -> None:
+        """The learning curve's new points, each a `learning` event on `/head/events`."""
+        answer = self.service.learning_since(self._learning_next)
+        points = answer.get("points")
+        for point in points if isinstance(points, list) else []:
+            if isinstance(point, dict):
+                self._write("head/events", convert.gaze_state({"type": "learning", **point}, self.ros2.frame_prefix),
+                            stamp)
+        self._learning_next = _int(answer.get("next"), self._learning_next)
 
     def _joints(self) -> None:
         state = self.service.joint_state()
@@ -174,7 +194,8 @@ class Recording(threading.Thread):
                 "files": [p for f in self.bag.files for p in f["relative_file_paths"]],
                 "file_index": self.bag.file_index, "bytes": self.bag.bytes_written,
                 "duration_s": round(self.clock.monotonic() - self.started_s, 3),
-                "messages": dict(self.counts), "events_dropped": self.events_dropped}
+                "messages": dict(self.counts), "events_dropped": self.events_dropped,
+                "cpu_s": round(self.cpu_s, 3)}
 
 
 class Recordings:

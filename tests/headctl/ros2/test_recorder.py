@@ -73,9 +73,14 @@ def test_a_bag_of_the_simulated_head_reads_back_in_rosbags_and_mcap(tmp_path: Pa
         assert counts["/head/right/camera_info"] == counts["/head/right/image_raw/compressed"]
         assert counts["/tf_static"] == 1 and counts["/diagnostics"] >= 2, counts
         seen: dict[str, Any] = {}
+        events: list[str] = []
         for conn, _, raw in reader.messages():
             if conn.topic not in seen:
                 seen[conn.topic] = STORE.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == "/head/events":
+                events.append(STORE.deserialize_cdr(raw, conn.msgtype).name)
+    assert any(e.startswith("fixation_") for e in events), events
+    assert "learning" in events, events
     joints = seen["/joint_states"]
     assert list(joints.name) == ["pan", "tilt", "left_eye", "right_eye"]
     assert np.all(np.abs(joints.position) < 2.0)
