@@ -31,7 +31,9 @@ from headctl.ros2.recorder import cdr
 
 m = convert.m
 stamp = m.Time.of_seconds(1700000000.25)
-state = BusState(time_s=1.0, joints={j: JointState(position=10.0 * i, velocity=-1.5 * i, moving=False, torque_on=True, hardware_error_bits=0, temperature_c=40.0, input_voltage_v=12.0)
+state = BusState(time_s=1.0, joints={j: JointState(position=10.0 * i, velocity=-1.5 * i, moving=False,
+                                                torque_on=True, hardware_error_bits=0, temperature_c=40.0,
+                                                input_voltage_v=12.0)
                                      for i, j in enumerate(("pan", "tilt", "left_eye", "right_eye"))})
 image = (np.arange(48 * 64 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
 frame = Frame(camera="left", counter=3, image=image, time_s=1.0, exposure_start_s=0.99)
