@@ -56,6 +56,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from headctl.api.record import RecordControl, add_record_routes
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, QueueFullError, UnavailableError
 from headctl.json_types import JSON, JSONObject
 from headctl.service.control import HeadService, SimFault
@@ -319,7 +320,7 @@ class EventStreamResponse(StreamingResponse):
 
 
 def create_app(service: HeadService, token: str | None = None, stream_fps: float = 10.0,
-               jpeg_quality: int = 80) -> FastAPI:
+               jpeg_quality: int = 80, recordings: RecordControl | None = None) -> FastAPI:
     """The API over `service` (a `headctl.service.control.ServiceControl`); `ApiServer` adds
     the body size cap (`headctl.api.server.BodyCap`) when it serves it."""
     app = FastAPI(title="headctl", version="1", docs_url=None, redoc_url=None, responses=ERROR_RESPONSES,
@@ -444,6 +445,8 @@ def create_app(service: HeadService, token: str | None = None, stream_fps: float
                                                        bits=body.bits)})
 
     # -- streams ----------------------------------------------------------------------
+    add_record_routes(app, recordings, guarded, answers)
+
     @app.get("/api/v1/events", dependencies=guarded, response_class=EventStreamResponse,
              responses=answers(422, ok="the events as they come (Server-Sent Events)", media_type="text/event-stream"))
     async def events(request: Request, after: int | None = Query(None, ge=0)) -> Response:

@@ -112,6 +112,16 @@ class ApiClient:
     def stop_track(self, wait_s: float = 2.0) -> JSONObject:
         return self.request("DELETE", f"/api/v1/track?wait_s={wait_s}", wait_s=wait_s)
 
+    def record_start(self, directory: str | None = None, seconds: float | None = None) -> JSONObject:
+        body: JSONObject = {"directory": directory, "seconds": seconds}
+        return self.request("POST", "/api/v1/record/start", {k: v for k, v in body.items() if v is not None})
+
+    def record_stop(self) -> JSONObject:
+        return self.request("POST", "/api/v1/record/stop", {})
+
+    def record_status(self) -> JSONObject:
+        return self.request("GET", "/api/v1/record")
+
     def set_exploration(self, enabled: bool) -> bool:
         return bool(self.request("POST", "/api/v1/exploration", {"enabled": enabled})["enabled"])
 

@@ -9,6 +9,7 @@ daemon.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 from collections.abc import Iterator, Sequence
 
@@ -22,8 +23,10 @@ from headctl.service.daemon import Daemon, FrontEnd, FrontEndFactory
 log = logging.getLogger(__name__)
 
 
-def api_front_end(api: ApiConfig) -> FrontEndFactory | None:
-    """The front end that serves `api` (None when `api.enabled` is false)."""
+def api_front_end(api: ApiConfig, config: HeadConfig | None = None,
+                  clock: Clock = SYSTEM_CLOCK) -> FrontEndFactory | None:
+    """The front end that serves `api` (None when `api.enabled` is false), with the
+    recordings of `config` (`headctl.ros2.recorder`) when it is given and rosbags is installed."""
     if not api.enabled:
         return None
 
@@ -31,8 +34,15 @@ def api_front_end(api: ApiConfig) -> FrontEndFactory | None:
     def serving(service: HeadService) -> Iterator[FrontEnd]:
         from headctl.api.server import ApiServer  # FastAPI and uvicorn: only when the API is on
 
-        with ApiServer(service, api.host, api.port, api.token, api.stream_fps, api.jpeg_quality, api.tls_cert,
-                       api.tls_key) as server:
+        with contextlib.ExitStack() as stack:
+            recordings = None
+            if config is not None and importlib.util.find_spec("rosbags") is not None:
+                from headctl.ros2.recorder import Recordings
+
+                recordings = stack.enter_context(Recordings(service, config, clock))
+            server = stack.enter_context(ApiServer(service, api.host, api.port, api.token, api.stream_fps,
+                                                   api.jpeg_quality, api.tls_cert, api.tls_key,
+                                                   recordings=recordings))
             if not api.tls_cert and not is_loopback(api.host):
                 log.warning("api: %s is served without TLS: the token crosses the network in clear text "
                             "(set api.tls_cert and api.tls_key, or reach it through an SSH tunnel)", api.host)
@@ -64,7 +74,7 @@ class Composite:
 def front_ends(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> FrontEndFactory | None:
     """The front end of what `config` enables: the API, the ROS 2 interface, both or none. The
     API alone is given to the daemon as it is."""
-    api, ros2 = api_front_end(config.api), ros2_front_end(config, clock)
+    api, ros2 = api_front_end(config.api, config, clock), ros2_front_end(config, clock)
     if ros2 is None:
         return api
     makers = [f for f in (api, ros2) if f is not None]

@@ -30,6 +30,7 @@ from uvicorn.config import Config as UvicornConfig
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 from uvicorn.server import ServerState
 
+from headctl.api.record import RecordControl
 from headctl.api.app import MAX_BODY_BYTES, MAX_CONNECTIONS, MAX_HEAD_BYTES, REQUEST_TIMEOUT_S, create_app, error_response
 from headctl.errors import HeadctlError
 from headctl.service.control import HeadService
@@ -267,13 +268,14 @@ class ApiServer(threading.Thread):
                  stream_fps: float = 10.0, jpeg_quality: int = 80, tls_cert: str | None = None,
                  tls_key: str | None = None, *, request_timeout_s: float = REQUEST_TIMEOUT_S,
                  max_connections: int = MAX_CONNECTIONS, max_body_bytes: int = MAX_BODY_BYTES,
-                 max_head_bytes: int = MAX_HEAD_BYTES) -> None:
+                 max_head_bytes: int = MAX_HEAD_BYTES, recordings: RecordControl | None = None) -> None:
         super().__init__(name="api-server", daemon=True)
         self.host, self.port = host, port
         self.tls_cert, self.tls_key = tls_cert, tls_key
         self.request_timeout_s, self.max_connections = request_timeout_s, max_connections
         self.max_head_bytes = max_head_bytes
-        self.app = create_app(service, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality)
+        self.app = create_app(service, token=token, stream_fps=stream_fps, jpeg_quality=jpeg_quality,
+                              recordings=recordings)
         self.app.add_middleware(BodyCap, max_bytes=max_body_bytes)
         self._sock: socket.socket | None = None
         self._server: uvicorn.Server | None = None

@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "headctl.cli.setup",       # setup: a new head's joints from the images
     "headctl.cli.cameras",     # cameras, snapshot
     "headctl.cli.service",     # run, check, status: the daemon
+    "headctl.cli.record",      # record: rosbag2 bags of the running daemon
 )
 
 

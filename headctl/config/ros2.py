@@ -94,6 +94,23 @@ class Ros2Mechanics:
 
 
 @dataclass(frozen=True)
+class Ros2Recording:
+    """`ros2.recording`: the rosbag2 bags `headctl record` writes (headctl.ros2.recorder); they
+    need no DDS, so they work with `ros2.enabled` false."""
+
+    # where bags go ('' : <state_dir>/recordings); a request may name another directory
+    directory: str = ""
+    # a bag's files are split at this size or this duration, whichever comes first
+    max_bag_size_mb: float = setting(512.0, above=0.0, hi=1e6, expected="a size in (0, 1e6] MB")
+    max_bag_duration_s: float = setting(600.0, above=0.0, hi=86400.0, expected="a duration in (0, 86400] s")
+    # the longest recording a request may ask for ('headctl record --seconds')
+    max_seconds: float = setting(86400.0, above=0.0, hi=1e7, expected="a duration in (0, 1e7] s")
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
+@dataclass(frozen=True)
 class Ros2Config:
     """The `ros2:` section (docs/ros2.md, docs/config.md)."""
 
@@ -118,6 +135,7 @@ class Ros2Config:
     qos: Ros2Qos = field(default_factory=Ros2Qos)
     images: Ros2Images = field(default_factory=Ros2Images)
     mechanics: Ros2Mechanics = field(default_factory=Ros2Mechanics)
+    recording: Ros2Recording = field(default_factory=Ros2Recording)
 
     def __post_init__(self) -> None:
         check_settings(self)

@@ -18,7 +18,10 @@ from drivers.cameras.camera import Frame
 from drivers.clock import Clock
 from drivers.servo.bus import BusState
 from headctl.json_types import JSON
-from headctl.ros2 import messages as m
+try:
+    from headctl.ros2 import messages as m
+except ImportError:  # no cyclonedds: the same messages from rosbags' typestore (a recording needs no DDS)
+    from headctl.ros2 import bagtypes as m  # type: ignore[no-redef]
 from headctl.service.status import StatusSnapshot
 
 GAZE_EVENTS = ("look_", "track_")  # the event types /head/gaze_state carries (the SSE events' own)

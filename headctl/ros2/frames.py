@@ -15,7 +15,10 @@ import math
 from collections.abc import Mapping
 
 from headctl.config.ros2 import Ros2Config
-from headctl.ros2 import messages as m
+try:
+    from headctl.ros2 import messages as m
+except ImportError:  # no cyclonedds: the same messages from rosbags' typestore (a recording needs no DDS)
+    from headctl.ros2 import bagtypes as m  # type: ignore[no-redef]
 
 # eye link (x forward, y left, z up) -> optical frame (z forward, x right, y down)
 OPTICAL = m.Quaternion(x=-0.5, y=0.5, z=-0.5, w=0.5)
