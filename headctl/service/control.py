@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import errno
 import logging
+import os
 import re
 import threading
 from pathlib import Path
@@ -82,6 +84,20 @@ class SimFault(enum.StrEnum):
     POWER_BACK = "power_back"
     SERVO_REMOVE = "servo_remove"  # `joint`'s servo leaves the bus (silent) until servo_add
     SERVO_ADD = "servo_add"  # it is back, just powered up (torque off)
+    # The state directory's disk full (every checkpoint fails with ENOSPC) until writable again.
+    STATE_DIR_FULL = "state_dir_full"
+    STATE_DIR_WRITABLE = "state_dir_writable"
+
+
+class FullDisk:
+    """A checkpoint writer on a full disk (`SimFault.STATE_DIR_FULL`): every save fails with
+    ENOSPC before a byte is written; `writer` is the one it stands in for."""
+
+    def __init__(self, writer: Callable[[GazeMap, Path], None]) -> None:
+        self.writer = writer
+
+    def __call__(self, gm: GazeMap, path: Path) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
 
 class MapAnswer(TypedDict):
@@ -397,6 +413,15 @@ class ServiceControl:
             world.servos.inject_power_loss()
         elif fault is SimFault.POWER_BACK:
             world.servos.restore_power(bits)
+        elif fault in (SimFault.STATE_DIR_FULL, SimFault.STATE_DIR_WRITABLE):
+            running = self.parts.running
+            if running is None:
+                raise UnavailableError(f"{fault} needs a running service", "fault")
+            writer = running.checkpointer.writer
+            if fault is SimFault.STATE_DIR_FULL and not isinstance(writer, FullDisk):
+                running.checkpointer.writer = FullDisk(writer)
+            elif fault is SimFault.STATE_DIR_WRITABLE and isinstance(writer, FullDisk):
+                running.checkpointer.writer = writer.writer
         elif camera not in ("left", "right"):
             raise InvalidRequestError(f"{fault} needs camera: left or right, got {camera!r}", "camera")
         elif fault is SimFault.CAMERA_STALL:

@@ -390,3 +390,23 @@ def test_the_checkpoint_interval_is_a_service_setting(tmp_path, value, error):
         with pytest.raises(ConfigError, match=re.escape(f"service.checkpoint_interval_s: {error}")
                            if error.startswith("got") else re.escape(error)):
             load_config(path)
+
+
+def test_the_simulated_full_disk_degrades_the_service_and_writable_again_heals_it(tmp_path):
+    """`SimFault.STATE_DIR_FULL` / `STATE_DIR_WRITABLE`: the fault the soak and the API inject."""
+    from headctl.service.control import SimFault
+    from headctl.service.daemon import Daemon
+    config = sim_head_config(tmp_path / "state")
+    config = dataclasses.replace(config, service=dataclasses.replace(config.service, checkpoint_every=1))
+    with Daemon(config) as daemon:
+        cp = daemon.parts.running.checkpointer
+        wait_until(lambda: cp.count >= 1, 90, "a first checkpoint")
+        kept = cp.last_adaptations
+        good = config.map_path.read_bytes()
+        daemon.control.inject_fault(SimFault.STATE_DIR_FULL)
+        fault = wait_until(lambda: daemon.control.snapshot().faults.get("checkpoint"), 90, "the checkpoint fault")
+        assert "ENOSPC" in fault and str(config.state_dir) in fault
+        assert config.map_path.read_bytes() == good  # the last good checkpoint untouched
+        daemon.control.inject_fault(SimFault.STATE_DIR_WRITABLE)
+        wait_until(lambda: cp.error is None and cp.last_adaptations > kept, 90, "checkpoints resumed")
+        wait_until(lambda: "checkpoint" not in daemon.control.snapshot().faults, 10, "the fault cleared")
