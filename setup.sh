@@ -59,7 +59,7 @@ case "$job" in
     # learning online until SIGTERM/Ctrl-C; `headctl status` in another shell shows its state.
     run) exec "$venv/bin/headctl" run "$@" ;;
     test)
-        # The types first (strict on calib_free and drivers; pyproject.toml, [tool.mypy]), then
+        # The types first (strict on all three packages; pyproject.toml, [tool.mypy]), then
         # the suite. CI=true: no prompts, no colour; the suite itself never needs hardware.
         log "type check: mypy calib_free drivers headctl"
         "$venv/bin/python" -m mypy calib_free drivers headctl
