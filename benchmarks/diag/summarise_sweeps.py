@@ -43,7 +43,7 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
-from headctl.experiments.plots import PAPER_FIG5
+from headctl.experiments.paper_figures import GEOMETRIC
 from headctl.experiments.sweep import RUN_FILE, result_json
 from headctl.experiments.summary import run_figures, spread
 
@@ -288,9 +288,9 @@ def plot(name: str, profile: str, group: Sequence[Run], path: Path) -> None:
         median, q25, q75 = band(curves[:, :, k] * scale)
         ax.fill_between(n, q25, q75, color="tab:blue", alpha=0.4, lw=0, label="interquartile range")
         ax.plot(n, median, lw=0.6, color="navy", label=f"median of {len(group)} seeds")
-        ax.axhline(PAPER_FIG5[key], ls="--", lw=0.8, color="tab:red", label="paper, fig. 5 at 2,000")
+        ax.axhline(GEOMETRIC.plot_values()[key], ls="--", lw=0.8, color="tab:red", label=GEOMETRIC.label)
         ax.set_ylabel(label)
-        ax.set_ylim(0, max(3 * PAPER_FIG5[key], float(np.percentile(median, 99)) * 1.1))
+        ax.set_ylim(0, max(3 * GEOMETRIC.plot_values()[key], float(np.percentile(median, 99)) * 1.1))
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
     ax = axes[4]

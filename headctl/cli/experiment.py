@@ -30,7 +30,8 @@ from headctl.experiments.sweep import SETTABLE, SweepError, build_runs, parse_se
 log = logging.getLogger(__name__)
 
 # The options of one run a sweep passes on to all its runs (`--set` varies them).
-SWEEP_BASE_OPTIONS = ("fixations", "width", "height", "lens", "floor_samples", "landing_every", "exploration", "room")
+SWEEP_BASE_OPTIONS = ("fixations", "width", "height", "lens", "floor_samples", "landing_every", "exploration", "room",
+                      "config")
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -60,6 +61,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--room", choices=ROOM_KINDS, default=None,
                    help="online*: the room the simulated cameras see: 'generated' (default) or 'photos' "
                         "(walls papered with photographs, docs/sim-rooms.md)")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="online* and pursuit: the simulated head whose world (cameras, servos, room) the run "
+                        "happens in (default configs/sim.yaml, the realistic world; configs/sim-ideal.yaml is the "
+                        "kind one)")
     add_sweep_arguments(p)
     p.add_argument("--map", type=Path, default=None, metavar="FILE",
                    help="pursuit: the gaze map to pursue with (default: one learned on the geometric head model)")
@@ -93,7 +98,7 @@ def request_of(args: argparse.Namespace) -> ExperimentRequest:
     return ExperimentRequest(args.name, args.profile, fixations=args.fixations, seed=args.seed, width=args.width,
                              height=args.height, lens=args.lens, floor_samples=args.floor_samples,
                              landing_every=args.landing_every, pose=args.pose, exploration=args.exploration,
-                             room=args.room)
+                             room=args.room, config=args.config)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -172,7 +177,7 @@ def run_pursuit_command(args: argparse.Namespace) -> int:
         print(f"--speeds {args.speeds!r}: expected numbers separated by commas (deg/s)", file=sys.stderr)
         return 2
     spec = PursuitSpec(speeds, latency_s=args.latency_ms / 1e3, map_path=args.map, seed=args.seed,
-                       profile=args.profile)
+                       profile=args.profile, config=None if args.config is None else Path(args.config))
     summary = write_pursuit(run_pursuit(spec), args.out)
     print(format_result(summary))
     print(f"wrote {args.out}/pursuit-{args.profile}.csv, .png, .json")

@@ -80,6 +80,8 @@ class OnlineResult:
     exploration_stats: dict[str, dict[str, int]] = field(default_factory=dict)  # the explorer's, if it keeps any
     seconds: float = 0.0
     model: HeadModel | None = None  # the simulated head's geometry before any change
+    config_path: str = ""  # the config whose simulated world the run happened in
+    room: str = ""  # the room its cameras saw: generated or photos
 
     @property
     def retinal_error(self) -> np.ndarray:
@@ -228,13 +230,15 @@ def exploration_for(profile: str) -> str:
 def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width: int = 320, height: int = 240,
                landing_every: int = 100, landing_count: int = 300,
                progress: Callable[[FixationRecord], None] | None = None,
-               exploration: str | None = None, room: str | None = None, use_pose: bool = True) -> OnlineResult:
+               exploration: str | None = None, room: str | None = None, use_pose: bool = True,
+               config: HeadConfig | None = None) -> OnlineResult:
     """Run `spec` on the simulated head from a random map; returns records and curves.
 
     `exploration`: `FixationParams.exploration`; None: the paper's random commands with the
     `paper` profile, targets that teach with the `default` one. Correspondence follows the
-    profile (`CorrespondenceParams.profile_values`). `room`: "generated" or "photos" (None:
-    the packaged config's). `use_pose`: samples and lookups carry the head's pose (False: the
+    profile (`CorrespondenceParams.profile_values`). `config`: the simulated head whose world
+    the run happens in (None: the packaged configs/sim.yaml). `room`: "generated" or "photos"
+    (None: the config's). `use_pose`: samples and lookups carry the head's pose (False: the
     map learns and answers from (x, y, d) alone)."""
     result = OnlineResult(spec, use_pose=use_pose)
     lock = threading.Lock()
@@ -251,9 +255,10 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
 
     started = time.monotonic()
     changes = {c.at: c for c in spec.changes}
-    with SimulatedHeadRig(width, height, seed, fixation=fixation, room=room) as rig, \
+    with SimulatedHeadRig(width, height, seed, fixation=fixation, config=config, room=room) as rig, \
             MapAdapter(gm, on_adapted=on_adapted) as adapter:
         model = result.model = rig.model
+        result.config_path, result.room = str(rig.config.path), rig.config.cameras.scene.kind
         drange = gm.params.disparity_range
 
         def target_sets(at: int) -> tuple[list[FixationSample], list[FixationSample]]:

@@ -24,6 +24,7 @@ from calib_free.sim.experiments import (EXPERIMENTS, ExperimentResult, Experimen
                                         representation_floor, run_experiment)
 from calib_free.sim.head_model import HeadModel
 from drivers.sim.scene import ROOMS as ROOM_KINDS
+from headctl.config.head import load_config
 from headctl.errors import HeadctlError
 from headctl.experiments.online import ONLINE_EXPERIMENTS, OnlineResult, OnlineSpec, run_online
 
@@ -31,6 +32,7 @@ log = logging.getLogger(__name__)
 
 # What each option given as text (a sweep's runs) is read as: a number or one of a few names.
 INT_OPTIONS = ("fixations", "width", "height", "floor_samples", "landing_every")
+PATH_OPTIONS = ("config",)
 CHOICE_OPTIONS: Mapping[str, tuple[str, ...]] = {"lens": tuple(LENS_KINDS), "exploration": tuple(EXPLORATION_KINDS),
                                                  "room": tuple(ROOM_KINDS)}
 
@@ -52,9 +54,10 @@ class ExperimentRequest:
     """One run of an experiment; the fields are `headctl experiment`'s options.
 
     `fixations`: None for the experiment's own; fewer drop the changes beyond them. `pose`:
-    samples and lookups carry the head's pose. `exploration` and `room` apply to the online
-    experiments (None: the profile's exploration, the generated room), `lens` to the
-    geometric ones."""
+    samples and lookups carry the head's pose. `exploration`, `room` and `config` apply to the
+    online experiments (None: the profile's exploration, the config's room, the packaged
+    `configs/sim.yaml`, whose simulated world, cameras, servos and room, the run happens in),
+    `lens` to the geometric ones."""
 
     name: str
     profile: str = "default"
@@ -68,6 +71,7 @@ class ExperimentRequest:
     pose: bool = True
     exploration: str | None = None
     room: str | None = None
+    config: str | None = None
 
     @classmethod
     def from_options(cls, name: str, profile: str, seed: int, options: Mapping[str, str],
@@ -91,6 +95,8 @@ class ExperimentRequest:
                     raise ExperimentError(f"argument {flag}: invalid choice: {text!r} "
                                           f"(choose from {', '.join(CHOICE_OPTIONS[option])})")
                 values[option] = text
+            elif option in PATH_OPTIONS:
+                values[option] = text
             else:
                 raise ExperimentError(f"unrecognized argument: {flag}")
         return cls(name, profile, seed=seed, pose=pose, **values)  # type: ignore[arg-type]
@@ -107,8 +113,8 @@ class ExperimentRequest:
             return f"--fixations must be at least 1, got {self.fixations}"
         if self.online and self.lens != "foveated":
             return "--lens applies to the geometric experiments only"
-        if not self.online and (self.exploration is not None or self.room is not None):
-            return "--exploration and --room apply to the online experiments only"
+        if not self.online and (self.exploration is not None or self.room is not None or self.config is not None):
+            return "--exploration, --room and --config apply to the online experiments only"
         return None
 
     def spec(self) -> ExperimentSpec:
@@ -152,8 +158,8 @@ def learn(request: ExperimentRequest, progress: Progress | None = None) -> Exper
 
         online = run_online(spec, request.profile, seed=request.seed, width=request.width, height=request.height,
                             landing_every=request.landing_every, progress=on_record,
-                            exploration=request.exploration, room=request.room or "generated",
-                            use_pose=request.pose)
+                            exploration=request.exploration, room=request.room,
+                            use_pose=request.pose, config=load_config(request.config))
         assert online.model is not None
         return ExperimentReport(request, spec, online.as_experiment_result(), online.model,
                                 time.monotonic() - started, online=online)
@@ -186,5 +192,5 @@ def run(request: ExperimentRequest, progress: Progress | None = None,
     return measure_floor(learn(request, progress), say)
 
 
-__all__ = ["CHOICE_OPTIONS", "INT_OPTIONS", "ExperimentError", "ExperimentReport", "ExperimentRequest", "Progress",
+__all__ = ["CHOICE_OPTIONS", "INT_OPTIONS", "PATH_OPTIONS", "ExperimentError", "ExperimentReport", "ExperimentRequest", "Progress",
            "experiment_names", "learn", "measure_floor", "run"]

@@ -11,13 +11,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calib_free.sim.experiments import ExperimentResult  # noqa: E402
+from headctl.experiments.paper_figures import reference_for  # noqa: E402
 
 log = logging.getLogger(__name__)
 
-# The paper's figures, drawn as dashed references: simulation after 2,000 fixations (fig. 5)
-# and the online system after 1,700 (fig. 7).
-PAPER_FIG5 = {"pan": 1.3, "tilt": 1.07, "vergence": 0.5, "retinal": 3.68}
-PAPER_FIG7 = {"pan": 1.7, "tilt": 1.0, "vergence": 0.34, "retinal": 2.6}
 
 
 def plot_learning_curves(result: ExperimentResult, path: Path, floor_px: float | None = None,
@@ -25,7 +22,8 @@ def plot_learning_curves(result: ExperimentResult, path: Path, floor_px: float |
     """Pan, tilt, vergence and retinal error (averaged over the last 10) and landing error.
 
     `online`: the curves are per taught fixation and the references are figure 7's."""
-    reference, reference_label = (PAPER_FIG7, "paper, fig. 7 at 1,700") if online else (PAPER_FIG5, "paper, fig. 5 at 2,000")
+    paper = reference_for(online)  # drawn as dashed references
+    reference, reference_label = paper.plot_values(), paper.label
     n = np.arange(1, len(result.retinal_error) + 1)
     out = result.averaged(result.output_error)
     retinal = result.averaged(result.retinal_error) * 100.0

@@ -34,6 +34,7 @@ from calib_free.sim.experiments import EXPERIMENTS, run_experiment
 from calib_free.gaze.pursuit import PursuitParams, TrackOutcome
 from drivers.servo.bus import BusState
 from drivers.sim.motion import MovingObject, SceneMotion
+from headctl.config.head import HeadConfig, load_config
 from headctl.experiments.online import SimulatedHeadRig, sim_config
 from headctl.service.build import build_head
 from headctl.service.tracking import Publish, Tracking
@@ -164,10 +165,12 @@ class SpeedRun:
 
 def run_speed(speed_deg_s: float, gm: GazeMap, *, duration_s: float = 6.0, settle_s: float = 1.0,
               latency_s: float = 0.04, fps: float = 30.0, params: PursuitParams | None = None,
-              obj: MovingObject | None = None, seed: int = 0, publish: Publish | None = None) -> SpeedRun:
-    """Pursue the cube sweeping at `speed_deg_s` for `duration_s` (see the module docstring)."""
+              obj: MovingObject | None = None, seed: int = 0, publish: Publish | None = None,
+              base: HeadConfig | None = None) -> SpeedRun:
+    """Pursue the cube sweeping at `speed_deg_s` for `duration_s` (see the module docstring)
+    in the simulated world of `base` (None: the packaged configs/sim.yaml)."""
     obj = dataclasses.replace(obj or MovingObject(), speed_deg_s=speed_deg_s)
-    config = dataclasses.replace(sim_config(seed=seed), sim_objects=(obj,))
+    config = dataclasses.replace(sim_config(seed=seed, base=base), sim_objects=(obj,))
     run = SpeedRun(speed_deg_s)
     with SimulatedHeadRig(seed=seed, config=config) as rig:
         world = rig.devices.world
@@ -229,6 +232,7 @@ class PursuitSpec:
     fixations: int = 3000
     seed: int = 0
     profile: str = "default"
+    config: Path | None = None  # the simulated head whose world it runs in (None: configs/sim.yaml)
 
 
 @dataclass(frozen=True)
@@ -251,16 +255,18 @@ class PursuitResult:
 
 def run_pursuit(spec: PursuitSpec) -> PursuitResult:
     """Every speed of `spec` in turn (see the module docstring)."""
+    base = load_config(spec.config)
     if spec.map_path is not None:
         gm = read_map(spec.map_path)
         map_source = str(spec.map_path)
     else:
-        with SimulatedHeadRig(seed=spec.seed) as rig:
+        with SimulatedHeadRig(seed=spec.seed, config=base) as rig:
             gm = learned_map(rig, spec.fixations, spec.seed)
         map_source = f"learned from {spec.fixations} fixations of the geometric head model"
     runs = []
     for speed in spec.speeds_deg_s:
-        run = run_speed(speed, gm, duration_s=spec.duration_s, latency_s=spec.latency_s, seed=spec.seed)
+        run = run_speed(speed, gm, duration_s=spec.duration_s, latency_s=spec.latency_s, seed=spec.seed,
+                        base=base)
         log.info("pursuit at %g deg/s: %s", speed, run.summary())
         runs.append(run)
     return PursuitResult(spec, map_source, tuple(runs))

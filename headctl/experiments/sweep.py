@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 # `headctl experiment` options a sweep may vary with --set (their argparse names).
-SETTABLE = ("fixations", "exploration", "room", "width", "height", "lens", "landing_every", "floor_samples")
+SETTABLE = ("fixations", "exploration", "room", "config", "width", "height", "lens", "landing_every", "floor_samples")
 # What a sweep decides for its runs itself.
 RESERVED = ("seed", "profile", "out")
 

@@ -7,6 +7,7 @@ import pytest
 
 from headctl.cli import experiment as cmd_experiment
 from headctl.cli.main import build_parser, main
+from headctl.config.head import DEFAULT_CONFIG, load_config
 from headctl.experiments import paper
 from headctl.experiments.online import ONLINE_EXPERIMENTS, OnlineResult
 from headctl.experiments.report import online_summary
@@ -30,7 +31,7 @@ def run_online_calls(monkeypatch) -> list[dict[str, Any]]:
 
 
 @pytest.mark.parametrize("extra, room, use_pose", [
-    ([], "generated", True),
+    ([], None, True),  # the config's room
     (["--room", "photos"], "photos", True),
     (["--room", "generated", "--no-pose"], "generated", False),
 ])
@@ -39,6 +40,15 @@ def test_the_room_and_the_pose_reach_run_online(run_online_calls, tmp_path, extr
         main(["experiment", "online", "--fixations", "7", "--out", str(tmp_path), *extra])
     (call,) = run_online_calls
     assert (call["room"], call["use_pose"], call["spec"].fixations) == (room, use_pose, 7)
+    assert call["config"].path == DEFAULT_CONFIG  # no --config: the packaged configs/sim.yaml
+
+
+def test_the_config_reaches_run_online(run_online_calls, tmp_path):
+    ideal = DEFAULT_CONFIG.with_name("sim-ideal.yaml")
+    with pytest.raises(_Stop):
+        main(["experiment", "online", "--fixations", "7", "--out", str(tmp_path), "--config", str(ideal)])
+    (call,) = run_online_calls
+    assert call["config"].path == ideal and call["config"].state_dir != load_config().state_dir
 
 
 def test_a_room_is_refused_by_the_geometric_experiments_and_unknown_rooms_by_the_parser(tmp_path, capsys):

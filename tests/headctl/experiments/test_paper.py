@@ -5,7 +5,9 @@ import json
 
 import pytest
 
+from headctl.config.head import DEFAULT_CONFIG
 from headctl.experiments.paper import ExperimentError, ExperimentRequest, learn
+from headctl.experiments.report import format_summary, summary_of
 from headctl.experiments.runs import LOG_FILE
 from headctl.experiments.sweep import build_runs, run_task
 
@@ -27,7 +29,7 @@ def test_requests_that_do_not_apply_are_refused_before_anything_runs():
     assert ExperimentRequest("learn").problem() is None
     for request, words in ((ExperimentRequest("learn", fixations=0), "--fixations must be at least 1"),
                            (ExperimentRequest("online", lens="equidistant"), "--lens applies"),
-                           (ExperimentRequest("learn", room="photos"), "--exploration and --room apply")):
+                           (ExperimentRequest("learn", room="photos"), "--exploration, --room and --config apply")):
         assert words in (request.problem() or "")
         with pytest.raises(ExperimentError, match=words):
             learn(request)
@@ -45,3 +47,17 @@ def test_a_sweeps_run_is_the_experiments_function_and_writes_what_the_command_wr
     refused_online = build_runs("online", [0], ["default"], [], ["--lens", "equidistant"])[0]
     result = run_task(refused_online)
     assert result.code == 2 and b"--lens applies" in result.files[LOG_FILE]
+
+
+def test_the_online_summary_compares_with_fig_7_and_names_its_world(tmp_path):
+    config = tmp_path / "head.yaml"
+    config.write_text(DEFAULT_CONFIG.read_text())
+    report = learn(ExperimentRequest("online", fixations=3, landing_every=0, config=str(config)))
+    text = format_summary(summary_of(report))
+    assert "paper fig. 7 (1,700 fixations)" in text and "fig. 5" not in text
+    assert "1.70 deg" in text and "0.34 deg" in text  # fig. 7's pan and vergence errors
+    assert f"in the simulated world of {config} (" in text
+    geometric = learn(ExperimentRequest("learn", fixations=12, landing_every=0, floor_samples=0))
+    assert "paper fig. 5 (2,000 fixations)" in format_summary(summary_of(geometric))
+    with pytest.raises(ExperimentError, match="--config apply to the online"):
+        learn(ExperimentRequest("learn", config=str(config)))
