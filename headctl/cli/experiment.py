@@ -7,6 +7,10 @@ learns with a progress bar, writes
 `<out>/<name>-<profile>.csv` (per fixation: raw and averaged errors) and `.png` (like the
 paper's figures), and prints the paper's figures beside the measured ones, the landing error
 and the representation's floor.
+
+`headctl experiment relearn BAG` learns a recorded session again (`headctl.experiments.relearn`):
+a fresh map, the bag's fixations replayed in order; it prints the fixations taught, the
+refusals by reason and the learning curve, recorded beside replayed (`--json`: as JSON).
 """
 from __future__ import annotations
 
@@ -38,9 +42,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "experiment", help="run one of the paper's simulated experiments (learning curves, plot, summary)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("name", choices=paper.experiment_names() + ["pursuit", "sweep"],
+    p.add_argument("name", choices=paper.experiment_names() + ["pursuit", "relearn", "sweep"],
                    help="which experiment (online*: on rendered images through the fixation loop); "
-                        "sweep NAME: NAME over seeds, profiles and settings on Dask (headctl.experiments.sweep)")
+                        "sweep NAME: NAME over seeds, profiles and settings on Dask (headctl.experiments.sweep); "
+                        "relearn BAG: a recording's fixations replayed on a fresh map")
     p.add_argument("--profile", choices=PROFILES, default="default",
                    help="gaze map profile: 'paper' (the rule as written) or 'default' (improved)")
     p.add_argument("--fixations", type=int, default=None, help="fixations to run (default: the experiment's)")
@@ -66,6 +71,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "happens in (default configs/sim.yaml, the realistic world; configs/sim-ideal.yaml is the "
                         "kind one)")
     add_sweep_arguments(p)
+    relearn = p.add_argument_group("relearn (headctl experiment relearn BAG ...)")
+    relearn.add_argument("--config", type=Path, default=None, metavar="FILE",
+                         help="a head config whose gaze_map and fixation sections to learn with (default: the "
+                              "bag's recorded config, else configs/sim.yaml)")
+    relearn.add_argument("--every", type=int, default=100, metavar="N",
+                         help="fixations per point of the learning curve (default 100)")
+    relearn.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--map", type=Path, default=None, metavar="FILE",
                    help="pursuit: the gaze map to pursue with (default: one learned on the geometric head model)")
     p.add_argument("--speeds", default=None, metavar="S,S,...",
@@ -81,7 +93,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
     """The sweep's options on `headctl experiment`'s parser."""
     group = p.add_argument_group("sweep (headctl experiment sweep NAME ...)")
-    group.add_argument("swept", nargs="?", metavar="NAME", help="with sweep: the experiment to run over the grid")
+    group.add_argument("swept", nargs="?", metavar="NAME|BAG",
+                       help="with sweep: the experiment to run over the grid; with relearn: the bag")
     group.add_argument("--seeds", default="0-4", help="seeds, such as 0-4 or 0,1,5 (default 0-4)")
     group.add_argument("--profiles", default="default", help="gaze map profiles, comma-separated (default: default)")
     group.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2",
@@ -104,6 +117,8 @@ def request_of(args: argparse.Namespace) -> ExperimentRequest:
 def run(args: argparse.Namespace) -> int:
     if args.name == "pursuit":
         return run_pursuit_command(args)
+    if args.name == "relearn":
+        return run_relearn_command(args)
     if args.name == "sweep":
         # Every run of the sweep takes the experiment options given here; --set varies them.
         base = [str(v) for dest in SWEEP_BASE_OPTIONS if getattr(args, dest, None) != args.defaults[dest]
@@ -164,6 +179,33 @@ def run_sweep_command(args: argparse.Namespace, base: list[str]) -> int:
     if failed:
         print(f"sweep: {len(failed)} runs failed: " + ", ".join(r.run_id for r in failed), file=sys.stderr)
         return 1
+    return 0
+
+
+def run_relearn_command(args: argparse.Namespace) -> int:
+    """`headctl experiment relearn BAG`: a recording learned again (headctl.experiments.relearn)."""
+    import json
+
+    from headctl.experiments.relearn import RelearnError, RelearnRequest, format_report, relearn
+    from headctl.errors import ConfigError
+    from headctl.ros2.bag_reader import BagReadError
+
+    if not args.swept:
+        print("relearn: name the bag (headctl experiment relearn BAG)", file=sys.stderr)
+        return 2
+    with tqdm(desc="relearn", unit="fix", disable=None, file=sys.stderr) as bar:
+
+        def progress(fixations: int, taught: int, rate_per_s: float) -> None:
+            bar.update(fixations - bar.n)
+            bar.set_postfix(taught=taught, refresh=False)
+
+        try:
+            report = relearn(RelearnRequest(Path(args.swept), args.config, args.every, progress_every=10), progress)
+        except (RelearnError, BagReadError, ConfigError) as err:
+            bar.close()
+            print(f"relearn: {err}", file=sys.stderr)
+            return 1
+    print(json.dumps(report.as_dict(), indent=2) if args.json else format_report(report))
     return 0
 
 

@@ -9,11 +9,13 @@ each file, each eye's `image_raw/compressed` and `camera_info` at each new frame
 `/diagnostics`, `/head/gaze_state` (looks and tracks) and `/head/events` (every other event:
 fixations, saccades, the map's saves and resets, faults; and each new point of the learning
 curve as a `learning` event), each a `diagnostic_msgs/DiagnosticStatus` named by the event's
-type with its fields as KeyValues. It needs no DDS: without `cyclonedds` the messages are
-`bagtypes`'. The event hub's subscriber only appends to a bounded deque, so the fixation
-thread never waits for the disk. A write that fails (ENOSPC, EDQUOT, any `OSError`) ends the
-recording as `failed` with the reason in its status and a `recording_failed` event; the
-service runs on.
+type with its fields as KeyValues; and what a replay of the fixations needs (`fixation_log`:
+each fixation's stereo pairs as PNG, its record and head calls, the config it ran with). It
+needs no DDS: without `cyclonedds` the messages are `bagtypes`'. The event hub's and the
+fixation traces' subscribers only append to bounded deques, so the fixation thread never
+waits for the disk. A write that fails (ENOSPC, EDQUOT, any `OSError`) ends the recording as
+`failed` with the reason in its status, a `recording_failed` event and the service's
+`recording` fault, which the next recording that starts clears; the service runs on.
 """
 from __future__ import annotations
 
@@ -31,14 +33,18 @@ from headctl.errors import ControlError, InvalidRequestError
 from headctl.json_types import JSONObject
 from headctl.ros2 import bagtypes, convert
 from headctl.ros2.bag import BagTopic, SplitBag, WriterFactory, mcap_writer, qos
+from headctl.ros2.fixation_log import FixationWriter, fixation_topics, replay_config
 from headctl.ros2.frames import SIDES, HeadFrames
 from headctl.service.control import HeadService
 from headctl.service.events import Event
+from headctl.service.fixation_trace import FixationTrace
 
 log = logging.getLogger(__name__)
 
 POLL_S = 0.003
 EVENTS_KEPT = 10000
+TRACES_KEPT = 32  # fixations waiting for the disk (each holds its pairs: about 0.6 MB at 320 x 240)
+FAULT = "recording"  # the service's fault while the last recording failed
 DIAGNOSTIC_STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
 
 
@@ -65,7 +71,7 @@ def bag_topics(config: HeadConfig) -> list[BagTopic]:
     for side in SIDES:
         topics += [BagTopic(t(f"head/{side}/image_raw/compressed"), "sensor_msgs/msg/CompressedImage", sensor),
                    BagTopic(t(f"head/{side}/camera_info"), "sensor_msgs/msg/CameraInfo", sensor)]
-    return topics
+    return topics + fixation_topics(t)
 
 
 def _int(value: object, default: int = 0) -> int:
@@ -91,6 +97,7 @@ class Recording(threading.Thread):
         self.error: str | None = None
         self.counts: collections.Counter[str] = collections.Counter()
         self.events_dropped = 0
+        self.fixations_dropped = 0
         self.cpu_s = 0.0  # this thread's CPU time, once it has ended
         self._events: collections.deque[tuple[Any, Event]] = collections.deque(maxlen=EVENTS_KEPT)
         self._stop_flag = threading.Event()
@@ -98,7 +105,11 @@ class Recording(threading.Thread):
         self._last_frame: dict[str, int] = {}
         self._next_diagnostics_s = self.started_s
         self._learning_next = _int(service.learning_since(0, 0).get("next"))
+        self._traces: collections.deque[FixationTrace] = collections.deque(maxlen=TRACES_KEPT)
+        self._config_text = replay_config(config)
+        self.fixations = FixationWriter(self._write_ns, self._stamp_ns, self.frames.optical, config.ros2.frame_prefix)
         self._unsubscribe = service.events.subscribe(self._on_event)
+        self._unsubscribe_fixations = service.subscribe_fixations(self._on_fixation)
         bag.on_new_file = self._write_static
 
     def _on_event(self, event: Event) -> None:  # on the publisher's thread: never blocks
@@ -106,13 +117,26 @@ class Recording(threading.Thread):
             self.events_dropped += 1
         self._events.append((self.stamps.now(), event))
 
-    def _write(self, name: str, msg: Any, stamp: Any) -> None:
-        self.bag.write(self.topic(name), stamp.sec * 1_000_000_000 + stamp.nanosec, cdr(msg))
+    def _on_fixation(self, trace: FixationTrace) -> None:  # on the fixation thread: never blocks
+        if len(self._traces) == TRACES_KEPT:
+            self.fixations_dropped += 1
+        self._traces.append(trace)
+
+    def _stamp_ns(self, monotonic_s: float | None) -> int:
+        stamp = self.stamps.now() if monotonic_s is None else self.stamps.of(monotonic_s)
+        return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+    def _write_ns(self, name: str, stamp_ns: int, msg: Any) -> None:
+        self.bag.write(self.topic(name), stamp_ns, cdr(msg))
         self.counts[name] += 1
+
+    def _write(self, name: str, msg: Any, stamp: Any) -> None:
+        self._write_ns(name, stamp.sec * 1_000_000_000 + stamp.nanosec, msg)
 
     def _write_static(self) -> None:
         stamp = self.stamps.now()
         self._write("tf_static", self.frames.static(stamp), stamp)
+        self.fixations.config(self._config_text)
 
     def run(self) -> None:
         cpu0_s = time.thread_time()
@@ -129,9 +153,11 @@ class Recording(threading.Thread):
             self.bag.abort()
             self.state, self.error = RecordState.FAILED, f"{self.bag.path}: {err.strerror or err}"
             log.error("record: stopped: %s", self.error)
+            self.service.report_fault(FAULT, f"recording failed: {self.error}")
             self.service.events.publish("recording_failed", path=str(self.bag.path), reason=self.error)
         finally:
             self._unsubscribe()
+            self._unsubscribe_fixations()
             self.cpu_s = time.thread_time() - cpu0_s
         log.info("record: %s: %s, %d messages", self.bag.path, self.state, sum(self.counts.values()))
 
@@ -150,6 +176,8 @@ class Recording(threading.Thread):
             gaze = str(event.get("type", "")).startswith(convert.GAZE_EVENTS)
             self._write("head/gaze_state" if gaze else "head/events",
                         convert.gaze_state(event, self.ros2.frame_prefix), stamp)
+        while self._traces:
+            self.fixations.trace(self._traces.popleft())
 
     def _learning(self, stamp: Any) -> None:
         """The learning curve's new points, each a `learning` event on `/head/events`."""
@@ -195,6 +223,7 @@ class Recording(threading.Thread):
                 "file_index": self.bag.file_index, "bytes": self.bag.bytes_written,
                 "duration_s": round(self.clock.monotonic() - self.started_s, 3),
                 "messages": dict(self.counts), "events_dropped": self.events_dropped,
+                "fixations_dropped": self.fixations_dropped,
                 "cpu_s": round(self.cpu_s, 3)}
 
 
@@ -238,6 +267,7 @@ class Recordings:
                 raise InvalidRequestError(f"directory: {parent}: {err.strerror or err}", "directory") from err
             self.current = Recording(self.service, self.config, bag, self.clock, seconds)
             self.current.start()
+            self.service.report_fault(FAULT, None)  # a recording that failed before is over
             log.info("record: recording to %s", path)
             return self.current.status()
 

@@ -36,6 +36,7 @@ from drivers.sim.camera import SimulatedCamera
 from headctl.errors import ControlError, InvalidRequestError, NotFoundError, UnavailableError
 from headctl.json_types import JSONObject
 from headctl.service.events import EventHub
+from headctl.service.fixation_trace import TraceSubscriber
 from headctl.service.looks import LookAnswer, LookJob, LookKind, LookRequest, LookState
 from headctl.service.parts import RunningParts, ServiceParts, ServicePhase
 from headctl.service.status import StatusSnapshot, status_snapshot
@@ -151,6 +152,10 @@ class HeadService(Protocol):
 
     def tracking_now(self) -> TrackFigures | None: ...
 
+    def subscribe_fixations(self, deliver: TraceSubscriber) -> Callable[[], None]: ...
+
+    def report_fault(self, key: str, message: str | None) -> None: ...
+
 
 class ServiceControl:
     """`HeadService` over the parts of a service (thread-safe; ControlError names the field at fault)."""
@@ -170,6 +175,21 @@ class ServiceControl:
 
     def learning_since(self, since: int = 0, limit: int = 5000) -> JSONObject:
         return self.parts.learning.since(since, limit)
+
+    def subscribe_fixations(self, deliver: TraceSubscriber) -> Callable[[], None]:
+        """Call `deliver` with every fixation's trace (`headctl.service.fixation_trace`) from now
+        on, on the fixation thread (it must not block); returns the unsubscribe function."""
+        return self.parts.fixation_taps.subscribe(deliver)
+
+    def report_fault(self, key: str, message: str | None) -> None:
+        """A front end's fault in its own work (`key` "recording": a bag whose write failed),
+        in the status's faults until reported again with `message` None."""
+        faults = dict(self.parts.reported_faults)  # replaced, never changed in place: readers take no lock
+        if message is None:
+            faults.pop(key, None)
+        else:
+            faults[key] = message
+        self.parts.reported_faults = faults
 
     def latest_frame(self, side: str) -> Frame | None:
         devices = self.parts.devices

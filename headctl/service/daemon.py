@@ -35,7 +35,6 @@ from typing import Protocol
 
 from calib_free.correspondence import search as correspondence
 from calib_free.map.adapter import MapAdapter, Sample
-from calib_free.gaze.fixation import FixationController
 from calib_free.map.gaze_map import AdaptResult
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import DriverError
@@ -48,6 +47,7 @@ from headctl.service.control import HeadService, ServiceControl
 from headctl.log_limit import RepeatLimiter
 from headctl.service.events import EventHub, EventLog
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
+from headctl.service.fixation_trace import TracingController
 from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
@@ -282,9 +282,9 @@ class Daemon:
         head_events = HeadEvents(parts.hub)
         head = build_head(cfg, loop, StereoPairSource(pair, clock=clock, interrupt=interrupt), clock,
                           interrupt=interrupt, observer=head_events, goals_in_force=loop.goals)
-        controller = FixationController(head, adapter, cfg.fixation.params,
-                                        seed=None if not cfg.simulated else cfg.gaze_map.seed,
-                                        clock=clock.monotonic, learner=adapter)
+        controller = TracingController(head, adapter, parts.fixation_taps, cfg.fixation.params,
+                                       seed=None if not cfg.simulated else cfg.gaze_map.seed,
+                                       clock=clock.monotonic, learner=adapter)
         tracking = Tracking(head, adapter, adapter.map.params.disparity_range, cfg.tracking.params,
                             frame_period_s=1.0 / (cfg.cameras.left.fps or 30.0), publish=parts.hub.publish,
                             clock=clock)

@@ -23,6 +23,7 @@ from headctl.json_types import JSONObject
 from headctl.service.build import HeadDevices
 from headctl.service.events import EventHub, EventLog, plain
 from headctl.service.fixation_thread import FixationThread, HeadEvents
+from headctl.service.fixation_trace import FixationTaps
 from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.persistence import Checkpointer
@@ -51,6 +52,7 @@ class MapOrigin:
 class LearningPoint(TypedDict):
     """One accepted adaptation on the learning curve, JSON-ready (`plain`: NaN as None)."""
     n: int  # the point's index in the log
+    fixation: int  # the index of the fixation that taught it (`FixationRecord.index`)
     adaptations: int
     t: float  # wall time, s
     retinal_error: float | None
@@ -77,7 +79,7 @@ class LearningLog:
             self.recent_output_errors.append(np.asarray(result.output_error, dtype=float))
             self._seq += 1
             self.points.append(plain({
-                "n": self._seq, "adaptations": adaptations, "t": wall_time_s,
+                "n": self._seq, "fixation": sample.tag, "adaptations": adaptations, "t": wall_time_s,
                 "retinal_error": result.retinal_error,
                 "output_error_deg": result.output_error, "confidence": sample.confidence}))
 
@@ -127,3 +129,6 @@ class ServiceParts:
     camera_restarts: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)
     restarts: collections.Counter[str] = dataclasses.field(default_factory=collections.Counter)  # by part (supervisor)
     hardware: HardwareFaults | None = None  # the servos' hardware-error episodes, told as events
+    fixation_taps: FixationTaps = dataclasses.field(default_factory=FixationTaps)  # who records the fixations
+    # Faults the front ends report of their own work (a recording that failed): key -> message.
+    reported_faults: dict[str, str] = dataclasses.field(default_factory=dict)

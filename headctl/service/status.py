@@ -202,6 +202,7 @@ def fault_items(parts: ServiceParts) -> dict[str, str]:
             out["adapter"] = f"adapter: {running.adapter.error!r}"
         if running.checkpointer.error:
             out["checkpoint"] = running.checkpointer.error
+    out.update(parts.reported_faults)
     devices = parts.devices
     for side, camera in (devices.cameras.items() if devices is not None else ()):
         latest = camera.latest()

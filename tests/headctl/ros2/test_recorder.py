@@ -1,7 +1,9 @@
 """Recordings: a bag of the simulated head read back by rosbags and mcap, split by duration,
-a full disk that ends the recording and not the service, the routes' refusals."""
+its fixations replayed by relearn as the service ran them, a full disk that ends the recording
+with a fault (cleared by the next recording) and not the service, the routes' refusals."""
 from __future__ import annotations
 
+import collections
 import dataclasses
 import errno
 from collections.abc import Iterator
@@ -25,6 +27,7 @@ from headctl.api.client import ApiClient, ApiError  # noqa: E402
 from headctl.api.compose import serve  # noqa: E402
 from headctl.config.head import HeadConfig  # noqa: E402
 from headctl.config.ros2 import Ros2Config, Ros2Recording  # noqa: E402
+from headctl.experiments.relearn import RelearnRequest, relearn  # noqa: E402
 from headctl.ros2.bag import mcap_writer  # noqa: E402
 from headctl.ros2.recorder import Recordings, RecordState  # noqa: E402
 from headctl.service.daemon import Daemon  # noqa: E402
@@ -134,12 +137,65 @@ def test_a_full_disk_stops_the_recording_with_a_fault_not_the_service(tmp_path: 
 
     try:
         status = record(daemon, config, 30.0, writer=full_disk)
+        snapshot = daemon.control.snapshot()
+        assert "No space left on device" in snapshot.faults["recording"], snapshot.faults
+        assert snapshot.state == "degraded"
+        done = snapshot.fixation.done
+        wait_until(lambda: daemon.control.snapshot().fixation.done > done, 20.0, "a fixation after the failure")
+        wait_until(lambda: any(e["type"] == "fault" and e["key"] == "recording" for e in events), 5.0,
+                   "the recording's fault event")
+        with Recordings(daemon.control, config) as recordings:  # a disk with room again
+            recordings.start()
+            assert "recording" not in daemon.control.snapshot().faults
+            wait_until(lambda: any(e["type"] == "fault_cleared" and e["key"] == "recording" for e in events), 5.0,
+                       "the recording's fault cleared")
+            assert recordings.stop()["state"] == "stopped"
     finally:
         unsubscribe()
     assert status["state"] == str(RecordState.FAILED)
     assert "No space left on device" in status["error"]
     assert any(e["type"] == "recording_failed" for e in events)
     assert daemon.control.snapshot().state == "running"
+
+
+def test_relearn_replays_a_recording_of_the_service_as_it_ran(tmp_path: Path, daemon: Daemon) -> None:
+    config = config_for(tmp_path)
+    live: dict[int, str] = {}
+
+    def fixation_event(event: Any) -> None:
+        if event["type"] == "fixation_converged":
+            live[event["index"]] = event["outcome"]
+        elif event["type"] == "fixation_refused":
+            live[event["index"]] = event["reason"]
+
+    unsubscribe = daemon.control.events.subscribe(fixation_event)
+    try:
+        with Recordings(daemon.control, config) as recordings:
+            recordings.start()
+            current = recordings.current
+            assert current is not None
+            wait_until(lambda: current.counts["head/fixations"] >= 4, 60.0, "four fixations recorded")
+            status = recordings.stop()
+    finally:
+        unsubscribe()
+    report = relearn(RelearnRequest(Path(status["path"]), every=2))
+    assert report.config_source == "the bag's recorded config"
+    assert report.recorded.fixations >= 4 and status["fixations_dropped"] == 0
+    assert report.replayed.fixations + sum(report.skipped.values()) == report.recorded.fixations
+    assert report.agree == report.replayed.fixations, report.differences
+    # The outcomes the service told as events, of the fixations the bag holds, are the replay's.
+    told = collections.Counter(live[i] for i in _recorded_indices(Path(status["path"])))
+    assert report.replayed.taught == told.pop("taught", 0)
+    assert report.replayed.refused == dict(told)
+    assert len(report.curve_recorded) == len(report.curve_replayed) >= 2
+
+
+def _recorded_indices(bag: Path) -> set[int]:
+    """The indices of the fixations the bag records (from its fixation records)."""
+    from headctl.ros2.bag_reader import BagReader
+    from headctl.ros2.fixation_log import FixationReader
+
+    return {f.index for f in FixationReader().fixations(BagReader(bag).messages())}
 
 
 def refusal(call: Any) -> ApiError:
