@@ -69,12 +69,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--config", default=None, metavar="FILE",
                    help="online* and pursuit: the simulated head whose world (cameras, servos, room) the run "
                         "happens in (default configs/sim.yaml, the realistic world; configs/sim-ideal.yaml is the "
-                        "kind one)")
+                        "kind one); relearn: the config whose gaze_map and fixation sections to learn with "
+                        "(default: the bag's recorded config, else configs/sim.yaml)")
     add_sweep_arguments(p)
     relearn = p.add_argument_group("relearn (headctl experiment relearn BAG ...)")
-    relearn.add_argument("--config", type=Path, default=None, metavar="FILE",
-                         help="a head config whose gaze_map and fixation sections to learn with (default: the "
-                              "bag's recorded config, else configs/sim.yaml)")
     relearn.add_argument("--every", type=int, default=100, metavar="N",
                          help="fixations per point of the learning curve (default 100)")
     relearn.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -200,7 +198,7 @@ def run_relearn_command(args: argparse.Namespace) -> int:
             bar.set_postfix(taught=taught, refresh=False)
 
         try:
-            report = relearn(RelearnRequest(Path(args.swept), args.config, args.every, progress_every=10), progress)
+            report = relearn(RelearnRequest(Path(args.swept), None if args.config is None else Path(args.config), args.every, progress_every=10), progress)
         except (RelearnError, BagReadError, ConfigError) as err:
             bar.close()
             print(f"relearn: {err}", file=sys.stderr)
