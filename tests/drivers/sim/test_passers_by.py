@@ -161,3 +161,25 @@ def test_a_bad_passers_by_setting_names_its_key(keys, key):
     with pytest.raises(CameraConfigError) as caught:
         StereoCamerasConfig.from_mapping(cameras)
     assert caught.value.key_path == f"cameras.scene.passers_by.{key}"
+
+
+class _Gone:
+    """A motion that takes box 1 out of the world and leaves the rest where they stand."""
+
+    def box_offsets(self, time_s: float | None = None) -> np.ndarray:
+        offsets = np.zeros((2, 3), np.float32)
+        offsets[1] = np.nan
+        return offsets
+
+
+def test_the_renderer_skips_a_box_out_of_the_world():
+    room = shared_scene(0, False).boxes[0]
+    in_view = Scene([room, Scene(seed=0).boxes[2]], seed=0, colour=False)  # the crate, in front of the head
+    without = Scene([room], seed=0, colour=False)
+    with StereoRenderer(HEAD, in_view) as renderer, StereoRenderer(HEAD, without) as bare:
+        pose = {"pan": 20.0, "tilt": -10.0, "left_eye": 0.0, "right_eye": 0.0}
+        shown = renderer.render(pose)
+        assert np.abs(shown[0].astype(float) - bare.render(pose)[0]).mean() > 5.0  # the crate is seen
+        in_view.motion = _Gone()
+        for image, empty in zip(renderer.render(pose), bare.render(pose)):
+            assert np.abs(image.astype(float) - empty).max() <= 1.0
