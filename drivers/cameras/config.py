@@ -16,6 +16,8 @@ from typing import Any, ClassVar, Literal
 
 from drivers.config.reader import check_settings, read_config, setting
 from drivers.errors import CameraConfigError
+from drivers.sim.passers_by import PassersByConfig
+from drivers.sim.room_light import LightConfig
 
 ImageMode = Literal["grey", "colour"]
 
@@ -112,10 +114,13 @@ _PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")  # as drivers.sim.textures reads the
 class SceneConfig:
     """The simulated head's room (`cameras.scene`, simulated cameras only): the generated room
     (noise, checkerboards, stripes) or the photo room, papered with scikit-image's
-    photographs or with those of the folder `textures` (`drivers.sim.textures`)."""
+    photographs or with those of the folder `textures` (`drivers.sim.textures`); its light
+    (`drivers.sim.room_light`) and the people walking through it (`drivers.sim.passers_by`)."""
 
     room: Literal["generated", "photos"] | None = None  # None: photos when textures is given
     textures: str | None = None  # a folder of .jpg/.png photographs (~ and $VARS expanded)
+    light: LightConfig = setting(default_factory=LightConfig)  # default: constant
+    passers_by: PassersByConfig = setting(default_factory=PassersByConfig)  # default: none
 
     CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
 

@@ -5,9 +5,10 @@ eyes' height) that sweeps back and
 forth along an arc (a great circle through its centre direction, slanted by `direction_deg`
 from the horizontal) at a constant angular speed, slowing down and turning at the arc's ends
 with a bounded angular acceleration, so that pursuit can be measured at a known target speed.
-`SceneMotion` holds a scene's moving boxes and gives the renderer their translations at a
-frame's time (`drivers.sim.scene.SceneMotion`; by default the clock's now); the cube keeps its
-orientation (boxes are axis-aligned) and carries its texture with it.
+`SceneMotion` holds a scene's moving boxes (any `Mover`: these cubes, the room's passers-by of
+`drivers.sim.passers_by`) and gives the renderer their translations at a frame's time
+(`drivers.sim.scene.SceneMotion`; by default the clock's now); a box keeps its orientation
+(boxes are axis-aligned) and carries its texture with it.
 
 World frame as in `drivers.sim.scene`: x forward, y left, z up, metres; azimuth + to the
 head's left, elevation + up.
@@ -17,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -30,6 +31,30 @@ from drivers.sim.scene import Box, Scene, TextureKind
 # object's patch has something to correlate wherever it is taken; the rest: the room's kinds.
 TEXTURES = ("speckle", "rich", "checker", "stripes", "uniform")
 _BORDER_PX = 2  # as the scene's atlas: replicated texels around each face
+
+
+class Mover(Protocol):
+    """A box that moves through the scene: where it is placed, and how far it has moved."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def texture(self) -> str: ...  # one of TEXTURES ("speckle" is painted once the scene is made)
+
+    def box(self) -> Box:
+        """The box where the scene places it."""
+
+    def offset(self, t_s: float) -> np.ndarray:
+        """(3,) metres it has moved from `box()` at `t_s` seconds of motion; NaN: out of the world."""
+
+
+def mover_box(name: str, centre: np.ndarray, half_m: np.ndarray, texture: str, texels_per_m: float) -> Box:
+    """A mover's box around `centre` (half extents `half_m`); a speckled one is painted over
+    once the scene is made (`moving_scene`)."""
+    kind: TextureKind = "uniform" if texture == "speckle" else texture  # type: ignore[assignment]
+    lo, hi = centre - half_m, centre + half_m
+    return Box(name, (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2])),
+               kind, texels_per_m)
 
 
 @dataclass(frozen=True)
@@ -103,20 +128,21 @@ class MovingObject:
 
     def box(self) -> Box:
         """The cube where it starts (the arc's centre); `SceneMotion` moves it from there."""
-        centre, half = self.centre(0.0), self.size_m / 2.0
-        # A speckled face is painted over once the scene is made (`moving_scene`).
-        texture: TextureKind = "uniform" if self.texture == "speckle" else self.texture  # type: ignore[assignment]
-        lo, hi = centre - half, centre + half
-        return Box(self.name, (float(lo[0]), float(lo[1]), float(lo[2])), (float(hi[0]), float(hi[1]), float(hi[2])),
-                   texture, self.texels_per_m)
+        return mover_box(self.name, self.centre(0.0), np.full(3, self.size_m / 2.0), self.texture, self.texels_per_m)
+
+    def offset(self, t_s: float) -> np.ndarray:
+        """How far the cube has moved from where it starts at `t_s`."""
+        moved: np.ndarray = self.centre(t_s) - self.centre(0.0)
+        return moved
 
 
 class SceneMotion:
     """The moving boxes of a scene: `box_offsets(time_s)` is each box's translation at a time
     of the clock (default: now), counted from `start_s` (default: the clock's time when made);
-    before `start_s` every object rests where it starts (a later `start_s` holds them there)."""
+    before `start_s` every object rests where it is at 0 s of motion (a later `start_s` holds
+    them there). A row of NaN: that box is out of the world (a passer-by between crossings)."""
 
-    def __init__(self, objects: Sequence[tuple[int, MovingObject]], n_boxes: int, clock: Clock = SYSTEM_CLOCK,
+    def __init__(self, objects: Sequence[tuple[int, Mover]], n_boxes: int, clock: Clock = SYSTEM_CLOCK,
                  start_s: float | None = None) -> None:
         for index, obj in objects:
             if not 0 < index < n_boxes:
@@ -137,20 +163,18 @@ class SceneMotion:
         t = self.elapsed_s(time_s)
         offsets = np.zeros((self.n_boxes, 3), np.float32)
         for index, obj in self.objects:
-            offsets[index] = obj.centre(t) - obj.centre(0.0)
+            offsets[index] = obj.offset(t)
         return offsets
 
     def offset_of(self, name: str, time_s: float | None = None) -> np.ndarray:
         """The named object's translation (m) at `time_s` (default: now)."""
         for _, obj in self.objects:
             if obj.name == name:
-                t = self.elapsed_s(time_s)
-                offset: np.ndarray = obj.centre(t) - obj.centre(0.0)
-                return offset
+                return obj.offset(self.elapsed_s(time_s))
         raise KeyError(f"no moving object named {name!r}")
 
 
-def with_moving_objects(boxes: Sequence[Box], objects: Sequence[MovingObject]) -> tuple[list[Box], list[tuple[int, MovingObject]]]:
+def with_moving_objects(boxes: Sequence[Box], objects: Sequence[Mover]) -> tuple[list[Box], list[tuple[int, Mover]]]:
     """The boxes of a room with the objects' cubes appended, and each object's box index."""
     out = list(boxes)
     indices = []
@@ -160,12 +184,13 @@ def with_moving_objects(boxes: Sequence[Box], objects: Sequence[MovingObject]) -
     return out, indices
 
 
-def moving_scene(base: Scene, objects: Sequence[MovingObject], clock: Clock = SYSTEM_CLOCK) -> Scene:
-    """`base`'s room (the same boxes, seed and textures) with `objects` moving in it from now."""
+def moving_scene(base: Scene, objects: Sequence[Mover], clock: Clock = SYSTEM_CLOCK) -> Scene:
+    """`base`'s room (the same boxes, seed, textures and light) with `objects` moving in it from now."""
     boxes, indices = with_moving_objects(base.boxes, objects)
     photos = getattr(base, "photos", None)  # a photo room's photographs, to paper it alike
     extra: dict[str, Any] = {"photos": photos} if photos is not None else {}
     scene = Scene(boxes, seed=base.seed, colour=base.colour, **extra)
+    scene.light = base.light
     for index, obj in indices:
         if obj.texture == "speckle":
             _paint_speckle(scene, index, np.random.default_rng((base.seed, index)))

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from drivers.servo.joints import JOINTS
+from drivers.sim.room_light import CONSTANT_LIGHT, Illumination
 from drivers.sim.textures import PhotoSet, photo_set, photo_texture
 
 log = logging.getLogger(__name__)
@@ -53,7 +54,8 @@ class SceneMotion(Protocol):
     time of the clock (None: now)."""
 
     def box_offsets(self, time_s: float | None = None) -> np.ndarray | None:
-        """(boxes, 3) metres each box is moved from where the scene placed it; None: none moves."""
+        """(boxes, 3) metres each box is moved from where the scene placed it; None: none moves.
+        A row of NaN: that box is out of the world (not drawn)."""
 
 
 class HeadGeometry(Protocol):
@@ -160,7 +162,9 @@ class _Face:
 
 class Scene:
     """Boxes with textured faces packed into one atlas, deterministic for a seed. `motion`, if
-    set, moves boxes (their texture with them) at each frame rendered.
+    set, moves boxes (their texture with them) at each frame rendered. `light` is the room's
+    relative illumination over an exposure (`drivers.sim.room_light`), which a camera
+    multiplies the rendered radiance by.
 
     Faces of texture "photo" are papered from `photos` (default: scikit-image's photographs,
     `drivers.sim.textures.bundled_photos`)."""
@@ -176,6 +180,7 @@ class Scene:
         self.seed = seed
         self.colour = colour
         self.motion: SceneMotion | None = None  # what moves (drivers.sim.motion), if anything
+        self.light: Illumination = CONSTANT_LIGHT  # how bright the room is (drivers.sim.room_light)
         self.lo = np.array([b.lo for b in self.boxes], dtype=np.float32)
         self.hi = np.array([b.hi for b in self.boxes], dtype=np.float32)
         self.faces = self._layout()
@@ -384,8 +389,12 @@ class EyeRenderer:
             face = np.where(nearer_z, _u8(d[2] > 0) + 4, np.where(nearer_y, _u8(d[1] > 0) + 2, _u8(d[0] > 0)))
             # A box moved by s is met where the ray from o - s meets it unmoved.
             shift = scene.motion.box_offsets(time_s) if scene.motion is not None else None
+            absent = None
+            if shift is not None and np.isnan(shift).any():  # boxes out of the world: not drawn
+                absent = np.isnan(shift).any(axis=1)
+                shift = np.where(absent[:, None], np.float32(0.0), shift)
             for b, window in enumerate(self._footprints(rotation, centre, shift), start=1):
-                if window is not None:
+                if window is not None and (absent is None or not absent[b]):
                     self._hit_box(b, window, o if shift is None else o - shift[b], d, inv, best, face)
         # Atlas coordinates. A face's in-plane axes are (y, z), (x, z) or (x, y) by its normal, and
         # atlas x = su * (o_u + t d_u) + ou = (su t) d_u + (su o_u + ou): the per-face constant
