@@ -61,7 +61,7 @@ _MODULE_CLASS = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
 SERVO_BUS_COMMON_KEYS = frozenset({"backend", "port", "joints", "limit_policy", "reboot_on_hardware_error",
                                    "torque_on_close", "power_loss_torque"})
 SERVO_JOINT_COMMON_KEYS = frozenset({"id", "direction", "zero_offset", "min_angle", "max_angle"})
-CAMERA_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s"})
+CAMERA_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s", "exposure_control"})
 
 
 class ServoBusBackend(Protocol):

@@ -12,11 +12,19 @@ pop time (so a wall-clock step moves nothing). `get_timestamp()` is the camera's
 and is kept apart as `device_time_ns`. A real camera lives in real time, so this backend
 always uses the system monotonic clock, whatever clock it is given.
 
+Exposure lock: the SFNC features ExposureAuto and GainAuto (Off / Once / Continuous), where
+the camera has them (checked at open; Aravis's own Fake camera has GainAuto only). Locking
+reads ExposureTime and Gain, switches the automatic ones Off and writes the values back, so
+the camera holds what its automatic loop had reached; unlocking sets them Continuous. A
+camera with neither cannot hold its exposure (it has no automatic one to hold: set it with
+`exposure_us`).
+
 Aravis's Fake interface (device id `Fake_1`) is enabled when a config names a `Fake_` id,
 or by `enable_fake_interface()`.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -134,6 +142,8 @@ class AravisCamera(Camera):
         self._device_id: str | None = None
         self._period_s = 0.0
         self._exposure_s = 0.0
+        self._exposure_auto = False  # the camera has ExposureAuto
+        self._gain_auto = False  # the camera has GainAuto
         self._totals = dict.fromkeys(_STREAM_COUNTERS, 0)  # over all streams since open()
         self._incomplete = 0
 
@@ -197,6 +207,10 @@ class AravisCamera(Camera):
         fps = camera.get_frame_rate() if rate_control else 0.0
         self._period_s = 1.0 / fps if fps > 0 else 0.0
         self._exposure_s = camera.get_exposure_time() * 1e-6 if camera.is_exposure_time_available() else 0.0
+        self._exposure_auto = camera.is_exposure_auto_available()
+        self._gain_auto = camera.is_gain_auto_available()
+        self.capabilities = dataclasses.replace(type(self).capabilities,
+                                                exposure_lock=self._exposure_auto or self._gain_auto)
         log.info("%s: aravis %s (%s %s): %s %d x %d at (%d, %d), %.2f fps (asked %s x %s, %s fps, %s)",
                  self.name, self._device_id, camera.get_vendor_name(), camera.get_model_name(),
                  camera.get_pixel_format_as_string(), width, height, x, y, fps,
@@ -208,6 +222,8 @@ class AravisCamera(Camera):
     def _set_exposure_us(self, exposure_us: float) -> None:
         camera = self._require_camera()
         try:
+            if self._exposure_auto:  # a camera's own loop overrules (or refuses) the value
+                camera.set_exposure_time_auto(Aravis.Auto.OFF)
             camera.set_exposure_time(exposure_us)
             self._exposure_s = camera.get_exposure_time() * 1e-6
         except GLib.Error as err:
@@ -217,11 +233,41 @@ class AravisCamera(Camera):
     def _set_gain_db(self, gain_db: float) -> None:
         camera = self._require_camera()
         try:
+            if self._gain_auto:
+                camera.set_gain_auto(Aravis.Auto.OFF)
             camera.set_gain(gain_db)
             granted = camera.get_gain()
         except GLib.Error as err:
             raise CameraConfigError(f"{self.name}: gain {gain_db} refused: {err.message}") from err
         log.info("%s: gain %.2f asked, %.2f granted", self.name, gain_db, granted)
+
+    def _lock_exposure(self) -> None:
+        camera = self._require_camera()
+        try:
+            if self._exposure_auto:
+                exposure_us = camera.get_exposure_time()
+                camera.set_exposure_time_auto(Aravis.Auto.OFF)
+                camera.set_exposure_time(exposure_us)  # held where the automatic loop had it
+                self._exposure_s = camera.get_exposure_time() * 1e-6
+            if self._gain_auto:
+                gain = camera.get_gain()
+                camera.set_gain_auto(Aravis.Auto.OFF)
+                camera.set_gain(gain)
+        except GLib.Error as err:
+            raise CameraError(f"{self.name}: holding the exposure of {self._device_id} failed: {err.message}") from err
+        log.debug("%s: exposure and gain held (ExposureAuto %s, GainAuto %s)", self.name,
+                  "Off" if self._exposure_auto else "absent", "Off" if self._gain_auto else "absent")
+
+    def _unlock_exposure(self) -> None:
+        camera = self._require_camera()
+        try:
+            if self._exposure_auto:
+                camera.set_exposure_time_auto(Aravis.Auto.CONTINUOUS)
+            if self._gain_auto:
+                camera.set_gain_auto(Aravis.Auto.CONTINUOUS)
+        except GLib.Error as err:
+            raise CameraError(f"{self.name}: letting the exposure of {self._device_id} run again failed: "
+                              f"{err.message}") from err
 
     def _require_camera(self) -> "Aravis.Camera":
         if self._camera is None:

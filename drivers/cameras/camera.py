@@ -8,8 +8,12 @@ This module owns what every camera backend shares, once (a camera's typed settin
     latest frame (and a short history) in a latest-value slot, reports errors to a callback
     and to `health`/`last_error`, and reopens a lost camera with bounded backoff. Backends
     implement only the small hooks `_open_device`, `_close_device`, `_start_stream`,
-    `_stop_stream`, `_grab` and, when they declare the capability, `_set_exposure_us` and
-    `_set_gain_db`;
+    `_stop_stream`, `_grab` and, when they declare the capability, `_set_exposure_us`,
+    `_set_gain_db` and `_lock_exposure` / `_unlock_exposure`;
+  - exposure control (`ExposureMode`): auto, locked (the camera's auto exposure and gain held
+    at their present values, `lock_exposure` until `unlock_exposure`: what the service does
+    around a fixation with `exposure_control: lock_per_fixation`, so the images before and
+    after a saccade share one exposure), or manual (`exposure_us`, `set_exposure_us`);
   - `create_camera`: config -> backend class (`drivers.backends`) -> camera.
 
 Stereo pairs of two cameras: `drivers.cameras.stereo`.
@@ -93,9 +97,20 @@ class Capabilities:
     exposure: bool = False
     gain: bool = False
     frame_rate: bool = False
+    # The camera can hold its auto exposure and gain at their present values, and let them run again.
+    exposure_lock: bool = False
     colour: bool = True
     reconnect: bool = False
     simulated: bool = False
+
+
+class ExposureMode(enum.Enum):
+    """Who sets the exposure: the camera's own loop (auto), nobody while held (locked: at the
+    values the loop had reached), or the config or a caller (manual)."""
+
+    AUTO = "auto"
+    LOCKED = "locked"
+    MANUAL = "manual"
 
 
 class StreamHealth(enum.Enum):
@@ -188,6 +203,10 @@ class Camera(Device):
         self._stop_event: threading.Event | None = None  # the running capture thread's
         self._last_message = ""
         self._repeats = 0
+        self._exposure_mode = ExposureMode.AUTO
+        # Lock, unlock, manual settings and a reopen's fresh config, one at a time (the
+        # fixation thread locks while the capture thread may be reopening the device).
+        self._exposure_guard = threading.Lock()
 
     # -- state seen from outside ---------------------------------------------------------
     @property
@@ -253,9 +272,37 @@ class Camera(Device):
                 self._listeners.remove(listener)
 
     # -- settings (template methods over the hooks) --------------------------------------
+    @property
+    def exposure_mode(self) -> ExposureMode:
+        return self._exposure_mode
+
+    def lock_exposure(self) -> None:
+        """Hold the auto exposure and gain at their present values until `unlock_exposure`.
+
+        Nothing to do when the exposure is manual (fixed already) or locked already. A camera
+        without the capability refuses (`CameraConfigError` naming it)."""
+        self.require_open()
+        if not self.capabilities.exposure_lock:
+            raise CameraConfigError(f"{self.name}: the {self.backend_name} backend cannot hold its exposure "
+                                    "(no exposure lock)")
+        with self._exposure_guard:
+            if self._exposure_mode is ExposureMode.AUTO:
+                self._lock_exposure()
+                self._exposure_mode = ExposureMode.LOCKED
+
+    def unlock_exposure(self) -> None:
+        """Let the auto exposure and gain run again after `lock_exposure`; nothing to do when
+        they are not locked (manual, or the device reopened since, which applies the config)."""
+        self.require_open()
+        with self._exposure_guard:
+            if self._exposure_mode is ExposureMode.LOCKED:
+                self._unlock_exposure()  # on failure it stays locked, and the next unlock tries again
+                self._exposure_mode = ExposureMode.AUTO
+
     def set_exposure_us(self, exposure_us: float) -> None:
         self.require_open()
-        self._apply_exposure_us(exposure_us)
+        with self._exposure_guard:
+            self._apply_exposure_us(exposure_us)
 
     def set_gain_db(self, gain_db: float) -> None:
         self.require_open()
@@ -267,6 +314,7 @@ class Camera(Device):
         if not exposure_us > 0:
             raise CameraConfigError(f"{self.name}: exposure {exposure_us} us, expected a positive time")
         self._set_exposure_us(float(exposure_us))
+        self._exposure_mode = ExposureMode.MANUAL
 
     def _apply_gain_db(self, gain_db: float) -> None:
         if not self.capabilities.gain:
@@ -275,11 +323,22 @@ class Camera(Device):
 
     # -- lifecycle -------------------------------------------------------------------------
     def _open(self) -> None:
-        self._open_device()
-        if self.config.exposure_us is not None:
-            self._apply_exposure_us(self.config.exposure_us)
-        if self.config.gain_db is not None:
-            self._apply_gain_db(self.config.gain_db)
+        self._open_device()  # may declare what this very device can do (`capabilities`)
+        config = self.config
+        if config.exposure_control == "lock_per_fixation" and not self.capabilities.exposure_lock:
+            raise CameraConfigError(
+                f"{self.name}: exposure_control: lock_per_fixation, but this {self.backend_name} camera cannot hold "
+                "its exposure (no auto exposure or gain to switch off): use auto, or manual with exposure_us")
+        with self._exposure_guard:
+            self._exposure_mode = ExposureMode.AUTO
+            if config.exposure_control == "lock_per_fixation":
+                # V4L2 and GenICam devices keep their controls while powered: one left held
+                # by a process that died mid-fixation runs its auto exposure again here.
+                self._unlock_exposure()
+            if config.exposure_us is not None:
+                self._apply_exposure_us(config.exposure_us)
+            if config.gain_db is not None:
+                self._apply_gain_db(config.gain_db)
 
     def _enable(self) -> None:
         self._start_stream()
@@ -466,6 +525,14 @@ class Camera(Device):
 
     def _set_gain_db(self, gain_db: float) -> None:
         raise CameraConfigError(f"{self.name}: no gain control")
+
+    def _lock_exposure(self) -> None:
+        """Switch the auto exposure (and auto gain) off, keeping the values they had reached."""
+        raise CameraConfigError(f"{self.name}: the {self.backend_name} backend cannot hold its exposure")
+
+    def _unlock_exposure(self) -> None:
+        """Switch the auto exposure (and auto gain) on again."""
+        raise CameraConfigError(f"{self.name}: the {self.backend_name} backend cannot hold its exposure")
 
     def _backend_stats(self) -> dict[str, int]:
         return {}

@@ -40,6 +40,10 @@ class CameraConfig:
     `eye`: which eye of the simulated head (sim). `pixel_format`: Mono8, BayerRG8, RGB8...
     (aravis) or a FourCC such as MJPG, YUYV (opencv). `image`: frames delivered grey or colour
     (BGR). `gain_db` is in the camera's own gain unit (dB on most GenICam cameras).
+    `exposure_control`: `auto` leaves the exposure to the camera (fixed by `exposure_us` if
+    given); `lock_per_fixation` holds the camera's auto exposure and gain over each fixation
+    (the service locks them before its first image and unlocks them after it), so the images
+    before and after a saccade share one exposure; `manual` fixes it at `exposure_us`.
     """
 
     backend: str = "sim"
@@ -56,6 +60,7 @@ class CameraConfig:
                                 expected="a positive rate, from 0.01 to 10000 frames a second")
     exposure_us: float | None = setting(None, above=0.0, hi=1e8, expected="a positive time, at most 1e8 us (100 s)")
     gain_db: float | None = setting(None, lo=-1000.0, hi=1000.0)
+    exposure_control: Literal["auto", "lock_per_fixation", "manual"] = "auto"
     image: ImageMode = "grey"
     history: int = setting(8, lo=2, hi=MAX_FRAMES, expected=f"at least 2 frames, at most {MAX_FRAMES}")
     buffers: int = setting(8, lo=2, hi=MAX_FRAMES, expected=f"at least 2 buffers, at most {MAX_FRAMES}")
@@ -75,6 +80,14 @@ class CameraConfig:
 
     def __post_init__(self) -> None:
         check_settings(self)
+        if self.exposure_control == "manual" and self.exposure_us is None:
+            raise CameraConfigError(key_path="exposure_us", missing=True,
+                                    expected="an exposure time in us: exposure_control: manual fixes the exposure "
+                                             "at exposure_us")
+        if self.exposure_control == "lock_per_fixation" and self.exposure_us is not None:
+            raise CameraConfigError(key_path="exposure_control", value=self.exposure_control,
+                                    expected=f"manual (or no exposure_us): exposure_us {self.exposure_us:g} fixes the "
+                                             "exposure, so there is no auto exposure to hold")
         if self.id is not None and self.serial is not None:
             raise CameraConfigError(
                 key_path="serial", value=self.serial,

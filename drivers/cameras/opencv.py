@@ -20,9 +20,30 @@ no longer exists makes the next grab fail as lost (`CameraLostError`), as does a
 driver fails; the base class then reopens with back-off, each attempt resolving the path
 afresh, so the camera comes back under its udev name whatever /dev/videoN it got, with its
 config applied again (FourCC, size, rate, and exposure and gain, the exposure set manual).
+
+Exposure control on V4L2 through OpenCV's V4L2 backend (modules/videoio/src/cap_v4l.cpp,
+the same in OpenCV 4 and 5): `CAP_PROP_AUTO_EXPOSURE` is rounded to an integer and written
+to V4L2_CID_EXPOSURE_AUTO, a menu: 0 auto, 1 manual, 2 shutter priority, 3 aperture priority
+(uvcvideo maps UVC's auto exposure modes onto it; UVC webcams mostly offer manual and
+aperture priority, their "auto"). `CAP_PROP_EXPOSURE` is V4L2_CID_EXPOSURE_ABSOLUTE, in
+100 us units. The widespread "0.25 manual, 0.75 auto" comes from OpenCV's normalized
+ranges, the default of OpenCV 3: values in [0, 1) scaled to the control's range (the
+auto exposure menu scaled by 4, so 0.25 is 1 and 0.75 is 3). OpenCV 4 and later normalize
+only with the environment variable OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED=1 (or CAP_PROP_MODE
+set non-zero), and there 0.75 rounds to 1, manual, and 0.25 to 0, which UVC cameras refuse.
+A capture that reports normalized ranges (CAP_PROP_MODE reads non-zero) is switched to
+real values at open (CAP_PROP_MODE 0), so `exposure_us` means microseconds; should that be
+refused, the menu is written scaled (value / 4) and the exposure's unit is logged as unknown.
+
+Locking (`lock_exposure`): the exposure and gain the camera's auto exposure has reached are
+read (CAP_PROP_EXPOSURE, CAP_PROP_GAIN), the auto exposure switched to manual and both
+written back; unlocking switches it to the auto mode it was in (aperture priority if it
+was not in one). A driver with V4L2_CID_AUTOGAIN has it switched off and on with them
+(`drivers.cameras.v4l2_controls`: OpenCV has no property for it, and UVC cameras no auto gain).
 """
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import logging
 import os
@@ -39,11 +60,13 @@ import numpy as np
 
 from drivers.cameras.camera import Camera, Capabilities, Grab
 from drivers.cameras.config import CameraConfig
+from drivers.cameras.v4l2_controls import AUTOGAIN, V4L2Controls
 from drivers.errors import CameraConfigError, CameraError, CameraLostError
 
 log = logging.getLogger(__name__)
 
 CaptureFactory = Callable[[Any, int], Any]  # (source, api preference) -> a VideoCapture
+ControlsFactory = Callable[[str], V4L2Controls]  # device node -> its controls
 _PACING_STEP_S = 0.02
 _DEFAULT_FPS = 30.0
 
@@ -76,6 +99,16 @@ def resolve_source(device: int | str | None, name: str) -> Source:
     match = re.fullmatch(r"/dev/video(\d+)", path)
     label = device if path == device else f"{device} -> {path}"
     return Source(int(match.group(1)) if match else path, cv2.CAP_V4L2, False, label)
+
+
+# V4L2_CID_EXPOSURE_AUTO's menu (enum v4l2_exposure_auto_type, linux/v4l2-controls.h).
+V4L2_EXPOSURE_AUTO = 0
+V4L2_EXPOSURE_MANUAL = 1
+V4L2_EXPOSURE_SHUTTER_PRIORITY = 2
+V4L2_EXPOSURE_APERTURE_PRIORITY = 3
+_AUTO_MODES = (V4L2_EXPOSURE_APERTURE_PRIORITY, V4L2_EXPOSURE_AUTO, V4L2_EXPOSURE_SHUTTER_PRIORITY)
+_NORMALIZED_MENU_SCALE = 4.0  # cap_v4l.cpp's range for CAP_PROP_AUTO_EXPOSURE when normalizing
+_UNREADABLE = -1.0  # what OpenCV's V4L2 backend returns for a control it cannot read
 
 
 def fourcc_text(code: float) -> str:
@@ -162,20 +195,27 @@ class OpenCVCamera(Camera):
     CONFIG_KEYS = frozenset({"device", "pixel_format", "width", "height", "fps", "exposure_us", "gain_db",
                              "buffers", "reconnect_backoff_max_s", "reconnect_give_up_s"})
 
-    def __init__(self, config: CameraConfig, *, capture_factory: CaptureFactory | None = None, **kwargs: Any) -> None:
+    def __init__(self, config: CameraConfig, *, capture_factory: CaptureFactory | None = None,
+                 controls_factory: ControlsFactory | None = None, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
         if config.pixel_format is not None and len(config.pixel_format) != 4:
             raise CameraConfigError(f"{self.name}: pixel_format {config.pixel_format!r}: expected a FourCC such "
                                     "as MJPG or YUYV")
         self._factory = capture_factory or cv2.VideoCapture
+        self._controls_factory = controls_factory or V4L2Controls
+        self._controls: V4L2Controls | None = None
+        self._autogain = False  # the driver has V4L2_CID_AUTOGAIN
+        self._menu_scale = 1.0  # 1 / 4 on a capture that stays normalized
+        self._auto_mode = V4L2_EXPOSURE_APERTURE_PRIORITY  # the auto exposure mode unlocking restores
         self._cap: Any = None
         self._source: Source | None = None
         self._period_s = 1.0 / (config.fps or _DEFAULT_FPS)
         self._exposure_s = (config.exposure_us or 0.0) * 1e-6
         self._next_due_s = 0.0
         self._stale_dropped = 0
-        # Declared per instance: a file has no exposure or gain; a device has both. Both are
-        # reopened when their path vanishes and comes back.
+        # Declared per instance: a file has no exposure or gain; a device has both (and an
+        # exposure lock once open shows it has an auto exposure control). Both are reopened
+        # when their path vanishes and comes back.
         is_file = isinstance(config.device, str) and os.path.isfile(config.device)
         self.capabilities = Capabilities(device_timestamps=not is_file, exposure=not is_file, gain=not is_file,
                                          frame_rate=True, colour=True, reconnect=True)
@@ -231,11 +271,76 @@ class OpenCVCamera(Camera):
             if wanted is not None and wanted != granted[key]:
                 log.warning("%s: %s %s asked, %s granted by %s", self.name, key, wanted, granted[key],
                             source.label)
+        self._find_exposure_controls(cap, source)
+
+    def _find_exposure_controls(self, cap: Any, source: Source) -> None:
+        """Real units rather than OpenCV's normalized ones; whether this device can hold its
+        exposure (an auto exposure control), and whether it has an automatic gain."""
+        self._menu_scale = 1.0
+        if cap.get(cv2.CAP_PROP_MODE) != 0:  # cap_v4l.cpp reads back its palette when normalizing
+            cap.set(cv2.CAP_PROP_MODE, 0)
+            if cap.get(cv2.CAP_PROP_MODE) != 0:
+                self._menu_scale = 1.0 / _NORMALIZED_MENU_SCALE
+                log.warning("%s: %s: OpenCV keeps normalized property ranges (OPENCV_VIDEOIO_V4L_RANGE_NORMALIZED): "
+                            "exposure_us and gain_db are fractions of the controls' ranges here", self.name,
+                            source.label)
+            else:
+                log.info("%s: %s: OpenCV's normalized property ranges switched off (CAP_PROP_MODE 0)", self.name,
+                         source.label)
+        node = f"/dev/video{source.target}" if isinstance(source.target, int) else source.target
+        self._controls = self._controls_factory(node)
+        autogain = self._controls.query(AUTOGAIN)
+        self._autogain = autogain is not None and not autogain.disabled
+        has_auto_exposure = cap.get(cv2.CAP_PROP_AUTO_EXPOSURE) != _UNREADABLE
+        self.capabilities = dataclasses.replace(self.capabilities, exposure_lock=has_auto_exposure)
+        log.info("%s: %s: auto exposure control %s, automatic gain control %s", self.name, source.label,
+                 "found" if has_auto_exposure else "missing (the exposure cannot be held)",
+                 "found" if self._autogain else "missing")
+
+    def _set_auto_exposure(self, cap: Any, mode: int) -> bool:
+        """Write V4L2_CID_EXPOSURE_AUTO's menu `mode` through OpenCV; False if the driver refused it."""
+        return bool(cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, mode * self._menu_scale))
+
+    def _lock_exposure(self) -> None:
+        cap = self._require_cap()
+        mode = round(cap.get(cv2.CAP_PROP_AUTO_EXPOSURE) / self._menu_scale)
+        exposure = cap.get(cv2.CAP_PROP_EXPOSURE)
+        gain = cap.get(cv2.CAP_PROP_GAIN)
+        if mode in _AUTO_MODES:
+            self._auto_mode = mode
+        if self._autogain:
+            assert self._controls is not None
+            self._controls.set(AUTOGAIN, 0)
+        if not self._set_auto_exposure(cap, V4L2_EXPOSURE_MANUAL):
+            raise CameraError(f"{self.name}: {self.config.device} refused manual exposure "
+                              f"(CAP_PROP_AUTO_EXPOSURE {V4L2_EXPOSURE_MANUAL * self._menu_scale:g})")
+        # Written back: the values the auto exposure had reached are held, whatever the driver
+        # does with them when the mode changes.
+        if exposure != _UNREADABLE:
+            cap.set(cv2.CAP_PROP_EXPOSURE, exposure)
+            if self._menu_scale == 1.0:
+                self._exposure_s = exposure * 100e-6
+        if gain != _UNREADABLE:
+            cap.set(cv2.CAP_PROP_GAIN, gain)
+        log.debug("%s: exposure held at %g, gain at %g (auto mode was %d)", self.name, exposure, gain, mode)
+
+    def _unlock_exposure(self) -> None:
+        cap = self._require_cap()
+        # The mode it was in; else aperture priority (what UVC cameras call auto), else full auto.
+        for mode in dict.fromkeys((self._auto_mode, *_AUTO_MODES)):
+            if self._set_auto_exposure(cap, mode):
+                break
+        else:
+            raise CameraError(f"{self.name}: {self.config.device} refused every auto exposure mode "
+                              f"({', '.join(str(m) for m in _AUTO_MODES)})")
+        if self._autogain:
+            assert self._controls is not None
+            self._controls.set(AUTOGAIN, 1)
 
     def _set_exposure_us(self, exposure_us: float) -> None:
         cap = self._require_cap()
-        # V4L2 through OpenCV: auto exposure 1 is manual; exposure in 100 us units.
-        cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1)
+        # V4L2 through OpenCV: manual exposure, in 100 us units (V4L2_CID_EXPOSURE_ABSOLUTE).
+        self._set_auto_exposure(cap, V4L2_EXPOSURE_MANUAL)
         cap.set(cv2.CAP_PROP_EXPOSURE, exposure_us / 100.0)
         granted_us = cap.get(cv2.CAP_PROP_EXPOSURE) * 100.0
         self._exposure_s = max(exposure_us, granted_us) * 1e-6
@@ -243,6 +348,9 @@ class OpenCVCamera(Camera):
 
     def _set_gain_db(self, gain_db: float) -> None:
         cap = self._require_cap()
+        if self._autogain:  # a driver's automatic gain would overrule (or refuse) the value
+            assert self._controls is not None
+            self._controls.set(AUTOGAIN, 0)
         cap.set(cv2.CAP_PROP_GAIN, gain_db)
         log.info("%s: gain %.2f asked, %.2f granted (device units)", self.name, gain_db, cap.get(cv2.CAP_PROP_GAIN))
 

@@ -91,10 +91,11 @@ def port_access_hint(port: str, err: BaseException) -> str:
     return f"could not open {port}: {err}"
 
 
-def adapter_latency_timer_ms(port: str) -> float | None:
-    """The FTDI latency timer of the USB adapter behind `port`, if the kernel exposes it."""
+def adapter_latency_timer_ms(port: str, sysfs: str = "/sys") -> float | None:
+    """The FTDI latency timer of the USB adapter behind `port`, if the kernel exposes it
+    (`sysfs`: where sysfs is mounted)."""
     name = os.path.basename(os.path.realpath(port))
-    path = f"/sys/bus/usb-serial/devices/{name}/latency_timer"
+    path = os.path.join(sysfs, "bus", "usb-serial", "devices", name, "latency_timer")
     try:
         with open(path, encoding="ascii") as f:
             return float(f.read().strip())

@@ -2,8 +2,8 @@
 
 `run [--config F]` runs the daemon (`headctl.service.daemon.Daemon`), its front ends the HTTP
 API and the ROS 2 interface the config enables (`headctl.api.compose`), until SIGTERM/SIGINT;
-without `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a config and connects to the servos
-and cameras it names, reporting each. Both prepare the
+without `--config` it runs the simulated head of `configs/sim.yaml`. `check --config F` validates a config and tries
+every servo and camera it names, a line each (`headctl.cli.check`). Both prepare the
 config in one way (`_prepare`), so `check`, with or without `--no-connect`, refuses a config
 exactly where `run` would: exit 2 naming the file, the key path, the value and what was
 expected. `status`, `look` and `track` are clients of the running daemon's HTTP API
@@ -12,7 +12,6 @@ expected. `status`, `look` and `track` are clients of the running daemon's HTTP 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import sys
@@ -46,7 +45,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     check = sub.add_parser(
         "check", help="validate a head's config, then connect and report each servo and camera",
         description="Validate a config (file, key path, value and what was expected on error); unless "
-                    "--no-connect, open the servo bus and both cameras and report each.")
+                    "--no-connect, open the servo bus and both cameras and report each servo, the USB adapter's "
+                    "latency timer and each camera with its exposure control, trying every part even when one "
+                    "fails; exit 1 when any part failed.")
     _config_args(check)
     check.add_argument("--no-connect", action="store_true",
                        help="validate only: the file, the state directory and log file, the devices built but not "
@@ -240,57 +241,9 @@ def _check(args: argparse.Namespace) -> int:
               f"commands {'accepted' if ros2.commands else 'off'}")
     if args.no_connect:
         return 0
-    return _connect_and_report(config, args.timeout)
+    from headctl.cli.check import connect_and_report
 
-
-def _connect_and_report(config: HeadConfig, timeout_s: float) -> int:
-    from drivers.servo.joints import JOINTS
-    from headctl.service.build import HeadDevices
-
-    failures = 0
-    try:
-        devices = HeadDevices.build(config)  # as `run` builds them (the simulated head's too)
-    except (DriverError, OSError) as err:  # `_prepare` built them already: not the config's fault
-        print(f"  FAILED: {err}")
-        return 1
-    with contextlib.ExitStack() as stack:
-        try:
-            bus = devices.bus
-            assert bus is not None  # built here, not owned by a servo process
-            stack.enter_context(bus)
-            state = bus.read_state()
-            for joint in JOINTS:
-                jc, js = config.servo_bus.joints[joint], state[joint]
-                errors = ", ".join(js.hardware_errors) or "no hardware error"
-                print(f"  {bus.describe(joint)}: {jc.model}, at {js.position:.2f} deg "
-                      f"(limits {jc.min_angle:g}..{jc.max_angle:g}), {js.temperature_c:.0f} C, "
-                      f"{js.input_voltage_v:.1f} V, {errors}")
-                failures += bool(js.hardware_error_bits)
-            # What the read itself recovered from (a servo rebooted inside it) reads clear in the
-            # state: the bus's fault log still tells it.
-            latest = {r.episode: r for r in bus.fault_log.since(0)}  # each episode as it stands now
-            for episode in latest.values():
-                if not episode.is_open:  # an open one shows in the state above
-                    print(f"  {bus.describe(episode.joint)}: had {', '.join(episode.meanings)} (0x{episode.bits:02x}) "
-                          f"while connecting; {episode.recovery}, cleared by {episode.cleared_by}")
-                    failures += 1
-        except (DriverError, OSError) as err:
-            print(f"  servo bus: FAILED: {err}")
-            return 1
-        for side, camera in devices.cameras.items():
-            try:
-                stack.enter_context(camera)
-                started = time.monotonic()
-                camera.enable()
-                frame = camera.wait_frame(after_s=started, timeout_s=timeout_s)
-                h, w = frame.image.shape[:2]
-                print(f"  camera {side} ({camera.backend_name} {camera.name}): {w} x {h}, "
-                      f"first frame after {time.monotonic() - started:.2f} s, {camera.health.value}")
-            except (DriverError, OSError) as err:
-                print(f"  camera {side}: FAILED: {err}")
-                failures += 1
-    print("check: OK" if not failures else f"check: {failures} problem(s)")
-    return 0 if not failures else 1
+    return connect_and_report(config, args.timeout)
 
 
 # --- status ------------------------------------------------------------------------------------

@@ -43,6 +43,7 @@ from drivers.sim.scene import Scene, shared_scene
 from headctl.config.head import HeadConfig, load_config
 from headctl.errors import HeadctlError
 from headctl.experiments.perturbations import perturb
+from headctl.service.exposure import ExposureHold
 from headctl.service.head import RenderedPairSource
 from headctl.service.build import HeadDevices, build_head
 
@@ -200,6 +201,8 @@ class SimulatedHeadRig:
         self.pairs = RenderedPairSource(lambda joints: (left.render(joints), right.render(joints)),
                                         world.true_joints, self.clock, noise_std=noise, seed=seed)
         self.head = build_head(self.config, self.bus, self.pairs, self.clock)
+        # The cameras' exposure held over each fixation, as the service holds it (`cameras.*.exposure_control`).
+        self.exposure = ExposureHold(self.devices.cameras.values())
         self.fixation = fixation or FixationParams()
         # The room the cameras render (the shared generated one unless the config names another).
         self.scene = world.scene if world.scene is not None else shared_scene(left.config.seed,
@@ -284,7 +287,8 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
                 model = apply_change(changes[n], rig, model)
                 targets = target_sets(n)
                 log.info("fixation %d: %s", n, spec.description)
-            record = controller.fixate()
+            with rig.exposure.held():
+                record = controller.fixate()
             result.records.append(record)
             if progress is not None:
                 progress(record)

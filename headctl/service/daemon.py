@@ -46,6 +46,7 @@ from headctl.service.build import HeadDevices, build_head
 from headctl.service.control import HeadService, ServiceControl
 from headctl.log_limit import RepeatLimiter
 from headctl.service.events import EventHub, EventLog
+from headctl.service.exposure import ExposureHold
 from headctl.service.fixation_thread import FixationThread, HeadEvents, Interrupt
 from headctl.service.fixation_trace import TracingController
 from headctl.service.servo_io.hardware_faults import HardwareFaults
@@ -290,7 +291,8 @@ class Daemon:
                             clock=clock)
         make_fixation = functools.partial(FixationThread, controller, head, interrupt, parts.looks, parts.hub,
                                           self._paused_reason, explore=cfg.fixation.explore,
-                                          rate_hz=cfg.fixation.rate_hz, clock=clock, tracking=tracking)
+                                          rate_hz=cfg.fixation.rate_hz, clock=clock, tracking=tracking,
+                                          exposure=ExposureHold(devices.cameras.values()))
         fixation = make_fixation()
         parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
         fixation.start()

@@ -9,6 +9,8 @@ costs about one attempt a second instead of thousands. `Interrupt` is what the h
 access and frame wait: it stops the fixation in progress when the service stops (for good)
 or when a client cancels the look in progress (that look only). `HeadEvents` turns what the
 head tells into events and figures (phase, saccade onset and end, vergence latency).
+`exposure` (`headctl.service.exposure.ExposureHold`) holds the cameras' exposure over each
+exploratory fixation and each client's look, where the config asks for it.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from drivers.clock import SYSTEM_CLOCK, Backoff, Clock
 from drivers.errors import DriverError
 from headctl.service.head import Head
 from headctl.service.events import EventHub, plain
+from headctl.service.exposure import ExposureHold
 from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
 from headctl.service.servo_io.loop import join_thread
 from headctl.service.tracking import TrackFigures, Tracking
@@ -104,7 +107,8 @@ class FixationThread(threading.Thread):
 
     def __init__(self, controller: FixationController, head: Head, interrupt: Interrupt, looks: LookQueue,
                  events: EventHub, paused_reason: Callable[[], str | None], *, explore: bool = True,
-                 rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK, tracking: Tracking | None = None) -> None:
+                 rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK, tracking: Tracking | None = None,
+                 exposure: ExposureHold | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
@@ -128,6 +132,7 @@ class FixationThread(threading.Thread):
         # Smooth pursuit (`headctl.service.tracking`); without it, a track fails saying so.
         self.tracking = tracking
         self.backoff = Backoff(BACKOFF_FIRST_S, BACKOFF_MAX_S)
+        self.exposure = exposure if exposure is not None else ExposureHold()
 
     def stop(self, timeout_s: float = 2.0) -> None:
         self.abort.set()
@@ -190,7 +195,8 @@ class FixationThread(threading.Thread):
         """One fixation, taught or refused (an interrupted one is refused with the reason)."""
         self.head.set_phase("choosing target")
         try:
-            record = self.controller.fixate(target, reference_pose)
+            with self.exposure.held():
+                record = self.controller.fixate(target, reference_pose)
         finally:
             self.head.set_phase("idle")
         if record.outcome is FixationOutcome.SERVO_FAULT:
@@ -230,7 +236,8 @@ class FixationThread(threading.Thread):
         reference = job.request.reference_pose
         self.head.set_phase("look at target")
         try:
-            look = self.looker.look(target, None if reference is None else np.asarray(reference))
+            with self.exposure.held():  # one exposure for the look: its fixations find its first image's target
+                look = self.looker.look(target, None if reference is None else np.asarray(reference))
         finally:
             self.head.set_phase("idle")
         fixations = look.fixations

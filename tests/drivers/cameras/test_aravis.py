@@ -145,3 +145,97 @@ def test_bayer_patterns_are_demosaiced_with_the_right_colours(name, red_at):
     mosaic = np.zeros((8, 8), np.uint8)
     mosaic[red_at[0]::2, red_at[1]::2] = 255
     assert cv2.cvtColor(mosaic, code)[3, 3].tolist() == [0, 0, 255]
+
+
+# --- exposure lock: ExposureAuto and GainAuto ------------------------------------------------
+_EXPOSURE_AUTO = """
+	<Enumeration Name="ExposureAuto" NameSpace="Standard">
+		<EnumEntry Name="Off" NameSpace="Standard"><Value>0</Value></EnumEntry>
+		<EnumEntry Name="Once" NameSpace="Standard"><Value>1</Value></EnumEntry>
+		<EnumEntry Name="Continuous" NameSpace="Standard"><Value>2</Value></EnumEntry>
+		<pValue>ExposureAutoRegister</pValue>
+	</Enumeration>
+	<IntReg Name="ExposureAutoRegister" NameSpace="Custom">
+		<Address>0x140</Address><Length>4</Length><AccessMode>RW</AccessMode><pPort>Device</pPort>
+		<Sign>Unsigned</Sign><Endianess>BigEndian</Endianess>
+	</IntReg>
+"""
+
+
+@pytest.fixture
+def fake_genicam(tmp_path):
+    """Aravis's Fake camera described by another GenICam file: `use(edit)` makes the next
+    Fake_1 opened read its own XML through `edit`. Its XML is restored afterwards."""
+    import re
+
+    from gi.repository import Aravis
+
+    aravis_camera.enable_fake_interface()
+    stock = Aravis.Camera.new("Fake_1").get_device().get_genicam_xml()[0]
+    original = tmp_path / "fake-stock.xml"
+    original.write_text(stock)
+    edits = {
+        "with ExposureAuto": lambda xml: xml.replace("<!-- Analog control -->", _EXPOSURE_AUTO + "<!-- Analog control -->"),
+        "without GainAuto": lambda xml: re.sub(r'<Enumeration Name="GainAuto".*?</Enumeration>', "",
+                                               xml.replace("<pFeature>GainAuto</pFeature>", ""), flags=re.S),
+    }
+
+    def use(kind: str) -> None:
+        path = tmp_path / f"fake-{kind.replace(' ', '-')}.xml"
+        path.write_text(edits[kind](stock))
+        Aravis.set_fake_camera_genicam_filename(str(path))
+
+    try:
+        yield use
+    finally:
+        Aravis.set_fake_camera_genicam_filename(str(original))
+
+
+def _feature(cam, name: str) -> str:
+    return cam._camera.get_device().get_string_feature_value(name)
+
+
+def test_lock_holds_exposure_and_gain_at_their_values_and_unlock_lets_both_run(fake_genicam):
+    fake_genicam("with ExposureAuto")
+    with create_camera(fake_config(), name="left") as cam:
+        assert cam.capabilities.exposure_lock
+        device = cam._camera.get_device()
+        device.set_string_feature_value("ExposureAuto", "Continuous")
+        device.set_string_feature_value("GainAuto", "Continuous")
+        device.set_float_feature_value("ExposureTimeAbs", 3000.0)  # where the automatic loop got to
+        device.set_integer_feature_value("GainRaw", 4)
+        cam.lock_exposure()
+        assert (_feature(cam, "ExposureAuto"), _feature(cam, "GainAuto")) == ("Off", "Off")
+        assert device.get_float_feature_value("ExposureTimeAbs") == 3000.0
+        assert device.get_integer_feature_value("GainRaw") == 4
+        cam.unlock_exposure()
+        assert (_feature(cam, "ExposureAuto"), _feature(cam, "GainAuto")) == ("Continuous", "Continuous")
+
+
+def test_the_stock_fake_camera_holds_its_gain_only(fake_genicam):
+    with create_camera(fake_config(exposure_control="lock_per_fixation"), name="left") as cam:
+        assert cam.capabilities.exposure_lock
+        assert _feature(cam, "GainAuto") == "Continuous"  # opened with its automatic gain running
+        cam.lock_exposure()
+        assert _feature(cam, "GainAuto") == "Off"
+        cam.unlock_exposure()
+        assert _feature(cam, "GainAuto") == "Continuous"
+
+
+def test_a_camera_without_exposure_auto_or_gain_auto_cannot_lock(fake_genicam):
+    fake_genicam("without GainAuto")
+    with create_camera(fake_config(), name="left") as cam:
+        assert not cam.capabilities.exposure_lock
+        with pytest.raises(CameraConfigError, match="left: the aravis backend cannot hold its exposure"):
+            cam.lock_exposure()
+    cam = create_camera(fake_config(exposure_control="lock_per_fixation"), name="left")
+    with pytest.raises(CameraConfigError, match="left: exposure_control: lock_per_fixation, but this aravis camera "
+                                                "cannot hold its exposure"):
+        cam.open()
+
+
+def test_a_manual_exposure_switches_exposure_auto_off(fake_genicam):
+    fake_genicam("with ExposureAuto")
+    with create_camera(fake_config(exposure_us=2500.0, gain_db=2.0, exposure_control="manual"), name="left") as cam:
+        assert (_feature(cam, "ExposureAuto"), _feature(cam, "GainAuto")) == ("Off", "Off")
+        assert cam._camera.get_device().get_float_feature_value("ExposureTimeAbs") == 2500.0

@@ -293,3 +293,127 @@ def test_a_replugged_device_is_found_by_its_udev_name_and_configured_again(tmp_p
               (cv2.CAP_PROP_FRAME_HEIGHT, 480), (cv2.CAP_PROP_FPS, 100.0),
               (cv2.CAP_PROP_AUTO_EXPOSURE, 1), (cv2.CAP_PROP_EXPOSURE, 50.0), (cv2.CAP_PROP_GAIN, 3.0)]
     assert captures[1].sets == captures[0].sets == wanted, "the replugged camera's config was not applied again"
+
+
+class V4L2Capture(RecordingCapture):
+    """A UVC-like device as OpenCV's V4L2 backend shows it: in aperture priority (auto
+    exposure 3) with the exposure (100 us units) and gain its auto exposure reached;
+    `normalized`: OpenCV scaling properties to [0, 1) (CAP_PROP_MODE then reads the palette,
+    and `sticky` ones refuse to switch it off); `auto_exposure` None: no such control."""
+
+    def __init__(self, target, auto_exposure=3, normalized=False, sticky=False) -> None:
+        super().__init__(target)
+        self.normalized, self.sticky = normalized, sticky
+        self.props.update({cv2.CAP_PROP_EXPOSURE: 156.0, cv2.CAP_PROP_GAIN: 40.0})
+        if auto_exposure is not None:
+            self.props[cv2.CAP_PROP_AUTO_EXPOSURE] = auto_exposure / 4 if normalized else auto_exposure
+
+    def get(self, prop):
+        if prop == cv2.CAP_PROP_MODE:
+            return float(self.props[cv2.CAP_PROP_FOURCC]) if self.normalized else 0.0
+        return self.props.get(prop, -1.0)  # OpenCV's V4L2 backend: -1 for a control it cannot read
+
+    def set(self, prop, value) -> bool:
+        if prop == cv2.CAP_PROP_MODE:
+            self.sets.append((prop, value))
+            if not self.sticky:
+                self.normalized = bool(value)
+            return True
+        return super().set(prop, value)
+
+
+class FakeControls:
+    """`V4L2Controls` of a driver with (or without) V4L2_CID_AUTOGAIN."""
+
+    def __init__(self, autogain: bool) -> None:
+        self.autogain, self.sets = autogain, []
+
+    def query(self, control_id):
+        from drivers.cameras.v4l2_controls import AUTOGAIN, ControlInfo
+
+        return ControlInfo(AUTOGAIN, "Gain, Automatic", 0, 1, 1, 0) if self.autogain and control_id == AUTOGAIN else None
+
+    def set(self, control_id, value):
+        self.sets.append((control_id, value))
+
+
+def v4l2_camera(capture, controls=None, **config):
+    return OpenCVCamera(CameraConfig(backend="opencv", device=0, **config), name="left",
+                        capture_factory=lambda target, api: capture,
+                        controls_factory=lambda node: controls or FakeControls(False))
+
+
+def test_lock_holds_the_exposure_and_gain_reached_and_unlock_restores_the_auto_mode():
+    capture = V4L2Capture(0, auto_exposure=3)
+    with v4l2_camera(capture) as cam:
+        assert cam.capabilities.exposure_lock
+        capture.sets.clear()
+        cam.lock_exposure()
+        # Manual (V4L2 menu 1, as OpenCV 4+ writes it), then the values the auto exposure reached.
+        assert capture.sets == [(cv2.CAP_PROP_AUTO_EXPOSURE, 1), (cv2.CAP_PROP_EXPOSURE, 156.0),
+                                (cv2.CAP_PROP_GAIN, 40.0)]
+        capture.sets.clear()
+        cam.unlock_exposure()
+        assert capture.sets == [(cv2.CAP_PROP_AUTO_EXPOSURE, 3)]  # aperture priority again
+
+
+def test_a_device_in_full_auto_gets_full_auto_back():
+    capture = V4L2Capture(0, auto_exposure=0)
+    with v4l2_camera(capture) as cam:
+        cam.lock_exposure()
+        capture.sets.clear()
+        cam.unlock_exposure()
+        assert capture.sets == [(cv2.CAP_PROP_AUTO_EXPOSURE, 0)]
+
+
+def test_an_automatic_gain_is_switched_off_and_on_with_the_exposure():
+    from drivers.cameras.v4l2_controls import AUTOGAIN
+
+    capture, controls = V4L2Capture(0), FakeControls(autogain=True)
+    with v4l2_camera(capture, controls) as cam:
+        cam.lock_exposure()
+        assert controls.sets == [(AUTOGAIN, 0)]
+        cam.unlock_exposure()
+        assert controls.sets == [(AUTOGAIN, 0), (AUTOGAIN, 1)]
+
+
+def test_normalized_ranges_are_switched_off_at_open():
+    capture = V4L2Capture(0, normalized=True)
+    with v4l2_camera(capture, exposure_us=5000.0) as cam:
+        assert capture.sets[:2] == [(cv2.CAP_PROP_MODE, 0), (cv2.CAP_PROP_AUTO_EXPOSURE, 1)]
+        assert (cv2.CAP_PROP_EXPOSURE, 50.0) in capture.sets  # 100 us units, not a fraction
+        assert cam.capabilities.exposure_lock
+
+
+def test_ranges_that_stay_normalized_get_the_menu_scaled_as_opencv_scales_it():
+    """OpenCV's normalized auto exposure is the V4L2 menu over 4: 0.25 manual, 0.75 aperture priority."""
+    capture = V4L2Capture(0, normalized=True, sticky=True)
+    with v4l2_camera(capture) as cam:
+        capture.sets.clear()
+        cam.lock_exposure()
+        assert capture.sets[0] == (cv2.CAP_PROP_AUTO_EXPOSURE, 0.25)
+        capture.sets.clear()
+        cam.unlock_exposure()
+        assert capture.sets == [(cv2.CAP_PROP_AUTO_EXPOSURE, 0.75)]
+
+
+def test_a_device_without_auto_exposure_cannot_lock_and_refuses_lock_per_fixation():
+    capture = V4L2Capture(0, auto_exposure=None)
+    with v4l2_camera(capture) as cam:
+        assert not cam.capabilities.exposure_lock
+        with pytest.raises(CameraConfigError, match="left: the opencv backend cannot hold its exposure"):
+            cam.lock_exposure()
+    cam = v4l2_camera(V4L2Capture(0, auto_exposure=None), exposure_control="lock_per_fixation")
+    with pytest.raises(CameraConfigError, match="left: exposure_control: lock_per_fixation, but this opencv camera"):
+        cam.open()
+    # With one, lock_per_fixation opens it in its auto exposure (a held one left by a dead process runs again).
+    capture = V4L2Capture(0, auto_exposure=1)
+    with v4l2_camera(capture, exposure_control="lock_per_fixation"):
+        assert (cv2.CAP_PROP_AUTO_EXPOSURE, 3) in capture.sets
+
+
+def test_a_video_file_cannot_lock(video):
+    with OpenCVCamera(CameraConfig(backend="opencv", device=video), name="left") as cam:
+        assert not cam.capabilities.exposure_lock
+        with pytest.raises(CameraConfigError, match="left: the opencv backend cannot hold its exposure"):
+            cam.lock_exposure()

@@ -72,7 +72,10 @@ def test_check_connects_and_reports_each_servo_and_camera(tmp_path, emulator, vi
         assert f"joint {joint} (id {servo_id}) on {emulator}: XM430-W350, at " in out.stdout
     assert "camera left (aravis left): 320 x 240" in out.stdout
     assert "camera right (opencv right): 320 x 240" in out.stdout
-    assert out.stdout.rstrip().endswith("check: OK")
+    # Aravis's Fake camera has GainAuto, which can be held; the video file has no exposure at all.
+    assert "camera left exposure: auto; the camera can hold it: exposure_control: lock_per_fixation" in out.stdout
+    assert "camera right exposure: WARNING: the camera can neither hold nor fix its exposure" in out.stdout
+    assert out.stdout.rstrip().endswith("check: OK (1 warning(s))")
 
 
 def test_daemon_on_the_servo_emulator_and_aravis_fake_camera(tmp_path, emulator, video, service_process):
