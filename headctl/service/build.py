@@ -23,8 +23,8 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraError
 from drivers.servo.bus import ServoBus, create_servo_bus
 from drivers.sim.camera import PoseSource
-from drivers.sim.motion import moving_scene
-from drivers.sim.scene import Scene, shared_scene
+from drivers.sim.room import room_scene
+from drivers.sim.scene import Scene
 from drivers.sim.servos import SimulatedServoBus
 from headctl.config.head import HeadConfig
 from headctl.service.head import Head, HeadObserver, JointBus, PairSource
@@ -69,16 +69,11 @@ class SimulatedWorld:
         self.model = sim_head_model(config.cameras.left, config.fixation.vergence_range)
         self.servos = servos
         self.stalled: set[str] = set()
-        # The photo room (`cameras.scene`), and a room of its own when objects move in it
-        # (`sim_objects`); else None: the cameras' shared generated room.
-        self.scene: Scene | None = None
-        left, room = config.cameras.left, config.cameras.scene
-        if config.sim_objects or room.kind != "generated":  # the photo room (cameras.scene)
-            folder = None if room.folder is None else str(room.folder)
-            self.scene = shared_scene(left.seed, left.image == "colour", room.kind, folder)
-        if config.sim_objects:
-            assert self.scene is not None
-            self.scene = moving_scene(self.scene, config.sim_objects, clock)
+        # The room `cameras.scene` names, with the objects moving in it (`sim_objects`), its
+        # passers-by and its light (drivers.sim.room).
+        left = config.cameras.left
+        self.scene: Scene | None = room_scene(config.cameras.scene, left.seed, left.image == "colour",
+                                              config.sim_objects, clock)
 
     def true_joints(self) -> dict[str, float]:
         return {joint: self.servos.true_position(joint) for joint in JOINTS}

@@ -1,13 +1,19 @@
 """Building the head from a config (headctl.service.build) and supervising it on a manual clock."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from drivers.cameras.camera import StreamHealth
 from drivers.clock import ManualClock
 from drivers.errors import CameraError
+from drivers.cameras.config import SceneConfig
 from drivers.sim.camera import SimulatedCamera
+from drivers.sim.passers_by import PassersByConfig
+from drivers.sim.room_light import CONSTANT_LIGHT, LightConfig
+from drivers.sim.scene import shared_scene
 from drivers.sim.servos import SimulatedServoBus
 from headctl.config.head import load_config
 from headctl.experiments.online import SimulatedHeadRig
@@ -42,11 +48,6 @@ def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_s
 
 
 def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path):
-    import dataclasses
-
-    from drivers.cameras.config import SceneConfig
-    from drivers.sim.scene import shared_scene
-
     config = load_config()
     photos = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=SceneConfig(room="photos")))
     joints = dict(SIM_START_JOINTS)
@@ -56,11 +57,8 @@ def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path)
         assert devices.world is not None
         with devices:
             views[name] = devices.cameras["left"].render(joints)
-        if name == "photos":
-            left = cfg.cameras.left
-            assert devices.world.scene is shared_scene(left.seed, left.image == "colour", "photos")
-        else:
-            assert devices.world.scene is None  # the cameras' own shared generated room
+        left = cfg.cameras.left  # nothing moves, the light is constant: the room shared by every camera
+        assert devices.world.scene is shared_scene(left.seed, left.image == "colour", name)
     assert views["generated"].shape == views["photos"].shape
     assert np.mean(np.abs(views["generated"].astype(float) - views["photos"].astype(float))) > 10  # another room
 
@@ -130,3 +128,14 @@ def test_a_fault_is_published_when_it_appears_and_when_it_clears():
     camera.health = StreamHealth.STREAMING
     supervisor.tick()
     assert [(e["type"], e["key"]) for e in seen] == [("fault", "camera:left"), ("fault_cleared", "camera:left")]
+
+
+def test_the_worlds_room_has_the_configs_light_and_passers_by():
+    config = load_config()
+    room = SceneConfig(light=LightConfig(model="home"), passers_by=PassersByConfig(model="home"))
+    lit = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=room))
+    world = HeadDevices.build(lit, ManualClock()).world
+    assert world is not None and world.scene is not None
+    assert world.scene.light is not CONSTANT_LIGHT and world.scene.motion is not None
+    left = config.cameras.left
+    assert world.scene is not shared_scene(left.seed, left.image == "colour", "generated")  # a room of its own
