@@ -17,6 +17,7 @@ from typing import Any, ClassVar
 from drivers.config.reader import check_settings, config_meta, read_config, setting
 from drivers.errors import ServoConfigError
 from drivers.servo.joints import JOINTS
+from drivers.sim.servo_mechanics import ServoMechanicsConfig
 
 LIMIT_POLICIES: tuple[str, ...] = ("clamp", "refuse")
 # What the bus does with torque when its servos lost power and came back (a brown-out):
@@ -139,7 +140,8 @@ class ServoBusConfig:
 
     `watchdog_ms` arms the servos' Bus Watchdog while torque is on (0 = off; 20 ms steps):
     a host that falls silent that long stops the head. `latency_timer_ms` is the USB
-    adapter's latency timer (the udev rule sets 1 ms); reply timeouts are computed from it.
+    adapter's latency timer (the udev rule sets 1 ms); reply timeouts are computed from it,
+    and the simulated bus's timing with `mechanics.bus_timing`.
     `power_loss_torque` says whether servos that lost power and came back get their torque
     back (`restore`) or stay limp (`off`); their settings are written again either way.
     `key_path` is where the section was read (`servo_bus`), for messages.
@@ -164,6 +166,9 @@ class ServoBusConfig:
     # The simulated head's true wiring (servo id -> WiredServo; read by `read_wiring`); None:
     # each joint's servo wired as `joints` says. Only the `sim` backend uses it.
     wiring: Any = None
+    # The simulated servos' mechanics (play, dead band, droop, encoder, bus timing): a preset
+    # and overrides (`drivers.sim.servo_mechanics`). Only the `sim` backend uses it.
+    mechanics: ServoMechanicsConfig = ServoMechanicsConfig()
     reboot_timeout_s: float = setting(2.0, lo=0.1, hi=60.0)
     key_path: str = setting("servo_bus", source="key_path")
     given_keys: frozenset[str] = setting(frozenset(), source="given_keys", init=False, compare=False, repr=False)

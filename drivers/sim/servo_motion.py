@@ -1,15 +1,17 @@
 """The simulated servos' motion: a trapezoidal velocity profile toward the goal, and the trace of it.
 
 `ProfileAxis` is the motion model the simulated bus and the Dynamixel emulator share (an
-X-series servo in position mode with a velocity-based profile). `JointTrace` records the
-motion model's state of the four joints at every change of course and at reads into a short
-ring, and `joints_at` replays the model from it: where the joints were at a past time (a
-simulated frame's exposure, rendered later).
+X-series servo in position mode with a velocity-based profile). `GearedAxis` is the same
+profile seen through a servo's mechanics (`drivers.sim.servo_mechanics`): the shaft droops under
+a load, and the output beyond it has play. `JointTrace` records the motion model's state of
+the four joints at every change of course and at reads into a short ring, and `joints_at`
+replays the model from it: where the joints were at a past time (a simulated frame's
+exposure, rendered later).
 """
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -25,7 +27,11 @@ _STEP_S = 0.001
 # loop's 100 Hz, longer than a simulated frame waits for its rendering.
 TRACE_SAMPLES = 128
 _TRACE_SPACING_S = 0.002
-TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration")
+# Each joint's fields: the profile's state, then where the output is (the true joint angle:
+# beyond the play, with the droop), the play and the droop at horizontal (0 and 0: the ideal servo, replayed as a
+# plain profile).
+TRACE_FIELDS = ("position", "velocity", "goal", "max_velocity", "max_acceleration", "output", "backlash", "sag")
+_PROFILE_FIELDS = 5
 TRACE_WIDTH = 1 + len(TRACE_FIELDS) * len(JOINTS)  # time, then each joint's fields in JOINTS order
 # A replay never runs past this many seconds beyond its row (a bound on its cost; the servo
 # loop writes goals every 10 ms, so past rows are a cycle apart).
@@ -92,10 +98,51 @@ class ProfileAxis:
         self.position = new_position
 
 
+class GearedAxis(ProfileAxis):
+    """A `ProfileAxis` (the position the servo's controller holds) seen through the servo's
+    mechanics: `shaft` is where the output shaft is (the profile's position, displaced by
+    `load`, the droop under a load at that position, in the axis's frame), which the encoder
+    reads; `output` is what the shaft turns beyond a play of `backlash` (degrees, the whole
+    width): it moves only when the shaft pushes it at one end of the play, and under a load it
+    rests on the flank the load pushes it to. With neither, `output` is the profile's position.
+    """
+
+    def __init__(self, position: float, time_s: float, max_velocity: float = math.inf,
+                 max_acceleration: float = math.inf, *, backlash: float = 0.0,
+                 load: Callable[[float], float] | None = None, output: float | None = None) -> None:
+        super().__init__(position, time_s, max_velocity, max_acceleration)
+        self.backlash = backlash
+        self.load = load
+        self.output = self.shaft
+        if output is not None:
+            self.output = output
+        self._follow()
+
+    @property
+    def shaft(self) -> float:
+        return self.position + self.load(self.position) if self.load is not None else self.position
+
+    def _step(self, dt: float) -> None:
+        super()._step(dt)
+        self._follow()
+
+    def _follow(self) -> None:
+        """The output after the shaft's latest step: dragged at one end of the play, or on the
+        load's flank."""
+        shaft = self.shaft
+        half = self.backlash / 2.0
+        if self.load is not None:
+            pull = self.load(self.position)
+            if pull:
+                self.output = shaft + math.copysign(half, pull)
+                return
+        self.output = min(max(self.output, shaft - half), shaft + half)
+
+
 class JointTrace:
     """The joints' true motion at past times: rows of the motion model's state (time, then for
-    each joint in `JOINTS` order its position, velocity, goal, velocity and acceleration limits;
-    degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
+    each joint in `JOINTS` order the `TRACE_FIELDS`: its position, velocity, goal, velocity and
+    acceleration limits, output, play and droop; degrees, joint frame), as an array that can live in shared memory (`rows`; unused rows
     have a NaN time), a ring of the last `size`.
 
     `at(time_s)` replays the motion model (`ProfileAxis`) from the last row at or before
@@ -107,11 +154,10 @@ class JointTrace:
         self.rows = np.full((size, TRACE_WIDTH), np.nan)
         self._next = 0
 
-    def add(self, time_s: float, axes: Mapping[str, tuple[float, float, float, float, float]],
-            change: bool = False) -> None:
-        """A row of each joint's (position, velocity, goal, max_velocity, max_acceleration) at
-        `time_s`. Within 2 ms of the newest row, a `change` of course replaces it and a plain
-        sample is not kept."""
+    def add(self, time_s: float, axes: Mapping[str, Sequence[float]], change: bool = False) -> None:
+        """A row of each joint's `TRACE_FIELDS` at `time_s`; the first five alone stand for an
+        ideal servo (its output at its position, no play, no droop). Within 2 ms of the newest
+        row, a `change` of course replaces it and a plain sample is not kept."""
         newest = self.rows[(self._next - 1) % len(self.rows)]
         if time_s - newest[0] < _TRACE_SPACING_S:
             if not change:
@@ -122,7 +168,10 @@ class JointTrace:
             self._next = (self._next + 1) % len(self.rows)
         row[0] = time_s
         for j, joint in enumerate(JOINTS):
-            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = axes.get(joint, (math.nan,) * 5)
+            fields = tuple(axes.get(joint, (math.nan,) * _PROFILE_FIELDS))
+            if len(fields) == _PROFILE_FIELDS:
+                fields += (fields[0], 0.0, 0.0)
+            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)] = fields
 
     def at(self, time_s: float) -> dict[str, float] | None:
         return joints_at(self.rows, time_s)
@@ -135,16 +184,33 @@ def joints_at(rows: np.ndarray, time_s: float) -> dict[str, float] | None:
     if not known.any():
         return None
     before = known & (times <= time_s)
+    output_field = TRACE_FIELDS.index("output")
     if not before.any():  # older than the trace: the oldest position known
         row = rows[np.flatnonzero(known)[np.argmin(times[known])]]
-        return {joint: float(row[1 + j * len(TRACE_FIELDS)]) for j, joint in enumerate(JOINTS)}
+        return {joint: float(row[1 + j * len(TRACE_FIELDS) + output_field]) for j, joint in enumerate(JOINTS)}
     row = rows[np.flatnonzero(before)[np.argmax(times[before])]]
     joints = {}
     for j, joint in enumerate(JOINTS):
-        position, velocity, goal, max_velocity, max_acceleration = row[1 + j * len(TRACE_FIELDS):
-                                                                       1 + (j + 1) * len(TRACE_FIELDS)]
-        axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
-        axis.velocity, axis.goal = float(velocity), float(goal)
-        axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
-        joints[joint] = axis.position
+        position, velocity, goal, max_velocity, max_acceleration, out, backlash, sag = \
+            row[1 + j * len(TRACE_FIELDS):1 + (j + 1) * len(TRACE_FIELDS)]
+        if not (backlash or sag):  # the ideal servo: the profile alone
+            axis = ProfileAxis(position, row[0], max_velocity, max_acceleration)
+            axis.velocity, axis.goal = float(velocity), float(goal)
+            axis.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
+            joints[joint] = axis.position
+            continue
+        geared = GearedAxis(position, row[0], max_velocity, max_acceleration, backlash=float(backlash),
+                            load=tilt_droop(float(sag)), output=float(out))
+        geared.velocity, geared.goal = float(velocity), float(goal)
+        geared.advance_to(min(time_s, row[0] + _REPLAY_MAX_S))
+        joints[joint] = geared.output
     return joints
+
+
+def tilt_droop(sag_deg_at_horizontal: float) -> Callable[[float], float] | None:
+    """The tilt's droop at a tilt angle (joint frame, degrees; negative: down, as tilt + is up):
+    the gravity torque of a centre of mass ahead of the tilt axis goes with cos(tilt). None
+    without a droop."""
+    if not sag_deg_at_horizontal:
+        return None
+    return lambda tilt_deg: -sag_deg_at_horizontal * math.cos(math.radians(tilt_deg))

@@ -15,6 +15,12 @@ Time comes from an injectable clock, so tests run faster than real time with a
 `drivers.clock.ManualClock`. The simulated servos are the physical head: they persist
 across `open()`/`close()` like real servos do.
 
+What real servos add to the motion (play, dead band, the tilt's droop, the encoder's
+resolution and wobble, the adapter's latency timer) is `servo_bus.mechanics`
+(`drivers.sim.servo_mechanics`; the default preset, `ideal`, adds none): the servos report what
+their encoders read, the simulated world's truth (`true_position`, `true_joints_at`) is where
+the joints really are.
+
 Where the joints were at a past time (a simulated frame's exposure, rendered later): the bus
 records its servos' motion in a `JointTrace`, and `true_joints_at` replays it.
 """
@@ -34,7 +40,8 @@ from drivers.servo.bus import JointState, ServoBus
 from drivers.servo.config import ServoBusConfig, WiredServo
 from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
-from drivers.sim.servo_motion import JointTrace, ProfileAxis
+from drivers.sim.servo_mechanics import ServoMechanics
+from drivers.sim.servo_motion import GearedAxis, JointTrace, ProfileAxis
 
 log = logging.getLogger(__name__)
 
@@ -46,9 +53,9 @@ DEFAULT_SHUTDOWN_BITS = 0b0011_0100
 class _SimServo:
     """One simulated servo, in the servo frame (degrees from its centre)."""
 
-    def __init__(self, position_deg: float, time_s: float) -> None:
-        self.axis = ProfileAxis(position_deg, time_s)
-        self.goal_deg = position_deg  # the Goal Position register, kept while torque is off
+    def __init__(self, axis: GearedAxis) -> None:
+        self.axis = axis
+        self.goal_deg = axis.position  # the Goal Position register, kept while torque is off
         self.torque_on = False
         self.hardware_error_bits = 0
         self.temperature_c = 35.0
@@ -64,12 +71,21 @@ def wiring_of(config: ServoBusConfig) -> dict[int, WiredServo]:
     return {jc.servo_id: WiredServo(joint, jc.direction, jc.zero_offset) for joint, jc in config.joints.items()}
 
 
+def mechanics_of(config: ServoBusConfig) -> ServoMechanics:
+    """The simulated servos' mechanics as `servo_bus.mechanics` says, on the config's wire."""
+    return ServoMechanics(config.mechanics, baud=config.baud, latency_timer_ms=config.latency_timer_ms,
+                          return_delay_us=config.return_delay_us)
+
+
 def physical_servos(wiring: Mapping[int, WiredServo], initial_positions: Mapping[str, float] | None,
-                    now: float) -> dict[int, _SimServo]:
-    """The servos by id, each where its joint's `initial_positions` (joint frame) puts it;
-    without one a servo rests at its centre, like a fresh servo (and the emulator) does."""
+                    now: float, mechanics: ServoMechanics) -> dict[int, _SimServo]:
+    """The servos by id, each held where its joint's `initial_positions` (joint frame) puts it;
+    without one a servo rests at its centre, like a fresh servo (and the emulator) does. The
+    tilt's servo carries the head's weight."""
     initial = dict(initial_positions or {})
-    return {servo_id: _SimServo(wired.servo_angle(initial[wired.joint]) if wired.joint in initial else 0.0, now)
+    return {servo_id: _SimServo(mechanics.axis(wired.servo_angle(initial[wired.joint]) if wired.joint in initial
+                                               else 0.0, now, loaded=wired.joint == "tilt",
+                                               joint_angle=wired.joint_angle, direction=wired.direction))
             for servo_id, wired in wiring.items()}
 
 
@@ -84,8 +100,8 @@ class SimulatedServoBus(ServoBus):
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
                               "fault_injection"})
     reports_true_motion = True
-    # No wire and no servo models: the simulation has no use for baud, retries, latency or model.
-    CONFIG_KEYS = frozenset({"watchdog_ms", "wiring"})
+    # No servo models and no retries; the wire's settings time the bus with `mechanics.bus_timing`.
+    CONFIG_KEYS = frozenset({"watchdog_ms", "wiring", "mechanics", "baud", "latency_timer_ms", "return_delay_us"})
     JOINT_CONFIG_KEYS = frozenset({"profile_velocity", "profile_acceleration"})
 
     @classmethod
@@ -99,7 +115,8 @@ class SimulatedServoBus(ServoBus):
         self.max_velocity_dps = max_velocity_dps
         now = clock.monotonic()
         self._wiring = wiring_of(config)
-        by_id = physical_servos(self._wiring, initial_positions, now)
+        self._mechanics = mechanics_of(config)
+        by_id = physical_servos(self._wiring, initial_positions, now, self._mechanics)
         for joint in JOINTS:
             if config.joints[joint].servo_id not in by_id:
                 raise ServoConfigError(key_path=f"{config.joint_path(joint)}.id", value=config.joints[joint].servo_id,
@@ -217,7 +234,7 @@ class SimulatedServoBus(ServoBus):
         the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes."""
         with self._sim_lock:
             self._sample(self.clock.monotonic())
-            return self._wired_as[joint].joint_angle(self._wired[joint].axis.position)
+            return self._wired_as[joint].joint_angle(self._wired[joint].axis.output)
 
     def true_joints_at(self, time_s: float) -> dict[str, float]:
         """Where the simulated joints really were at `time_s` (joint frame, degrees; at most
@@ -246,9 +263,11 @@ class SimulatedServoBus(ServoBus):
                 continue
             wired, axis = self._wired_as[joint], servo.axis
             axes[joint] = (wired.joint_angle(axis.position), wired.direction * axis.velocity,
-                           wired.joint_angle(axis.goal), axis.max_velocity, axis.max_acceleration)
+                           wired.joint_angle(axis.goal), axis.max_velocity, axis.max_acceleration,
+                           wired.joint_angle(axis.output), axis.backlash,
+                           self._mechanics.values.sag_deg_at_horizontal if axis.load is not None else 0.0)
         self._trace.add(time_s, axes, change)
-        return {joint: values[0] for joint, values in axes.items()}
+        return {joint: values[5] for joint, values in axes.items()}
 
     # -- ServoBus hooks ------------------------------------------------------------------
     def _connect(self) -> None:
@@ -291,12 +310,19 @@ class SimulatedServoBus(ServoBus):
                 servo = self._servos[joint]
                 servo.axis.advance_to(now)
                 states[joint] = JointState(
-                    position=servo.axis.position, velocity=servo.axis.velocity, moving=servo.axis.moving,
-                    torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
+                    position=self._mechanics.reading(servo.axis.shaft), velocity=servo.axis.velocity,
+                    moving=servo.axis.moving, torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
                     temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
                     power_cycled=servo.ram_defaults,
                 )
-            return states
+        self._wire_time(self._mechanics.read_cost_s(len(states)))
+        return states
+
+    def _wire_time(self, cost_s: float) -> None:
+        """The time a transaction keeps its caller (`mechanics.bus_timing`), on the bus's clock,
+        outside the simulation's lock (the servos move on meanwhile)."""
+        if cost_s:
+            self.clock.sleep(cost_s)
 
     def _write_servo_goals(self, goals_deg: Mapping[str, float]) -> None:
         with self._sim_lock:
@@ -308,8 +334,9 @@ class SimulatedServoBus(ServoBus):
                 servo.axis.advance_to(now)
                 servo.goal_deg = goal
                 if servo.torque_on:
-                    servo.axis.set_goal(goal)
+                    self._mechanics.command(servo.axis, goal)
             self._sample(now, change=True)  # the motion turns toward the new goals here
+        self._wire_time(self._mechanics.write_cost_s(len(goals_deg)))
 
     def _set_torque(self, joints: Iterable[str], on: bool) -> None:
         with self._sim_lock:
@@ -328,7 +355,7 @@ class SimulatedServoBus(ServoBus):
                     servo.torque_on = on
                     if on:
                         # Like a real servo: torque on drives toward the Goal Position register.
-                        servo.axis.set_goal(servo.goal_deg)
+                        self._mechanics.command(servo.axis, servo.goal_deg)
                     else:
                         servo.axis.hold()
             finally:
@@ -396,8 +423,9 @@ class SimulatedServoProbe:
         self.name = f"sim-servo-probe({config.port})"
         self.max_velocity_dps = max_velocity_dps
         self._wiring = wiring_of(config)
+        self._mechanics = mechanics_of(config)
         now = clock.monotonic()
-        self._servos = physical_servos(self._wiring, initial_positions, now)
+        self._servos = physical_servos(self._wiring, initial_positions, now, self._mechanics)
         self._wanted = set(ids) if ids is not None else None
         self._lock = threading.Lock()
         self._saved: dict[int, tuple[float, float, float]] = {}  # id -> velocity, acceleration, watchdog
@@ -415,7 +443,7 @@ class SimulatedServoProbe:
                 if wired.joint == joint:
                     servo = self._servos[servo_id]
                     servo.axis.advance_to(self.clock.monotonic())
-                    return wired.joint_angle(servo.axis.position)
+                    return wired.joint_angle(servo.axis.output)
         raise KeyError(joint)
 
     def torque_limit(self, servo_id: int) -> float | None:
@@ -430,7 +458,7 @@ class SimulatedServoProbe:
     def status(self, servo_id: int) -> ServoStatus:
         with self._lock:
             servo = self._contact(servo_id)
-            return ServoStatus(position_deg=servo.axis.position, goal_deg=servo.goal_deg, moving=servo.axis.moving,
+            return ServoStatus(position_deg=self._mechanics.reading(servo.axis.shaft), goal_deg=servo.goal_deg, moving=servo.axis.moving,
                                torque_on=servo.torque_on, hardware_error_bits=servo.hardware_error_bits,
                                temperature_c=servo.temperature_c, input_voltage_v=servo.input_voltage_v,
                                min_deg=self.LIMITS_DEG[0], max_deg=self.LIMITS_DEG[1])
@@ -459,7 +487,7 @@ class SimulatedServoProbe:
             servo = self._contact(servo_id)
             servo.torque_on = on
             if on:
-                servo.axis.set_goal(servo.goal_deg)
+                self._mechanics.command(servo.axis, servo.goal_deg)
             else:
                 servo.axis.hold()
 
@@ -472,7 +500,7 @@ class SimulatedServoProbe:
             servo = self._contact(servo_id)
             servo.goal_deg = servo_deg
             if servo.torque_on:
-                servo.axis.set_goal(servo_deg)
+                self._mechanics.command(servo.axis, servo_deg)
 
     def keep_alive(self, servo_id: int) -> None:
         with self._lock:

@@ -40,6 +40,12 @@ log = logging.getLogger(__name__)
 
 POLL_S = 0.02             # how often a moving servo is read
 SETTLE_TOLERANCE_DEG = 0.5
+# A servo that carries a load (the tilt under the head's weight) rests short of its goal by its
+# position loop's steady error (the X-series' default gains have no integral term), and its
+# reading wobbles by a tick or two: at rest (not moving, two readings this close) within
+# LOADED_TOLERANCE_DEG of the goal, it has arrived.
+LOADED_TOLERANCE_DEG = 2.0
+REST_JITTER_DEG = 0.3
 MIN_SHIFT_PX = 1.0        # below this an image did not move
 MIN_RESPONSE = 0.05       # phase correlation peaks below this are noise
 # Scene motion (image x, y) per + joint degree, as signs: see the module docstring.
@@ -187,6 +193,7 @@ class SafeProbing:
             timeout_s = 2.0 * travel_s + 2.0 * self.safety.velocity_dps / self.safety.acceleration_dps2 + 1.0
         self.probe.write_goal(servo_id, goal_deg)
         deadline_s = self.clock.monotonic() + timeout_s
+        previous: ServoStatus | None = None
         while True:
             self.clock.sleep(POLL_S)
             try:
@@ -195,9 +202,10 @@ class SafeProbing:
                 self._hold(servo_id)
                 raise
             status = self.probe.status(servo_id)
-            if not status.moving and abs(status.position_deg - goal_deg) <= SETTLE_TOLERANCE_DEG:
+            if arrived(status, previous, goal_deg):
                 self.probe.keep_alive(servo_id)
                 return status
+            previous = status
             if self.clock.monotonic() > deadline_s:
                 self._hold(servo_id)
                 raise ServoError(f"id {servo_id} on {self.probe.name}: did not reach {goal_deg:.1f} deg within "
@@ -235,6 +243,18 @@ class SafeProbing:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def arrived(status: ServoStatus, previous: ServoStatus | None, goal_deg: float) -> bool:
+    """A servo moved to `goal_deg` has arrived: still and on it, or at rest (still, as at the
+    read before) within a loaded servo's steady error of it."""
+    if status.moving:
+        return False
+    error = abs(status.position_deg - goal_deg)
+    if error <= SETTLE_TOLERANCE_DEG:
+        return True
+    return (error <= LOADED_TOLERANCE_DEG and previous is not None and not previous.moving
+            and abs(status.position_deg - previous.position_deg) <= REST_JITTER_DEG)
 
 
 @dataclass

@@ -254,9 +254,11 @@ def _dynamixel(data):
     (lambda d: [d["cameras"][s].update(backend="drivers.sim.camera:SimulatedCamera") for s in ("left", "right")],
      "cameras.left.backend: got 'drivers.sim.camera:SimulatedCamera', expected sim: SimulatedCamera is the "
      "simulated camera, named sim"),
-    (lambda d: d["servo_bus"].update(baud=57600), "servo_bus.baud: got 57600, expected nothing: baud is not used by "
-                                                  "the 'sim' backend, which uses backend, joints, limit_policy, port, "
-                                                  "power_loss_torque, reboot_on_hardware_error, torque_on_close, watchdog_ms"),
+    (lambda d: d["servo_bus"].update(reboot_timeout_s=5), "servo_bus.reboot_timeout_s: got 5.0, expected nothing: "
+                                                          "reboot_timeout_s is not used by the 'sim' backend, which uses "
+                                                          "backend, baud, joints, latency_timer_ms, limit_policy, "
+                                                          "mechanics, port, power_loss_torque, reboot_on_hardware_error, "
+                                                          "return_delay_us, torque_on_close, watchdog_ms, wiring"),
     (lambda d: d["servo_bus"].update(retries=2), "servo_bus.retries: got 2, expected nothing: retries is not used"),
     (lambda d: d["servo_bus"]["joints"]["tilt"].update(model="XM430-W350"),
      "servo_bus.joints.tilt.model: got 'XM430-W350', expected nothing: model is not used by the 'sim' backend"),
@@ -491,7 +493,7 @@ def test_check_runtime_accepts_a_state_dir_to_create_and_creates_nothing(tmp_pat
     (lambda d: d.update(state_dir="/etc/passwd"), "state_dir: got '/etc/passwd'"),
     (lambda d: d["logging"].update(file="/nonexistent/x"), "logging.file: got '/nonexistent/x'"),
     (lambda d: d["cameras"]["left"].update(backend="no_such_pkg:Cam"), "cameras.left.backend"),
-    (lambda d: d["servo_bus"].update(latency_timer_ms=1), "servo_bus.latency_timer_ms"),
+    (lambda d: d["servo_bus"].update(retries=1), "servo_bus.retries"),
 ])
 def test_check_no_connect_fails_where_run_would(tmp_path, capsys, edit, words):
     data = _sim()

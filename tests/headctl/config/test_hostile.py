@@ -226,7 +226,7 @@ HOSTILE = {
     "servo backend of the wrong kind": _edited(lambda d, f: d["servo_bus"].update(backend="collections:OrderedDict")),
     "unknown servo model on dynamixel": _edited(
         lambda d, f: _on_dynamixel(d)["servo_bus"]["joints"]["pan"].update(model="AX-12A")),
-    "a key the sim servo backend does not use": _edited(lambda d, f: d["servo_bus"].update(baud=57600)),
+    "a key the sim servo backend does not use": _edited(lambda d, f: d["servo_bus"].update(protocol=1.0)),
     "a key the sim camera backend does not use": _edited(lambda d, f: d["cameras"]["left"].update(serial="X")),
     "not UTF-8": lambda folder: b"\x80\x81",
     "UTF-16": lambda folder: (CONFIGS / "sim.yaml").read_text().encode("utf-16"),
