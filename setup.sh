@@ -47,6 +47,8 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     "$venv/bin/python" -m pip install -q --upgrade pip >/dev/null
     # cyclonedds (the ROS 2 interface) has a wheel for x86_64 only: elsewhere docs/ros2.md builds it.
     extras="aravis,test"; [ "$(uname -m)" = x86_64 ] && extras="$extras,ros2"
+    # foxglove-sdk (the live view in Foxglove) has wheels for these machines only.
+    case "$(uname -m)" in x86_64|aarch64|armv7l) extras="$extras,foxglove" ;; esac
     "$venv/bin/python" -m pip install -q -e ".[$extras]"
     echo "$want" > "$stamp"
 fi

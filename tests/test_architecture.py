@@ -6,8 +6,10 @@ The graph is read from the source with `ast`, not by importing: every `import` a
 `pkg.name` when that is a module, else to `pkg`; importing `a.b.c` also imports the packages
 `a` and `a.b` (their `__init__`), except those that hold the importing module itself (they are
 imported before it in any case). The rules: no circle; `drivers` and `calib_free` import
-neither each other nor `headctl`; the service never imports the API or the CLI; nothing but
-the CLI imports the CLI; benchmarks never import the tests. Also: no folder of the three
+neither each other nor `headctl`; the service never imports the API, the ROS 2 interface, the
+Foxglove view or the CLI, the config none of the last three, the ROS 2 interface and the
+Foxglove view not the API; nothing but the CLI imports the CLI; benchmarks never import the
+tests. Also: no folder of the three
 packages holds more than 15 modules directly, no module has more than 600 lines.
 """
 from __future__ import annotations
@@ -40,7 +42,10 @@ FORBIDDEN = (
     Rule("calib_free", "drivers"), Rule("calib_free", "headctl"),
     Rule("headctl.service", "headctl.api"), Rule("headctl.service", "headctl.ros2"),
     Rule("headctl.config", "headctl.ros2"), Rule("headctl.ros2", "headctl.api"),
-    *(Rule(f"headctl.{part}", "headctl.cli") for part in ("service", "experiments", "setup", "config", "api", "ros2")),
+    Rule("headctl.service", "headctl.foxglove"), Rule("headctl.config", "headctl.foxglove"),
+    Rule("headctl.foxglove", "headctl.api"), Rule("headctl.ros2", "headctl.foxglove"),
+    *(Rule(f"headctl.{part}", "headctl.cli")
+      for part in ("service", "experiments", "setup", "config", "api", "ros2", "foxglove")),
     Rule("benchmarks", "tests"),
 )
 

@@ -1,10 +1,11 @@
-"""The service with its HTTP control API and its ROS 2 interface, as `headctl run` runs it.
+"""The service with its HTTP control API, its ROS 2 interface and its Foxglove view, as
+`headctl run` runs it.
 
 The daemon (`headctl.service.daemon.Daemon`) knows its front end only as a factory
 (`FrontEndFactory`); `api_front_end` is the one that serves the config's API
-(`headctl.api.server.ApiServer`), `headctl.ros2.interface.ros2_front_end` the ROS 2 topics;
-`front_ends` makes one of those the config enables (`Composite`), and `serve` gives it to the
-daemon.
+(`headctl.api.server.ApiServer`), `headctl.ros2.interface.ros2_front_end` the ROS 2 topics,
+`headctl.foxglove.view.foxglove_front_end` the live view in Foxglove; `front_ends` makes one
+of those the config enables (`Composite`), and `serve` gives it to the daemon.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from collections.abc import Iterator, Sequence
 from drivers.clock import SYSTEM_CLOCK, Clock
 from headctl.config.api import ApiConfig, is_loopback
 from headctl.config.head import HeadConfig
+from headctl.foxglove.view import foxglove_front_end
 from headctl.ros2.interface import ros2_front_end
 from headctl.service.control import HeadService
 from headctl.service.daemon import Daemon, FrontEnd, FrontEndFactory
@@ -72,12 +74,13 @@ class Composite:
 
 
 def front_ends(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> FrontEndFactory | None:
-    """The front end of what `config` enables: the API, the ROS 2 interface, both or none. The
-    API alone is given to the daemon as it is."""
-    api, ros2 = api_front_end(config.api, config, clock), ros2_front_end(config, clock)
-    if ros2 is None:
+    """The front end of what `config` enables: the API, the ROS 2 interface, the Foxglove view,
+    any of them or none. The API alone is given to the daemon as it is."""
+    api = api_front_end(config.api, config, clock)
+    others = [f for f in (ros2_front_end(config, clock), foxglove_front_end(config, clock)) if f is not None]
+    if not others:
         return api
-    makers = [f for f in (api, ros2) if f is not None]
+    makers = [f for f in (api, *others) if f is not None]
 
     @contextlib.contextmanager
     def serving(service: HeadService) -> Iterator[FrontEnd]:
@@ -88,5 +91,5 @@ def front_ends(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> FrontEndFacto
 
 
 def serve(config: HeadConfig, clock: Clock = SYSTEM_CLOCK) -> Daemon:
-    """The service for `config` with the API and the ROS 2 interface it configures (not started)."""
+    """The service for `config` with the front ends it configures (not started)."""
     return Daemon(config, clock, front_end=front_ends(config, clock))

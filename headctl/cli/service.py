@@ -149,7 +149,7 @@ def _prepare(args: argparse.Namespace, command: str) -> tuple[HeadConfig | None,
                   file=sys.stderr)
             return None, 2
         config = config.with_api(port=api_port)
-    missing = _ros2_missing(config)
+    missing = _ros2_missing(config) or _foxglove_missing(config)
     if missing is not None:
         print(f"headctl {command}: {config.path}: {missing}", file=sys.stderr)
         return None, 1
@@ -175,6 +175,15 @@ def _ros2_missing(config: HeadConfig) -> str | None:
     if not config.ros2.enabled:
         return None
     from headctl.ros2.interface import missing_dependency
+
+    return missing_dependency()
+
+
+def _foxglove_missing(config: HeadConfig) -> str | None:
+    """Why the Foxglove view the config enables cannot run here (its extra not installed)."""
+    if not config.foxglove.enabled:
+        return None
+    from headctl.foxglove.view import missing_dependency
 
     return missing_dependency()
 
@@ -239,6 +248,8 @@ def _check(args: argparse.Namespace) -> int:
         print(f"  ros2: node {ros2.namespace}/{ros2.node_name} on DDS domain {ros2.domain_id} ({ros2.distro}), "
               f"{'localhost only' if ros2.localhost_only else 'all interfaces'}, "
               f"commands {'accepted' if ros2.commands else 'off'}")
+    if config.foxglove.enabled:
+        print(f"  foxglove: live view on ws://{config.foxglove.host}:{config.foxglove.port}")
     if args.no_connect:
         return 0
     from headctl.cli.check import connect_and_report

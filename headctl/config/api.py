@@ -48,14 +48,18 @@ def is_ip_address(host: str) -> bool:
     return True
 
 
+def is_host(host: str) -> bool:
+    """An IP address or a host name."""
+    return is_ip_address(host) or bool(_HOSTNAME.fullmatch(host))
+
+
 @dataclass(frozen=True)
 class ApiConfig:
     """The `api:` section: the HTTP control API and dashboard (`headctl.api.app`)."""
 
     enabled: bool = True
     # any other address needs a token
-    host: str = setting("127.0.0.1", check=lambda h: is_ip_address(h) or bool(_HOSTNAME.fullmatch(h)),
-                        expected="an IP address or a host name")
+    host: str = setting("127.0.0.1", check=is_host, expected="an IP address or a host name")
     # 0: an ephemeral port, written to <state_dir>/api.url
     port: int = setting(8765, lo=0, hi=65535, expected="a TCP port, 0 for an ephemeral one")
     # 'Authorization: Bearer <token>' (or ?token=); a secret: never in a message or a log line

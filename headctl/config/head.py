@@ -5,6 +5,7 @@ Sections (docs/config.md): `servo_bus` and `cameras` (the drivers' `ServoBusConf
 (`calib_free.gaze.fixation.FixationParams` fields plus exploration on/off and rate), `service`
 (servo loop rate, stale-input timeout, checkpoints, safe state), `api` (the HTTP control
 API's address, token, TLS, streams), `ros2` (the ROS 2 interface, `headctl.config.ros2`),
+`foxglove` (the live view in Foxglove, `headctl.config.foxglove`),
 `state_dir` and `logging`.
 Every section is read by the one reader, `drivers.config.reader`; checks across sections and the
 files the config names are done here, at load time (the `api` section's token file and TLS
@@ -46,6 +47,7 @@ from drivers.config.file import read_yaml_file
 from drivers.servo.bus import ServoBus
 from drivers.servo.config import ServoBusConfig
 from drivers.sim.motion import MovingObject
+from headctl.config.foxglove import FoxgloveConfig
 from headctl.config.api import ApiChanges, ApiConfig, beside, resolve_api, scrub, secrets_in
 from headctl.config.ros2 import Ros2Config
 from headctl.config.tracking import TrackingConfig
@@ -235,6 +237,7 @@ class HeadConfig:
     api: ApiConfig = field(default_factory=ApiConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     ros2: Ros2Config = field(default_factory=Ros2Config)  # the ROS 2 interface (headctl.ros2)
+    foxglove: FoxgloveConfig = field(default_factory=FoxgloveConfig)  # the live view in Foxglove (headctl.foxglove)
     sim_objects: tuple[MovingObject, ...] = ()  # moving objects in the simulated room
 
     @property

@@ -1,6 +1,6 @@
 // headctl dashboard: polls /api/v1/state and /api/v1/learning, listens to /api/v1/events (SSE),
-// shows both eyes' MJPEG streams and draws the learning curves on <canvas> by hand.
-// No external resource: the head may have no internet.
+// shows both eyes' MJPEG streams and the learning curves, charted by uPlot (vendor/, served with
+// the page). No external resource: the head may have no internet.
 "use strict";
 
 (() => {
@@ -92,196 +92,6 @@
     messageTimer = setTimeout(() => { el.hidden = true; }, isError ? 10000 : 5000);
   }
 
-  // -- the line plot ---------------------------------------------------------------------------------
-  function niceStep(span, count) {
-    const raw = span / Math.max(count, 1);
-    const mag = Math.pow(10, Math.floor(Math.log10(raw)));
-    const norm = raw / mag;
-    return (norm < 1.5 ? 1 : norm < 3 ? 2 : norm < 7 ? 5 : 10) * mag;
-  }
-
-  function tickLabel(v) {
-    if (v === 0) return "0";
-    const a = Math.abs(v);
-    if (a >= 1e5 || a < 1e-3) return v.toExponential(0);
-    return String(Number(v.toPrecision(6)));
-  }
-
-  function linearTicks(lo, hi, count) {
-    const step = niceStep(hi - lo, count);
-    const ticks = [];
-    for (let v = Math.ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) ticks.push(Math.abs(v) < step * 1e-9 ? 0 : v);
-    return ticks;
-  }
-
-  // lo, hi: log10 of the range; pixels: the axis length. Labels at least ~22 px apart.
-  function logTicks(lo, hi, pixels, count) {
-    if (hi - lo < 0.6) {                 // less than a factor of 4: plain steps read better than decades
-      return linearTicks(Math.pow(10, lo), Math.pow(10, hi), count).filter((v) => v > 0);
-    }
-    const ticks = [];
-    const perDecade = pixels / (hi - lo);
-    const mults = perDecade >= 150 ? [1, 2, 3, 5] : perDecade >= 75 ? [1, 2, 5] : perDecade >= 46 ? [1, 3] : [1];
-    const every = Math.max(1, Math.ceil(22 / perDecade));   // decades between labels
-    for (let e = Math.floor(lo); e <= Math.ceil(hi); e++) {
-      if (e % every) continue;
-      for (const m of mults) {
-        const v = m * Math.pow(10, e);
-        const l = Math.log10(v);
-        if (l >= lo - 1e-9 && l <= hi + 1e-9) ticks.push(v);
-      }
-    }
-    return ticks;
-  }
-
-  /**
-   * A line plot on `canvas`: axes, ticks, labels, a legend, optionally a log y axis.
-   * opts: {series: [{name, color, x: number[], y: number[], width?, alpha?, legend?}],
-   *        xlabel, ylabel, log?, ymin?, ymax?, integerX?, empty?}
-   * Non-finite values (and values <= 0 on a log axis) break the line. Returns the number of points drawn.
-   */
-  function linePlot(canvas, opts) {
-    const dpr = window.devicePixelRatio || 1;
-    const cssW = canvas.clientWidth, cssH = canvas.clientHeight;
-    if (!cssW || !cssH) return 0;
-    if (canvas.width !== Math.round(cssW * dpr) || canvas.height !== Math.round(cssH * dpr)) {
-      canvas.width = Math.round(cssW * dpr);
-      canvas.height = Math.round(cssH * dpr);
-    }
-    const ctx = canvas.getContext("2d");
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.clearRect(0, 0, cssW, cssH);
-    const font = "11px system-ui, 'DejaVu Sans', sans-serif";
-    ctx.font = font;
-    const entries = opts.series.filter((s) => s.legend !== false && s.name);
-    const m = { left: 50, right: 10, top: entries.length ? 20 : 8, bottom: 30 };   // the legend: a strip on top
-    const pw = cssW - m.left - m.right, ph = cssH - m.top - m.bottom;
-    const log = !!opts.log;
-    const ty = (v) => (log ? (v > 0 ? Math.log10(v) : NaN) : v);
-
-    let xlo = Infinity, xhi = -Infinity, ylo = Infinity, yhi = -Infinity, count = 0;
-    for (const s of opts.series) {
-      for (let i = 0; i < s.x.length; i++) {
-        const x = s.x[i], y = ty(s.y[i]);
-        if (!Number.isFinite(x) || !Number.isFinite(y)) continue;
-        if (x < xlo) xlo = x;
-        if (x > xhi) xhi = x;
-        if (y < ylo) ylo = y;
-        if (y > yhi) yhi = y;
-        count++;
-      }
-    }
-    if (isNum(opts.ymin) && !log) ylo = Math.min(ylo, opts.ymin);
-    if (isNum(opts.ymax) && !log) yhi = Math.max(yhi, opts.ymax);
-
-    // frame
-    ctx.strokeStyle = "#3a4250";
-    ctx.lineWidth = 1;
-    ctx.strokeRect(m.left + 0.5, m.top + 0.5, pw, ph);
-    ctx.fillStyle = "#8a93a3";
-    ctx.textAlign = "center";
-    ctx.textBaseline = "alphabetic";
-    ctx.fillText(opts.xlabel || "", m.left + pw / 2, cssH - 3);
-    ctx.save();
-    ctx.translate(11, m.top + ph / 2);
-    ctx.rotate(-Math.PI / 2);
-    ctx.fillText((opts.ylabel || "") + (log ? " (log)" : ""), 0, 0);
-    ctx.restore();
-    if (!count) {
-      ctx.fillText(opts.empty || "no data yet", m.left + pw / 2, m.top + ph / 2);
-      return 0;
-    }
-    if (xhi === xlo) { xlo -= 1; xhi += 1; }
-    if (yhi === ylo) { const d = log ? 0.5 : Math.abs(yhi) * 0.1 || 1; ylo -= d; yhi += d; }
-    const pad = (yhi - ylo) * 0.05;
-    if (!(isNum(opts.ymin) && !log && ylo === opts.ymin)) ylo -= pad;
-    if (!(isNum(opts.ymax) && !log && yhi === opts.ymax)) yhi += pad;
-    const X = (x) => m.left + ((x - xlo) / (xhi - xlo)) * pw;
-    const Y = (y) => m.top + ph - ((y - ylo) / (yhi - ylo)) * ph;
-
-    // grid and ticks
-    ctx.textBaseline = "middle";
-    ctx.textAlign = "right";
-    const ycount = Math.max(2, Math.floor(ph / 35));
-    const yt = log ? logTicks(ylo, yhi, ph, ycount) : linearTicks(ylo, yhi, ycount);
-    for (const v of yt) {
-      const py = Math.round(Y(ty(v))) + 0.5;
-      ctx.strokeStyle = "#262c36";
-      ctx.beginPath(); ctx.moveTo(m.left, py); ctx.lineTo(m.left + pw, py); ctx.stroke();
-      ctx.strokeStyle = "#5a6372";
-      ctx.beginPath(); ctx.moveTo(m.left - 4, py); ctx.lineTo(m.left, py); ctx.stroke();
-      ctx.fillStyle = "#8a93a3";
-      ctx.fillText(tickLabel(v), m.left - 6, py);
-    }
-    ctx.textAlign = "center";
-    ctx.textBaseline = "top";
-    for (const v of linearTicks(xlo, xhi, Math.max(2, Math.floor(pw / 60)))) {
-      if (opts.integerX && !Number.isInteger(v)) continue;
-      const px = Math.round(X(v)) + 0.5;
-      ctx.strokeStyle = "#262c36";
-      ctx.beginPath(); ctx.moveTo(px, m.top); ctx.lineTo(px, m.top + ph); ctx.stroke();
-      ctx.strokeStyle = "#5a6372";
-      ctx.beginPath(); ctx.moveTo(px, m.top + ph); ctx.lineTo(px, m.top + ph + 4); ctx.stroke();
-      ctx.fillStyle = "#8a93a3";
-      ctx.fillText(tickLabel(v), px, m.top + ph + 5);
-    }
-
-    // series, clipped to the frame; many points per pixel column are drawn as that column's min..max
-    ctx.save();
-    ctx.beginPath();
-    ctx.rect(m.left, m.top, pw, ph);
-    ctx.clip();
-    for (const s of opts.series) {
-      ctx.strokeStyle = s.color;
-      ctx.globalAlpha = s.alpha === undefined ? 1 : s.alpha;
-      ctx.lineWidth = s.width || 1.5;
-      ctx.lineJoin = "round";
-      ctx.beginPath();
-      let pen = false, col = NaN, cmin = 0, cmax = 0;
-      const flush = () => {
-        if (!Number.isNaN(col) && cmax - cmin > 0.5) { ctx.lineTo(col, cmin); ctx.lineTo(col, cmax); }
-      };
-      for (let i = 0; i < s.x.length; i++) {
-        const y = ty(s.y[i]);
-        if (!Number.isFinite(s.x[i]) || !Number.isFinite(y)) { flush(); pen = false; col = NaN; continue; }
-        const px = X(s.x[i]), py = Y(y), c = Math.round(px);
-        if (pen && c === col) { cmin = Math.min(cmin, py); cmax = Math.max(cmax, py); continue; }
-        flush();
-        if (pen) ctx.lineTo(px, py); else ctx.moveTo(px, py);
-        pen = true; col = c; cmin = cmax = py;
-      }
-      flush();
-      if (s.x.length === 1) {   // a single point: a dot
-        const y = ty(s.y[0]);
-        if (Number.isFinite(y)) { ctx.fillStyle = s.color; ctx.fillRect(X(s.x[0]) - 2, Y(y) - 2, 4, 4); }
-      }
-      ctx.stroke();
-    }
-    ctx.restore();
-    ctx.globalAlpha = 1;
-
-    // legend: one row in the strip above the frame, right-aligned, never over the data
-    if (entries.length) {
-      ctx.font = font;
-      ctx.textAlign = "left";
-      ctx.textBaseline = "middle";
-      const widths = entries.map((s) => ctx.measureText(s.name).width + 30);
-      let lx = m.left + pw - widths.reduce((a, b) => a + b, 0) + 10;
-      const ly = m.top / 2 + 1;
-      entries.forEach((s, i) => {
-        ctx.strokeStyle = s.color;
-        ctx.globalAlpha = Math.max(0.5, s.alpha === undefined ? 1 : s.alpha);
-        ctx.lineWidth = s.width || 1.5;
-        ctx.beginPath(); ctx.moveTo(lx, ly); ctx.lineTo(lx + 14, ly); ctx.stroke();
-        ctx.globalAlpha = 1;
-        ctx.fillStyle = "#d7dce4";
-        ctx.fillText(s.name, lx + 19, ly);
-        lx += widths[i];
-      });
-    }
-    return count;
-  }
-
   // -- learning curves ---------------------------------------------------------------------------------
   const curve = { since: 0, n: [], retinal: [], pan: [], tilt: [], verg: [], conf: [],
     mean: { retinal: [], pan: [], tilt: [], verg: [], conf: [] } };
@@ -326,31 +136,65 @@
     return !!(box && box.checked);
   }
 
+  // -- the curves' charts: uPlot (vendor/uPlot.iife.min.js, MIT) ---------------------------------------
+  const CHART_HEIGHT = 175;
+  const AXIS = { stroke: "#8a93a3", grid: { stroke: "#262c36", width: 1 }, ticks: { stroke: "#5a6372", width: 1 },
+    font: "11px system-ui, 'DejaVu Sans', sans-serif", labelFont: "11px system-ui, 'DejaVu Sans', sans-serif" };
+  const EACH = 0.3, EACH_AXIS = 0.18;   // the faint lines of each adaptation under the means
+
+  /** A series: `alpha` < 1 for each adaptation's value (thin, faint), 1 for a mean (bold); no
+   *  label: not in the legend (its row's class hides it). */
+  function line(label, color, alpha = 1) {
+    const a = Math.round(alpha * 255).toString(16).padStart(2, "0");
+    return { label: label || " ", class: label ? undefined : "unlisted", stroke: color + a, width: alpha < 1 ? 1 : 1.6,
+      points: { show: false } };
+  }
+
+  const mean = `mean of last ${MEAN_WINDOW}`;
+  const CHARTS = {
+    "curve-retinal": { ylabel: "retinal error %",
+      series: [line("each", COLORS.retinal, EACH), line(mean, COLORS.retinal)],
+      data: () => [curve.retinal, curve.mean.retinal] },
+    "curve-output": { ylabel: "output error °", xlabel: `adaptation (bold: ${mean})`,
+      series: [line("", COLORS.pan, EACH_AXIS), line("", COLORS.tilt, EACH_AXIS), line("", COLORS.vergence, EACH_AXIS),
+        line("pan", COLORS.pan), line("tilt", COLORS.tilt), line("vergence", COLORS.vergence)],
+      data: () => [curve.pan, curve.tilt, curve.verg, curve.mean.pan, curve.mean.tilt, curve.mean.verg] },
+    "curve-confidence": { ylabel: "confidence", range: (u, lo, hi) => [Math.min(0, lo), Math.max(1, hi)],
+      series: [line("each", COLORS.confidence, EACH), line(mean, COLORS.confidence)],
+      data: () => [curve.conf, curve.mean.conf] },
+  };
+  const charts = {};    // id -> uPlot; made again when its log switch changes
+  // a log axis: grid lines and ticks at the decades only (uPlot splits every 1..9 of each)
+  const decades = (u, splits) => splits.map((v) => (Math.abs(Math.log10(v) % 1) < 1e-9 ? v : null));
+
+  /** The chart's columns: x, then each series; what a line cannot show (non-finite, or <= 0 on a log axis) breaks it. */
+  function columns(id, log) {
+    const keep = log ? (v) => (v > 0 ? v : null) : (v) => (Number.isFinite(v) ? v : null);
+    return [curve.n, ...CHARTS[id].data().map((ys) => ys.map(keep))];
+  }
+
+  function makeChart(id) {
+    const spec = CHARTS[id], el = $(id), log = logScale(id);
+    if (charts[id]) charts[id].destroy();
+    charts[id] = new uPlot({
+      width: el.clientWidth || 300, height: CHART_HEIGHT,
+      scales: { x: { time: false }, y: log ? { distr: 3 } : { range: spec.range } },
+      axes: [{ ...AXIS, label: spec.xlabel || "adaptation" },
+        { ...AXIS, label: spec.ylabel + (log ? " (log)" : ""), size: 55,
+          ...(log ? { grid: { ...AXIS.grid, filter: decades }, ticks: { ...AXIS.ticks, filter: decades } } : {}) }],
+      series: [{ label: "adaptation" }, ...spec.series],
+      legend: { live: false },
+    }, columns(id, log), el);
+  }
+
   function drawCurves() {
-    const n = curve.n, mn = curve.mean;
-    const plots = [
-      ["curve-retinal", { xlabel: "adaptation", ylabel: "retinal error %", series: [
-        { name: "each", color: COLORS.retinal, x: n, y: curve.retinal, width: 1, alpha: 0.3 },
-        { name: `mean of last ${MEAN_WINDOW}`, color: COLORS.retinal, x: n, y: mn.retinal, width: 1.6 }] }],
-      ["curve-output", { xlabel: `adaptation (bold: mean of last ${MEAN_WINDOW})`,
-        ylabel: "output error °", series: [
-        { name: "pan", color: COLORS.pan, x: n, y: curve.pan, width: 1, alpha: 0.18, legend: false },
-        { name: "tilt", color: COLORS.tilt, x: n, y: curve.tilt, width: 1, alpha: 0.18, legend: false },
-        { name: "vergence", color: COLORS.vergence, x: n, y: curve.verg, width: 1, alpha: 0.18, legend: false },
-        { name: "pan", color: COLORS.pan, x: n, y: mn.pan, width: 1.6 },
-        { name: "tilt", color: COLORS.tilt, x: n, y: mn.tilt, width: 1.6 },
-        { name: "vergence", color: COLORS.vergence, x: n, y: mn.verg, width: 1.6 }] }],
-      ["curve-confidence", { xlabel: "adaptation", ylabel: "confidence", ymin: 0, ymax: 1, series: [
-        { name: "each", color: COLORS.confidence, x: n, y: curve.conf, width: 1, alpha: 0.3 },
-        { name: `mean of last ${MEAN_WINDOW}`, color: COLORS.confidence, x: n, y: mn.conf, width: 1.6 }] }],
-    ];
-    for (const [id, opts] of plots) {
-      const canvas = $(id);
-      opts.log = logScale(id);
-      opts.integerX = true;
-      opts.empty = "waiting for the first adaptation";
-      linePlot(canvas, opts);
-      canvas.dataset.points = String(n.length);
+    for (const id of Object.keys(CHARTS)) {
+      const el = $(id);
+      if (!charts[id]) makeChart(id);
+      const chart = charts[id];
+      if (el.clientWidth && chart.width !== el.clientWidth) chart.setSize({ width: el.clientWidth, height: CHART_HEIGHT });
+      chart.setData(columns(id, logScale(id)));
+      el.dataset.points = String(curve.n.length);
     }
   }
 
@@ -787,7 +631,9 @@
         button.disabled = false;
       }
     });
-    for (const box of document.querySelectorAll("input[data-log]")) box.addEventListener("change", scheduleDraw);
+    for (const box of document.querySelectorAll("input[data-log]")) {
+      box.addEventListener("change", () => { makeChart(box.dataset.log); scheduleDraw(); });
+    }
     window.addEventListener("resize", scheduleDraw);
     watchEyes();
     $("eye-left").addEventListener("click", lookAtClick);

@@ -80,7 +80,7 @@ def test_a_relative_state_dir_is_relative_to_the_config_file(tmp_path):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda d: d.update(colour=True), (": colour: got True, expected a known key (the top level takes servo_bus, "
-                                       "cameras, gaze_map, fixation, service, state_dir, logging, api, tracking, ros2, sim_objects); "
+                                       "cameras, gaze_map, fixation, service, state_dir, logging, api, tracking, ros2, foxglove, sim_objects); "
                                        "'colour' is an unknown key")),
     (lambda d: d["fixation"].update(rate=3), "fixation.rate: got 3, expected a known key (fixation takes vergence_"),
     (lambda d: d["fixation"].update(rate=3), "rate_hz, vergence_range); 'rate' is an unknown key"),

@@ -2,24 +2,18 @@
 naming the install step when the section is on but cyclonedds is missing."""
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
-import yaml
 
 from headctl.cli.main import main
-from headctl.config.head import DEFAULT_CONFIG, load_config
+from headctl.config.head import load_config
 from headctl.errors import ConfigError
+from tests.support.sections import refusals_without, with_section
 
 
 def write(tmp_path: Path, ros2: object) -> Path:
-    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
-    data["state_dir"] = str(tmp_path / "state")
-    data["ros2"] = ros2
-    path = tmp_path / "head.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
+    return with_section(tmp_path, "ros2", ros2)
 
 
 def test_off_by_default_and_existing_configs_keep_working() -> None:
@@ -56,11 +50,7 @@ def test_bad_values_are_refused_naming_key_value_and_expected(tmp_path: Path, ro
 
 def test_check_and_run_name_the_install_step_when_cyclonedds_is_missing(tmp_path: Path, monkeypatch, capsys) -> None:
     path = write(tmp_path, {"enabled": True})
-    real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "cyclonedds" else real(name, *a))
-    for command in ("check", "run"):
-        assert main([command, "--config", str(path), *(["--no-connect"] if command == "check" else [])]) == 1
-        err = capsys.readouterr().err
+    for command, err in refusals_without("cyclonedds", path, monkeypatch, capsys).items():
         assert f"headctl {command}: {path}: ros2.enabled is true but cyclonedds is not installed" in err
         assert "pip install 'headctl[ros2]'" in err and "cyclonedds-dev" in err
 
