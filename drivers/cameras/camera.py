@@ -96,6 +96,13 @@ class Capabilities:
     colour: bool = True
     reconnect: bool = False
     simulated: bool = False
+    exposure_lock: bool = False  # can hold its auto exposure and gain, and let them run again
+
+
+class ExposureMode(enum.Enum):
+    AUTO = "auto"
+    LOCKED = "locked"
+    MANUAL = "manual"
 
 
 class StreamHealth(enum.Enum):

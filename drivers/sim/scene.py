@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from drivers.servo.joints import JOINTS
+from drivers.sim.room_light import CONSTANT_LIGHT, Illumination
 from drivers.sim.textures import PhotoSet, photo_set, photo_texture
 
 log = logging.getLogger(__name__)
@@ -176,6 +177,7 @@ class Scene:
         self.seed = seed
         self.colour = colour
         self.motion: SceneMotion | None = None  # what moves (drivers.sim.motion), if anything
+        self.light: Illumination = CONSTANT_LIGHT  # the room's light over an exposure (drivers.sim.room_light)
         self.lo = np.array([b.lo for b in self.boxes], dtype=np.float32)
         self.hi = np.array([b.hi for b in self.boxes], dtype=np.float32)
         self.faces = self._layout()
