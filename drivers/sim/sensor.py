@@ -93,22 +93,22 @@ class SensorPipeline:
 
     def expose(self, radiance: np.ndarray, scale: float | np.ndarray, gain: float, index: int,
                measure: bool = False) -> tuple[np.ndarray, float | None]:
-        """The frame (uint8, radiance's shape) and, with `measure`, its mean level (a fraction
-        of full scale, what an auto exposure meters).
+        """The frame (uint8, radiance's shape) and, with `measure`, its metered level (a
+        fraction of full scale, what an auto exposure meters: the mean of the middle half of
+        the image each way, as a webcam's centre-weighted metering).
 
         `radiance`: the render (grey levels at the reference exposure); `scale`: light x
         exposure over the reference, a number or (H, 1) per row; `gain`: a factor."""
         if self.identity and gain == 1.0 and np.all(np.asarray(scale) == 1.0):
             image = radiance if radiance.dtype == np.uint8 else _to_uint8(radiance)
-            return image, float(np.mean(image)) / 255.0 if measure else None
+            return image, _metered(image) if measure else None
         signal = self._levels(radiance, scale, gain, index, step=1)
-        level = float(np.mean(signal)) / 255.0 if measure else None
-        return _to_uint8(signal), level
+        return _to_uint8(signal), _metered(signal) if measure else None
 
     def meter(self, radiance: np.ndarray, scale: float | np.ndarray, gain: float) -> float:
         """The mean level (fraction of full scale) `expose` would give, without noise, from
         every 4th pixel of every 4th row: what an auto exposure needs of a view, cheaply."""
-        return float(np.mean(self._levels(radiance[::4, ::4], scale, gain, None, step=4))) / 255.0
+        return _metered(self._levels(radiance[::4, ::4], scale, gain, None, step=4))
 
     def _levels(self, radiance: np.ndarray, scale: float | np.ndarray, gain: float, index: int | None,
                 step: int) -> np.ndarray:
@@ -144,6 +144,12 @@ class SensorPipeline:
         electrons += sigma * rng.standard_normal(signal.shape, dtype=np.float32)
         electrons *= np.float32(1.0 / full_well)
         return electrons
+
+
+def _metered(image: np.ndarray) -> float:
+    """The mean level of the middle half of `image` each way, a fraction of full scale."""
+    h, w = image.shape[:2]
+    return float(np.mean(image[h // 4:h - h // 4, w // 4:w - w // 4])) / 255.0
 
 
 def _to_uint8(image: np.ndarray) -> np.ndarray:
