@@ -4,7 +4,11 @@
    changing every pair) at 320 x 240 and 640 x 480, grey and colour, on the caller's thread
    (the default) and with the right eye on a worker thread (`parallel=True`).
    Goal: >= 100 pairs/s at 320 x 240.
-2. Aravis's in-process Fake camera (Mono8, 640 x 480, asked for `--fake-fps`): frames per
+2. One simulated camera's frame (`SimulatedCamera.render`, 320 x 240 grey) against the bare
+   renderer: the `ideal` sensor (goal: no cost beyond the render) and the `uvc_webcam` one
+   (lens, vignetting, noise, MJPEG, auto exposure; while the head pans also motion blur and
+   rolling shutter), still and panning at 60 and 240 deg/s.
+3. Aravis's in-process Fake camera (Mono8, 640 x 480, asked for `--fake-fps`): frames per
    second read straight from an Aravis stream (the baseline: Aravis's own rate, measured in
    this run) against frames per second delivered by `AravisCamera`'s capture thread.
 
@@ -19,7 +23,10 @@ import time
 import numpy as np
 
 from calib_free.sim.head_model import HeadModel
-from drivers.sim.scene import Scene, StereoRenderer
+from drivers.cameras.camera import create_camera
+from drivers.cameras.config import CameraConfig
+from drivers.clock import ManualClock
+from drivers.sim.scene import EyeRenderer, Scene, StereoRenderer
 
 
 def render_rate(width: int, height: int, colour: bool, parallel: bool, seconds: float) -> float:
@@ -40,6 +47,52 @@ def render_rate(width: int, height: int, colour: bool, parallel: bool, seconds: 
                 n += 1
             rates.append(n / (time.perf_counter() - started))
     return max(rates)
+
+
+class _Panning:
+    """A timed pose source: the head pans at `rate_deg_s`, to and fro within +-30 deg."""
+
+    def __init__(self, rate_deg_s: float) -> None:
+        self.rate_deg_s = rate_deg_s
+
+    def at(self, time_s: float) -> dict[str, float]:
+        phase = (self.rate_deg_s * time_s) % 120.0
+        return {"pan": phase - 30.0 if phase < 60.0 else 90.0 - phase, "tilt": 0.0, "left_eye": 3.0, "right_eye": -3.0}
+
+    def __call__(self) -> dict[str, float]:
+        return self.at(0.0)
+
+
+def frame_cost_ms(model: str | None, rate_deg_s: float, frames: int = 60) -> float:
+    """Milliseconds per frame of one simulated camera (320 x 240 grey) with this sensor model,
+    the head panning at `rate_deg_s` (0: still); None: the bare renderer. Best of three."""
+    head, scene = HeadModel.default(320, 240), Scene(seed=0, colour=False)
+    pose = _Panning(rate_deg_s)
+    fps = 30.0
+    if model is None:
+        renderer = EyeRenderer(head.lens_left, scene)
+
+        def frame(n: int) -> None:
+            joints = pose.at(n / fps)
+            rotation, centre = head.eye_frames_from_joints(*(joints[k] for k in ("pan", "tilt", "left_eye", "right_eye")))[0]
+            renderer.render(rotation, centre, n / fps)
+    else:
+        config = CameraConfig.from_mapping({"backend": "sim", "eye": "left", "width": 320, "height": 240, "fps": fps,
+                                            "sensor": {"model": model}})
+        camera = create_camera(config, head=head, pose_source=pose, scene=scene, clock=ManualClock())
+        camera.open()
+
+        def frame(n: int) -> None:
+            camera.render(pose.at(n / fps), n / fps)
+    costs = []
+    for attempt in range(3):
+        started = time.perf_counter()
+        for n in range(attempt * frames, (attempt + 1) * frames):
+            frame(n)
+        costs.append((time.perf_counter() - started) / frames * 1e3)
+    if model is not None:
+        camera.close()
+    return min(costs)
 
 
 def aravis_baseline_rate(fps: float, seconds: float) -> tuple[float, float]:
@@ -112,6 +165,12 @@ def main() -> None:
             single = render_rate(width, height, colour, False, args.seconds)
             parallel = render_rate(width, height, colour, True, args.seconds)
             print(f"  {width:>4}x{height:<4}  {'colour' if colour else 'grey':>6}  {single:17.1f}  {parallel:25.1f}")
+
+    print("one simulated camera's frame, 320x240 grey (ms per frame; best of 3):")
+    print(f"  {'sensor':>12}  {'still':>6}  {'60 deg/s':>8}  {'240 deg/s':>9}")
+    for model in (None, "ideal", "uvc_webcam"):
+        costs = [frame_cost_ms(model, rate) for rate in (0.0, 60.0, 240.0)]
+        print(f"  {model or 'bare render':>12}  {costs[0]:6.2f}  {costs[1]:8.2f}  {costs[2]:9.2f}")
 
     try:
         import gi

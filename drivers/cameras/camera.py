@@ -97,11 +97,10 @@ class Capabilities:
     exposure: bool = False
     gain: bool = False
     frame_rate: bool = False
-    # The camera can hold its auto exposure and gain at their present values, and let them run again.
-    exposure_lock: bool = False
     colour: bool = True
     reconnect: bool = False
     simulated: bool = False
+    exposure_lock: bool = False  # can hold its auto exposure and gain, and let them run again
 
 
 class ExposureMode(enum.Enum):

@@ -18,6 +18,7 @@ from drivers.config.reader import check_settings, read_config, setting
 from drivers.errors import CameraConfigError
 from drivers.sim.passers_by import PassersByConfig
 from drivers.sim.room_light import LightConfig
+from drivers.sim.sensor_config import SensorConfig
 
 ImageMode = Literal["grey", "colour"]
 
@@ -68,6 +69,8 @@ class CameraConfig:
     # The simulated head's lens; the kinds of calib_free.lens.LENS_KINDS (drivers cannot import it).
     lens: Literal["foveated", "equidistant", "equisolid"] = "foveated"
     noise_std: float = setting(0.0, lo=0.0, hi=255.0, expected="not negative, at most 255 grey levels")
+    # The simulated camera's sensor and lens effects (a model's preset and overrides).
+    sensor: SensorConfig = setting(SensorConfig())
     grab_timeout_s: float = setting(1.0, above=0.0, hi=60.0, expected="a positive time, at most 60 s")
     reconnect_backoff_max_s: float = setting(2.0, above=0.0, hi=3600.0, expected="a positive time, at most 3600 s")
     reconnect_give_up_s: float = setting(600.0, above=0.0, hi=604_800.0,

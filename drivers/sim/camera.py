@@ -18,6 +18,15 @@ Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the
 Without it the thread only watches the clock, and frames appear as someone else (a test,
 the simulated servo loop) advances it.
 
+The image is a real camera's (`sensor:` config, `drivers.sim.sensor_config`; the default
+`ideal` camera shows the render as it is): `_image_at` renders the frame over its exposure
+(`drivers.sim.shutter`: motion blur, rolling shutter) through this unit's lens
+(`drivers.sim.lens_error`), multiplies it by the room's light over the exposure
+(`Scene.light`), and passes it through the sensor (`drivers.sim.sensor`: vignetting, noise,
+this unit's response, MJPEG) at the exposure and gain of the auto exposure
+(`drivers.sim.auto_exposure`), which the driver can lock, unlock or set by hand. Both the
+capture thread and the synchronous `render()` make their images with it.
+
 Unplugging (`unplug()`, `replug()`): the camera behaves as a USB camera whose device node
 vanished: grabs fail as lost and every reopen fails until it is plugged back, when the base
 class's reopen opens it again and applies its config afresh (`opens` counts the opens).
@@ -37,7 +46,11 @@ from drivers.cameras.camera import Camera, Capabilities, ErrorCallback, Grab
 from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraConfigError, CameraError, CameraLostError, DeviceStateError
-from drivers.sim.scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene
+from drivers.sim.auto_exposure import AutoExposure, ExposureState
+from drivers.sim.lens_error import unit_lens
+from drivers.sim.scene import HeadGeometry, Scene, shared_scene
+from drivers.sim.sensor import SensorPipeline, exposure_scale, mjpeg_round_trip
+from drivers.sim.shutter import ExposureRenderer, PoseAt
 
 log = logging.getLogger(__name__)
 
@@ -67,9 +80,10 @@ class SimulatedCamera(Camera):
     """One eye of a simulated head (config `eye: left|right`), rendered from the pose source."""
 
     backend_name = "sim"
-    capabilities = Capabilities(frame_rate=True, colour=True, reconnect=True, simulated=True)
-    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std",
-                             "reconnect_backoff_max_s", "reconnect_give_up_s"})
+    capabilities = Capabilities(frame_rate=True, colour=True, reconnect=True, simulated=True,
+                                exposure=True, gain=True, exposure_lock=True)
+    CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std", "sensor",
+                             "exposure_us", "gain_db", "reconnect_backoff_max_s", "reconnect_give_up_s"})
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
                  on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
@@ -93,12 +107,16 @@ class SimulatedCamera(Camera):
             raise CameraConfigError(f"{self.name}: the scene given is {'colour' if scene.colour else 'grey'} "
                                     f"but image is {config.image!r}")
         self.head = head
-        self.lens = lens
+        self.lens = lens  # the nominal lens: the method's model
+        self.sensor = config.sensor.params()
+        self.unit_lens = unit_lens(lens, self.sensor, config.seed, self.eye_index)  # the lens it renders through
         self.pose_source = pose_source
         self.fps = config.fps or DEFAULT_FPS
         self.paced_by_clock = paced_by_clock
         self._scene = scene
-        self._renderer: EyeRenderer | None = None
+        self._shutter: ExposureRenderer | None = None
+        self._pipeline: SensorPipeline | None = None
+        self._exposure = AutoExposure(self.sensor, self.fps)
         self._last_index: int | None = None
         # (frame time, render start, image ready) of the last frames, clock seconds.
         self._render_times: collections.deque[tuple[float, float, float]] = collections.deque(
@@ -121,6 +139,27 @@ class SimulatedCamera(Camera):
         self._unplugged = False
         log.warning("%s: simulated camera plugged back", self.name)
 
+    def _pose_at(self) -> PoseAt:
+        """The joints at a time of the clock from the pose source (a plain one: as they are now)."""
+        source = self.pose_source
+
+        def failed(err: Exception) -> CameraError:
+            return CameraError(f"{self.name}: the pose source failed: {err!r}")
+
+        if not isinstance(source, TimedPoseSource):
+            try:
+                joints = source()
+            except Exception as err:
+                raise failed(err) from err
+            return lambda time_s: joints
+
+        def pose_at(time_s: float) -> Mapping[str, float]:
+            try:
+                return source.at(time_s)
+            except Exception as err:
+                raise failed(err) from err
+        return pose_at
+
     def _device_gone(self, what: str) -> CameraLostError:
         return CameraLostError(f"{self.name}: {what}: the simulated {self.config.eye} eye's device node is gone "
                                "(unplugged)")
@@ -131,14 +170,56 @@ class SimulatedCamera(Camera):
         shows does not depend on it)."""
         return [(t, start - t, ready - t) for t, start, ready in list(self._render_times)]
 
+    @property
+    def exposure_state(self) -> ExposureState:
+        """The exposure time, gain and mode of the next frame's exposure."""
+        return self._exposure.state
+
     # -- synchronous use ----------------------------------------------------------------------
     def render(self, joints: Mapping[str, float], time_s: float | None = None) -> np.ndarray:
-        """This eye's image at the given joint angles (degrees), the moving objects where they
-        are at `time_s` (None: now), without the thread."""
+        """This eye's image at the given joint angles (degrees), its exposure starting at
+        `time_s` (None: now; the moving objects where they are then), without the thread.
+
+        A frame of the camera's frame index at that time: its auto exposure runs as if it had
+        streamed since the last one. While the head moves (a `TimedPoseSource` tells how), the
+        exposure sees it move from `joints` on as the pose source does (blur, skew)."""
         self.require_open()
-        assert self._renderer is not None
-        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
-        return self._renderer.render(rotation, centre, time_s)
+        start_s = self.clock.monotonic() if time_s is None else time_s
+        source = self.pose_source
+        pose_at: PoseAt = lambda t: joints  # noqa: E731
+        if self.sensor.exposure_moves and isinstance(source, TimedPoseSource):
+            then = source.at(start_s)
+            pose_at = lambda t: {k: float(joints[k]) + float(v) - float(then[k])  # noqa: E731
+                                 for k, v in source.at(t).items()}
+        return self._image_at(math.floor(start_s * self.fps), start_s, pose_at, legacy_noise=False)
+
+    def _image_at(self, index: int, exposure_start_s: float, pose_at: PoseAt, legacy_noise: bool = True) -> np.ndarray:
+        """Frame `index`, its first row exposed from `exposure_start_s`, the joints at each time
+        `pose_at` gives: rendered over the exposure, lit by the room, through the sensor.
+        `legacy_noise`: `noise_std` added (the synchronous renders' user adds its own)."""
+        shutter, pipeline = self._shutter, self._pipeline
+        if shutter is None or pipeline is None:
+            raise DeviceStateError(f"{self.name}: rendering on a closed camera")
+        settings, skipped = self._exposure.settings_for(index)
+        radiance = shutter.render(pose_at, exposure_start_s, settings.exposure_us * 1e-6)
+
+        def scale() -> float | np.ndarray:  # the room's light over this exposure, relative to the reference
+            light = shutter.light_over(shutter.scene.light, exposure_start_s, settings.exposure_us * 1e-6)
+            return exposure_scale(light, settings.exposure_us, self.sensor.reference_exposure_us)
+
+        if skipped and self.sensor.auto_exposure:  # frames not rendered: their auto exposure saw this view
+            settings = self._exposure.catch_up(pipeline.meter(radiance, scale(), settings.gain), skipped)
+        image, level = pipeline.expose(radiance, scale(), settings.gain, index, measure=self.sensor.auto_exposure)
+        if level is not None:
+            self._exposure.observe(index, level)
+        if legacy_noise and self.config.noise_std > 0:
+            # Sensor noise, deterministic per (seed, eye, frame).
+            rng = np.random.default_rng((self.config.seed, self.eye_index, index))
+            noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
+            image = np.clip(noisy, 0, 255).astype(np.uint8)
+        if self.sensor.jpeg_quality is not None:
+            image = mjpeg_round_trip(image, self.sensor.jpeg_quality)
+        return image
 
     # -- hooks --------------------------------------------------------------------------------
     def _open_device(self) -> None:
@@ -146,12 +227,26 @@ class SimulatedCamera(Camera):
             raise self._device_gone("cannot open")
         self.opens += 1
         scene = self._scene or shared_scene(self.config.seed, self.config.image == "colour")
-        self._renderer = EyeRenderer(self.lens, scene)
+        self._shutter = ExposureRenderer(self.unit_lens, scene, self.head, self.eye_index, self.sensor)
+        self._pipeline = SensorPipeline(self.sensor, self.unit_lens, self.lens, self.config.seed, self.eye_index)
+        self._exposure = AutoExposure(self.sensor, self.fps)  # a camera opened afresh starts its auto exposure again
         log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
                  self.lens.width, self.lens.height, self.fps, self.config.seed)
 
     def _close_device(self) -> None:
-        self._renderer = None
+        self._shutter = self._pipeline = None
+
+    def _lock_exposure(self) -> None:
+        self._exposure.lock()
+
+    def _unlock_exposure(self) -> None:
+        self._exposure.unlock()
+
+    def _set_exposure_us(self, exposure_us: float) -> None:
+        self._exposure.set_exposure_us(exposure_us)
+
+    def _set_gain_db(self, gain_db: float) -> None:
+        self._exposure.set_gain_db(gain_db)
 
     def _start_stream(self) -> None:
         self._last_index = None
@@ -159,7 +254,7 @@ class SimulatedCamera(Camera):
     def _grab(self, timeout_s: float) -> Grab | None:
         if self._unplugged:
             raise self._device_gone("no frame")
-        if self._renderer is None:  # closed by a reopen that failed: the base class reopens it
+        if self._shutter is None:  # closed by a reopen that failed: the base class reopens it
             raise CameraLostError(f"{self.name}: not open (its last reopen failed)")
         deadline_s = time.monotonic() + timeout_s
         while True:
@@ -180,19 +275,6 @@ class SimulatedCamera(Camera):
         self._last_index = index
         frame_time_s = index / self.fps
         started_s = self.clock.monotonic()
-        try:
-            source = self.pose_source
-            joints = source.at(frame_time_s) if isinstance(source, TimedPoseSource) else source()
-        except Exception as err:
-            raise CameraError(f"{self.name}: the pose source failed: {err!r}") from err
-        if self._renderer is None:
-            raise DeviceStateError(f"{self.name}: rendering on a closed camera")
-        rotation, centre = self.head.eye_frames_from_joints(*joints_tuple(joints))[self.eye_index]
-        image = self._renderer.render(rotation, centre, frame_time_s)
-        if self.config.noise_std > 0:
-            # Sensor noise, deterministic per (seed, eye, frame).
-            rng = np.random.default_rng((self.config.seed, self.eye_index, index))
-            noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
-            image = np.clip(noisy, 0, 255).astype(np.uint8)
+        image = self._image_at(index, frame_time_s, self._pose_at())
         self._render_times.append((frame_time_s, started_s, self.clock.monotonic()))
         return Grab(image, frame_time_s, frame_time_s)
