@@ -1,17 +1,21 @@
 """The simulated camera: one eye of the simulated head, a first-class `Camera` backend.
 
-It owns the frame timing of the simulation: frames fall on a grid of the injected clock
-(frame n at n / fps seconds), so the left and right cameras of a head, sharing a clock,
-produce frames with identical timestamps, like hardware-triggered stereo cameras. At each
-frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
+Its frame times come from `drivers.sim.frame_timing.FrameTiming` (config `timing:`): by
+default (`ideal`) frames fall on a grid of the injected clock (frame n at n / fps seconds),
+so the left and right cameras of a head, sharing a clock, produce frames with identical
+timestamps, like hardware-triggered stereo cameras; `free_running` gives each eye its own
+phase and clock drift, jittered timestamps, lost and late frames, as two USB webcams. At
+each frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
 "left_eye", "right_eye"} in degrees; the service wires the simulated servos to it) and
 renders this eye's view with `drivers.sim.scene`.
 
-A frame shows the world at its timestamp, however late it is rendered (on a loaded machine
-the capture thread runs milliseconds to tens of milliseconds after it): the moving objects
-are placed at the frame's time, and so are the joints when the pose source can tell where
-they were then (`TimedPoseSource`, as the service's simulated world does); a plain callable
-gives the joints at the render time. So both eyes of a pair show the same instant.
+A frame shows the world at its true exposure start, however late it is rendered (on a
+loaded machine the capture thread runs milliseconds to tens of milliseconds after it): the
+moving objects are placed at that time, and so are the joints when the pose source can tell
+where they were then (`TimedPoseSource`, as the service's simulated world does); a plain
+callable gives the joints at the render time. The frame carries the driver's timestamp
+(`time_s`, jittered), a start of exposure no later than the true one (`exposure_start_s`)
+and, free-running, the camera's own clock (`device_time_ns`, frame n at n / fps on it).
 
 Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the next frame
 (real time with the system clock; a `ManualClock` then advances as fast as frames render).
@@ -26,7 +30,6 @@ from __future__ import annotations
 
 import collections
 import logging
-import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Protocol, runtime_checkable
@@ -37,6 +40,7 @@ from drivers.cameras.camera import Camera, Capabilities, ErrorCallback, Grab
 from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraConfigError, CameraError, CameraLostError, DeviceStateError
+from drivers.sim.frame_timing import FrameTiming
 from drivers.sim.scene import EyeRenderer, HeadGeometry, Scene, joints_tuple, shared_scene
 
 log = logging.getLogger(__name__)
@@ -69,7 +73,7 @@ class SimulatedCamera(Camera):
     backend_name = "sim"
     capabilities = Capabilities(frame_rate=True, colour=True, reconnect=True, simulated=True)
     CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std",
-                             "reconnect_backoff_max_s", "reconnect_give_up_s"})
+                             "reconnect_backoff_max_s", "reconnect_give_up_s", "timing"})
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
                  on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
@@ -96,6 +100,7 @@ class SimulatedCamera(Camera):
         self.lens = lens
         self.pose_source = pose_source
         self.fps = config.fps or DEFAULT_FPS
+        self.timing = FrameTiming(config.timing, self.fps, seed=config.seed, eye_index=self.eye_index)
         self.paced_by_clock = paced_by_clock
         self._scene = scene
         self._renderer: EyeRenderer | None = None
@@ -147,8 +152,8 @@ class SimulatedCamera(Camera):
         self.opens += 1
         scene = self._scene or shared_scene(self.config.seed, self.config.image == "colour")
         self._renderer = EyeRenderer(self.lens, scene)
-        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
-                 self.lens.width, self.lens.height, self.fps, self.config.seed)
+        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d, %s", self.name, self.config.eye,
+                 self.lens.width, self.lens.height, self.fps, self.config.seed, self.timing.describe())
 
     def _close_device(self) -> None:
         self._renderer = None
@@ -164,21 +169,21 @@ class SimulatedCamera(Camera):
         deadline_s = time.monotonic() + timeout_s
         while True:
             now_s = self.clock.monotonic()
-            # No rounding up: a frame's time is never later than the clock when it renders,
-            # so where the world was at its timestamp is known by then.
-            index = math.floor(now_s * self.fps)
-            if self._last_index is None or index > self._last_index:
+            # The newest frame arrived by now (`FrameTiming`): its exposure began no later
+            # than the clock, so where the world was then is known when it renders.
+            slot, wake_s = self.timing.due(self._last_index, now_s)
+            if slot is not None:
                 break
             if time.monotonic() >= deadline_s:
                 return None
             if self.paced_by_clock:
-                self.clock.sleep(min((self._last_index + 1) / self.fps - now_s + 1e-9, _PACING_STEP_S))
+                self.clock.sleep(min(wake_s - now_s + 1e-9, _PACING_STEP_S))
                 if self.wait_stop(0.0):
                     return None
             elif self.wait_stop(_WATCH_STEP_S):
                 return None
-        self._last_index = index
-        frame_time_s = index / self.fps
+        index = self._last_index = slot.index
+        frame_time_s = slot.exposure_start_s  # what the frame shows: the world at its true exposure
         started_s = self.clock.monotonic()
         try:
             source = self.pose_source
@@ -195,4 +200,7 @@ class SimulatedCamera(Camera):
             noisy = image.astype(np.float32) + rng.normal(0.0, self.config.noise_std, image.shape)
             image = np.clip(noisy, 0, 255).astype(np.uint8)
         self._render_times.append((frame_time_s, started_s, self.clock.monotonic()))
-        return Grab(image, frame_time_s, frame_time_s)
+        # The driver's (jittered) timestamp, a start of exposure no later than the true one,
+        # and the camera's own clock at that start.
+        return Grab(image, slot.timestamp_s, slot.timestamp_s - self.timing.max_stamp_lag_s,
+                    self.timing.device_time_ns(index))
