@@ -319,7 +319,10 @@ class FixationController:
     def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None) -> None:
         p = self.params
         head = self.head
-        # The pre-fixation pair, at rest.
+        # The pre-fixation pair, at rest. Every pair of a fixation is taken with the head at
+        # rest, so unsynchronised cameras need no correction here: a still head sees a still
+        # scene, and its two images show the same whatever time apart they were exposed
+        # (pursuit, where the head moves during a pair, corrects its disparity for that).
         rest_s = head.wait_settled(p.settle_timeout_s)
         pre_left, pre_right = (as_grey_float(im) for im in head.wait_pair(rest_s, p.frame_timeout_s))
         if target is not None:

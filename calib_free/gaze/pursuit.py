@@ -17,17 +17,26 @@ Beyond the paper, which fixates still targets. Three parts, none of which knows 
   (velocity feed-forward with the frame-to-command delay accounted for). Retinal errors are
   corrected proportionally through the filter's position gain.
 
+Unsynchronised cameras (two USB webcams) expose the right image up to half a frame period
+before or after the left: while the head or the target moves, the patch has moved in the
+right image by then, and its disparity is off by the right image's velocity times that skew
+(2 px at 30 deg/s and 16 ms). `step` and `start` take the pair's skew (`right_lag_s`, right
+timestamp minus left) and the head's pose at the right exposure, and bring the disparity to
+the left image's time: the patch's motion in motor space over the skew (the target's
+filtered velocity times the skew, less the head's own motion) through the Jacobian is the
+right image's shift, which the measured disparity loses (`correct_skew`).
+
 Poses are (pan, tilt, vergence) in degrees; image positions (x, y, d) in pixels of the left
 image, d = x_right - x_left; the fovea is (cx, cy, 0).
 """
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import enum
 import inspect
 import logging
 import threading
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import cv2
@@ -39,7 +48,7 @@ from calib_free.errors import OutOfRangeError
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class PursuitParams:
     """How the patch is found and how the head follows it."""
 
@@ -56,6 +65,7 @@ class PursuitParams:
     jacobian_step_px: float = 6.0  # finite-difference step of the map's Jacobian (x, y; d: half)
     linear_radius_px: float = 16.0  # retinal errors beyond this use the map's secant, not its Jacobian
     frame_timeout_s: float = 0.5  # no new pair for this long: no command; the track is lost
+    correct_skew: bool = True  # a pair's right image taken later or earlier: its disparity brought to the left's time
 
     def __post_init__(self) -> None:
         if self.patch_size_px < 5:
@@ -139,7 +149,7 @@ class PoseHistory:
             return pose
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class PatchMatch:
     """Where the patch is in one pair: (x, y) in the left image, d, and how well each matched."""
 
@@ -274,7 +284,7 @@ class MapReader(Protocol):
     def command(self, position: Any) -> np.ndarray: ...
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class PursuitStep:
     """What one pair gave: the patch (or None), the retinal error, the goal to command (None:
     command nothing), misses in a row, and whether the track is lost."""
@@ -352,11 +362,28 @@ class Pursuit:
             predicted = self.last.position
         return predicted
 
+    def right_shift_px(self, right_lag_s: float, pose: np.ndarray, right_pose: np.ndarray | None) -> float:
+        """How far (x, px) the patch moves in the right image from the left exposure (at `pose`)
+        to the right one, `right_lag_s` later (at `right_pose`; None: the head's motion unknown,
+        taken as none): the target's motion over the skew less the head's, through the Jacobian."""
+        if not self.params.correct_skew or right_lag_s == 0.0:
+            return 0.0
+        head_motion = np.zeros(3) if right_pose is None else np.asarray(right_pose, dtype=float) - pose
+        motion = self._v * right_lag_s - head_motion
+        try:
+            dx, _, dd = np.linalg.solve(self.jacobian, motion)
+        except np.linalg.LinAlgError:
+            return 0.0
+        shift = float(dx + dd)  # x_right = x + d
+        return shift if np.isfinite(shift) else 0.0
+
     # -- the track --------------------------------------------------------------------------
     def start(self, left: np.ndarray, right: np.ndarray, exposure_s: float, pose: np.ndarray,
-              x: float, y: float, d: float | None = None) -> PursuitStep | None:
-        """Take the patch at (x, y) in this pair (exposed at `exposure_s`, from `pose`) and aim at
-        it; None when there is no patch to track there."""
+              x: float, y: float, d: float | None = None, *, right_lag_s: float = 0.0,
+              right_pose: np.ndarray | None = None) -> PursuitStep | None:
+        """Take the patch at (x, y) in this pair (exposed at `exposure_s`, from `pose`; the right
+        image `right_lag_s` later, from `right_pose`) and aim at it; None when there is no patch
+        to track there."""
         match = self.tracker.start(left, right, x, y, d)
         if match is None:
             return None
@@ -375,18 +402,26 @@ class Pursuit:
                         "pursuit uses the default one", np.round(diagonal, 3))
         self._q, self._v, self._t, self._updates = None, np.zeros(3), exposure_s, 0
         self.misses = 0
+        if d is None:  # measured in this pair: at the left image's time (the target's velocity not yet known)
+            match = dataclasses.replace(match, d=match.d - self.right_shift_px(right_lag_s, pose, right_pose))
         return self._update(match, exposure_s, pose, exposure_s)
 
     def step(self, left: np.ndarray, right: np.ndarray, exposure_s: float, pose: np.ndarray,
-             now_s: float) -> PursuitStep:
-        """Find the patch in this pair and say what to command at `now_s`."""
+             now_s: float, *, right_lag_s: float = 0.0, right_pose: np.ndarray | None = None) -> PursuitStep:
+        """Find the patch in this pair (the left image exposed at `exposure_s` from `pose`, the
+        right `right_lag_s` later from `right_pose`) and say what to command at `now_s`."""
         if self._q is None:
             raise RuntimeError("Pursuit.step before start")
+        # The disparity is searched where the right image shows the patch, and brought back
+        # to the left image's time once found.
+        shift = np.array([0.0, 0.0, self.right_shift_px(right_lag_s, pose, right_pose)])
         predicted = self._predicted_position(exposure_s, pose)
-        match = self.tracker.find(left, right, predicted)
+        match = self.tracker.find(left, right, predicted + shift)
         if match is None and self.last is not None:  # a miss: look again, wider, around the last place
             wider = self.params.search_radius_px * (2 + self.misses)
-            match = self.tracker.find(left, right, self.last.position, radius_px=wider)
+            match = self.tracker.find(left, right, self.last.position + shift, radius_px=wider)
+        if match is not None:
+            match = dataclasses.replace(match, d=match.d - float(shift[2]))
         if match is None:
             self.misses += 1
             lost = self.misses >= self.params.lost_after_frames

@@ -32,6 +32,30 @@ MAX_FRAME_BYTES = 1 << 30  # 1 GiB
 MAX_FRAMES = 64  # history, buffers
 
 
+TimingModel = Literal["ideal", "free_running"]
+
+
+@dataclass(frozen=True)
+class FrameTimingConfig:
+    """When a simulated camera's frames are exposed, stamped and delivered (`timing:` of a
+    simulated camera; `drivers.sim.frame_timing`). `model` names a preset of typical values
+    (`ideal`: both eyes on one grid, as hardware-triggered cameras; `free_running`: two USB
+    webcams, each on its own clock); a key given overrides the preset's value, None keeps it."""
+
+    model: TimingModel = "ideal"
+    phase_s: float | None = setting(None, lo=0.0, hi=10.0, expected="a time in [0, 10] s")
+    drift_ppm: float | None = setting(None, lo=-10_000.0, hi=10_000.0, expected="a rate error in [-10000, 10000] ppm")
+    timestamp_jitter_s: float | None = setting(None, lo=0.0, hi=0.1, expected="a time in [0, 0.1] s")
+    drop_rate: float | None = setting(None, lo=0.0, hi=0.5, expected="a fraction of frames in [0, 0.5]")
+    late_rate: float | None = setting(None, lo=0.0, hi=1.0, expected="a fraction of frames in [0, 1]")
+    late_s: float | None = setting(None, lo=0.0, hi=1.0, expected="a time in [0, 1] s")
+
+    CONFIG_ERROR: ClassVar[type[CameraConfigError]] = CameraConfigError
+
+    def __post_init__(self) -> None:
+        check_settings(self)
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     """The settings of one camera. None means "leave the camera's own value".
@@ -75,6 +99,8 @@ class CameraConfig:
     reconnect_backoff_max_s: float = setting(2.0, above=0.0, hi=3600.0, expected="a positive time, at most 3600 s")
     reconnect_give_up_s: float = setting(600.0, above=0.0, hi=604_800.0,
                                          expected="a positive time, at most 604800 s (a week)")
+    # The simulated camera's frame timing (phase, clock drift, timestamp jitter, drops, late frames).
+    timing: FrameTimingConfig = setting(default_factory=FrameTimingConfig)
     # The keys a mapping gave (set by the reader): a key given at its default value is still
     # refused by a backend that does not use it.
     given_keys: frozenset[str] = setting(frozenset(), source="given_keys", init=False, compare=False, repr=False)
@@ -120,7 +146,14 @@ class CameraConfig:
     def set_keys(self) -> set[str]:
         """Keys given in the mapping, or whose value differs from the default."""
         return set(self.given_keys) | {f.name for f in dataclasses.fields(self)
-                                       if f.init and getattr(self, f.name) != f.default}
+                                       if f.init and getattr(self, f.name) != _default_of(f)}
+
+
+def _default_of(f: dataclasses.Field[Any]) -> Any:
+    """A field's default value, made by its factory when it has one (a nested section)."""
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return f.default
 
 
 _PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png")  # as drivers.sim.textures reads them

@@ -1,17 +1,21 @@
 """The simulated camera: one eye of the simulated head, a first-class `Camera` backend.
 
-It owns the frame timing of the simulation: frames fall on a grid of the injected clock
-(frame n at n / fps seconds), so the left and right cameras of a head, sharing a clock,
-produce frames with identical timestamps, like hardware-triggered stereo cameras. At each
-frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
+Its frame times come from `drivers.sim.frame_timing.FrameTiming` (config `timing:`): by
+default (`ideal`) frames fall on a grid of the injected clock (frame n at n / fps seconds),
+so the left and right cameras of a head, sharing a clock, produce frames with identical
+timestamps, like hardware-triggered stereo cameras; `free_running` gives each eye its own
+phase and clock drift, jittered timestamps, lost and late frames, as two USB webcams. At
+each frame the capture thread takes the joint angles from a pose source ({"pan", "tilt",
 "left_eye", "right_eye"} in degrees; the service wires the simulated servos to it) and
 renders this eye's view with `drivers.sim.scene`.
 
-A frame shows the world at its timestamp, however late it is rendered (on a loaded machine
-the capture thread runs milliseconds to tens of milliseconds after it): the moving objects
-are placed at the frame's time, and so are the joints when the pose source can tell where
-they were then (`TimedPoseSource`, as the service's simulated world does); a plain callable
-gives the joints at the render time. So both eyes of a pair show the same instant.
+A frame shows the world at its true exposure start, however late it is rendered (on a
+loaded machine the capture thread runs milliseconds to tens of milliseconds after it): the
+moving objects are placed at that time, and so are the joints when the pose source can tell
+where they were then (`TimedPoseSource`, as the service's simulated world does); a plain
+callable gives the joints at the render time. The frame carries the driver's timestamp
+(`time_s`, jittered), a start of exposure no later than the true one (`exposure_start_s`)
+and, free-running, the camera's own clock (`device_time_ns`, frame n at n / fps on it).
 
 Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the next frame
 (real time with the system clock; a `ManualClock` then advances as fast as frames render).
@@ -34,8 +38,8 @@ class's reopen opens it again and applies its config afresh (`opens` counts the 
 from __future__ import annotations
 
 import collections
-import logging
 import math
+import logging
 import time
 from collections.abc import Callable, Mapping
 from typing import Protocol, runtime_checkable
@@ -51,6 +55,7 @@ from drivers.sim.lens_error import unit_lens
 from drivers.sim.scene import HeadGeometry, Scene, shared_scene
 from drivers.sim.sensor import SensorPipeline, exposure_scale, mjpeg_round_trip
 from drivers.sim.shutter import ExposureRenderer, PoseAt
+from drivers.sim.frame_timing import FrameTiming
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +88,8 @@ class SimulatedCamera(Camera):
     capabilities = Capabilities(frame_rate=True, colour=True, reconnect=True, simulated=True,
                                 exposure=True, gain=True, exposure_lock=True)
     CONFIG_KEYS = frozenset({"eye", "width", "height", "fps", "seed", "lens", "noise_std", "sensor",
-                             "exposure_us", "gain_db", "reconnect_backoff_max_s", "reconnect_give_up_s"})
+                             "exposure_us", "gain_db", "reconnect_backoff_max_s", "reconnect_give_up_s",
+                             "timing"})
 
     def __init__(self, config: CameraConfig, *, name: str | None = None, clock: Clock = SYSTEM_CLOCK,
                  on_error: ErrorCallback | None = None, head: HeadGeometry | None = None,
@@ -112,6 +118,7 @@ class SimulatedCamera(Camera):
         self.unit_lens = unit_lens(lens, self.sensor, config.seed, self.eye_index)  # the lens it renders through
         self.pose_source = pose_source
         self.fps = config.fps or DEFAULT_FPS
+        self.timing = FrameTiming(config.timing, self.fps, seed=config.seed, eye_index=self.eye_index)
         self.paced_by_clock = paced_by_clock
         self._scene = scene
         self._shutter: ExposureRenderer | None = None
@@ -230,8 +237,8 @@ class SimulatedCamera(Camera):
         self._shutter = ExposureRenderer(self.unit_lens, scene, self.head, self.eye_index, self.sensor)
         self._pipeline = SensorPipeline(self.sensor, self.unit_lens, self.lens, self.config.seed, self.eye_index)
         self._exposure = AutoExposure(self.sensor, self.fps)  # a camera opened afresh starts its auto exposure again
-        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d", self.name, self.config.eye,
-                 self.lens.width, self.lens.height, self.fps, self.config.seed)
+        log.info("%s: simulated %s eye, %d x %d px at %.1f fps, seed %d, %s", self.name, self.config.eye,
+                 self.lens.width, self.lens.height, self.fps, self.config.seed, self.timing.describe())
 
     def _close_device(self) -> None:
         self._shutter = self._pipeline = None
@@ -259,22 +266,25 @@ class SimulatedCamera(Camera):
         deadline_s = time.monotonic() + timeout_s
         while True:
             now_s = self.clock.monotonic()
-            # No rounding up: a frame's time is never later than the clock when it renders,
-            # so where the world was at its timestamp is known by then.
-            index = math.floor(now_s * self.fps)
-            if self._last_index is None or index > self._last_index:
+            # The newest frame arrived by now (`FrameTiming`): its exposure began no later
+            # than the clock, so where the world was then is known when it renders.
+            slot, wake_s = self.timing.due(self._last_index, now_s)
+            if slot is not None:
                 break
             if time.monotonic() >= deadline_s:
                 return None
             if self.paced_by_clock:
-                self.clock.sleep(min((self._last_index + 1) / self.fps - now_s + 1e-9, _PACING_STEP_S))
+                self.clock.sleep(min(wake_s - now_s + 1e-9, _PACING_STEP_S))
                 if self.wait_stop(0.0):
                     return None
             elif self.wait_stop(_WATCH_STEP_S):
                 return None
-        self._last_index = index
-        frame_time_s = index / self.fps
+        index = self._last_index = slot.index
+        frame_time_s = slot.exposure_start_s  # what the frame shows: the world at its true exposure
         started_s = self.clock.monotonic()
         image = self._image_at(index, frame_time_s, self._pose_at())
         self._render_times.append((frame_time_s, started_s, self.clock.monotonic()))
-        return Grab(image, frame_time_s, frame_time_s)
+        # The driver's (jittered) timestamp, a start of exposure no later than the true one,
+        # and the camera's own clock at that start.
+        return Grab(image, slot.timestamp_s, slot.timestamp_s - self.timing.max_stamp_lag_s,
+                    self.timing.device_time_ns(index))

@@ -83,6 +83,13 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--latency-ms", type=float, default=40.0,
                    help="pursuit: frame-to-command latency modelled on the manual clock (default 40, as measured "
                         "on the real-time daemon)")
+    p.add_argument("--timing", choices=("ideal", "free_running"), default=None,
+                   help="pursuit: both cameras' frame timing preset (docs/sim-world.md; default: the config's)")
+    p.add_argument("--skew-ms", type=float, default=None,
+                   help="pursuit, with --timing free_running: the right camera's phase this long after the "
+                        "left's (negative: before); default: each drawn from the seed")
+    p.add_argument("--skew-correction", action=argparse.BooleanOptionalAction, default=True,
+                   help="pursuit: bring each disparity to the left image's time (tracking.correct_skew; default on)")
     p.set_defaults(func=run)
     # What a sweep compares against to tell the options given from the defaults.
     p.set_defaults(defaults={dest: p.get_default(dest) for dest in SWEEP_BASE_OPTIONS + ("out",)})
@@ -217,10 +224,12 @@ def run_pursuit_command(args: argparse.Namespace) -> int:
         print(f"--speeds {args.speeds!r}: expected numbers separated by commas (deg/s)", file=sys.stderr)
         return 2
     spec = PursuitSpec(speeds, latency_s=args.latency_ms / 1e3, map_path=args.map, seed=args.seed,
-                       profile=args.profile, config=None if args.config is None else Path(args.config))
+                       profile=args.profile, config=None if args.config is None else Path(args.config),
+                       timing=args.timing, correct_skew=args.skew_correction,
+                       skew_s=None if args.skew_ms is None else args.skew_ms / 1e3)
     summary = write_pursuit(run_pursuit(spec), args.out)
     print(format_result(summary))
-    print(f"wrote {args.out}/pursuit-{args.profile}.csv, .png, .json")
+    print(f"wrote {args.out}/{spec.stem}.csv, .png, .json")
     return 0
 
 

@@ -27,7 +27,7 @@ time: waiting for rest advances the clock instead of sleeping.
 from __future__ import annotations
 
 import logging
-from typing import Callable, Mapping, Protocol
+from typing import Callable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -70,6 +70,16 @@ class PairSource(Protocol):
     @property
     def last_exposure_s(self) -> float | None:
         """When the last pair given was exposed (monotonic), if known."""
+
+
+@runtime_checkable
+class PairTimes(Protocol):
+    """A pair source that tells both timestamps of the last pair given: unsynchronised
+    cameras expose their two images at different times (`StereoPairSource`)."""
+
+    @property
+    def last_pair_times_s(self) -> tuple[float, float] | None:
+        """(left, right) timestamps of the last pair given (monotonic), if any."""
 
 
 class HeadObserver(Protocol):
@@ -258,10 +268,15 @@ class StereoPairSource:
         self.interrupt = interrupt
         self.slice_s = slice_s
         self._last_exposure_s: float | None = None
+        self._last_times_s: tuple[float, float] | None = None
 
     @property
     def last_exposure_s(self) -> float | None:
         return self._last_exposure_s
+
+    @property
+    def last_pair_times_s(self) -> tuple[float, float] | None:
+        return self._last_times_s
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
         deadline = self.clock.monotonic() + timeout_s
@@ -278,6 +293,7 @@ class StereoPairSource:
             except (CameraError, DeviceStateError) as err:  # failed, or being restarted: no pair
                 raise PairTimeoutError(f"no stereo pair exposed after t={after_s:.3f} s: {err}") from err
             self._last_exposure_s = max(frames.left.time_s, frames.right.time_s)
+            self._last_times_s = (frames.left.time_s, frames.right.time_s)
             return frames.left.image, frames.right.image
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from calib_free.gaze.fixation import FixationRecord
 from drivers.cameras.camera import StreamHealth
+from drivers.cameras.stereo import SkewStats
 from headctl.json_types import JSONObject
 from headctl.service.events import EventHub, LogEntry, plain
 from headctl.service.parts import ServiceParts, ServicePhase
@@ -139,6 +140,7 @@ class StatusSnapshot:
     warning_counts: dict[str, int]
     event_counts: dict[str, int]  # events published, by type
     restarts: dict[str, int] = dataclasses.field(default_factory=dict)  # by part, done by the supervisor
+    stereo: SkewStats | None = None  # the recent stereo pairs' skew (right - left timestamp), unpaired frames
 
     def as_dict(self) -> JSONObject:
         """The JSON of `GET /api/v1/state` (valid JSON whatever the values: NaN becomes null)."""
@@ -153,7 +155,8 @@ class StatusSnapshot:
             "map": dataclasses.asdict(self.map),
             "cameras": {side: dataclasses.asdict(c) for side, c in self.cameras.items()},
             "hardware_errors": self.hardware_errors,
-            "events": self.warnings, "event_counts": self.warning_counts, "restarts": self.restarts})
+            "events": self.warnings, "event_counts": self.warning_counts, "restarts": self.restarts,
+            "stereo": dataclasses.asdict(self.stereo) if self.stereo is not None else None})
         return out
 
 
@@ -271,7 +274,8 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
         hardware_errors=parts.hardware.status() if parts.hardware is not None else {"open": [], "ended": [],
                                                                                     "reboots": []},
         warnings=list(parts.warnings.events), warning_counts=dict(parts.warnings.counts),
-        event_counts=dict(parts.hub.counts), restarts=dict(parts.restarts))
+        event_counts=dict(parts.hub.counts), restarts=dict(parts.restarts),
+        stereo=running.pair.skew_stats() if running is not None else None)
 
 
 def _fixation_status(parts: ServiceParts) -> FixationStatus:

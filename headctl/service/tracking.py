@@ -29,7 +29,7 @@ from calib_free.gaze.pursuit import MapReader, PoseHistory, Pursuit, PursuitPara
 from drivers.clock import SYSTEM_CLOCK, Backoff, Clock
 from drivers.errors import DriverError
 from headctl.errors import ServoLoopStoppedError
-from headctl.service.head import Head, JointBus
+from headctl.service.head import Head, JointBus, PairTimes
 from headctl.service.servo_io.loop import join_thread
 
 log = logging.getLogger(__name__)
@@ -107,6 +107,13 @@ class LatencyFigures(TypedDict):
     count: int
 
 
+class SkewFigures(TypedDict):
+    """The pairs' skew (right minus left timestamp), ms: unsynchronised cameras."""
+
+    mean: float | None
+    max_abs: float | None
+
+
 class TrackFigures(TypedDict):
     """A track's figures as the API and the events show them (`TrackStats.as_dict`)."""
 
@@ -117,6 +124,7 @@ class TrackFigures(TypedDict):
     no_pose: int
     retinal_error_px: ErrorFigures
     frame_to_command_ms: LatencyFigures
+    pair_skew_ms: SkewFigures
     position: list[float] | None  # (x, y, d) of the last match in the left image
     ncc: float | None
     patch_size_px: int
@@ -133,6 +141,7 @@ class TrackStats:
     no_pose: int = 0  # pairs skipped: the pose at their exposure was not known
     retinal_error_px: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=3000))
     frame_to_command_s: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=3000))
+    skew_s: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=3000))  # right - left
     last_match: tuple[float, float, float] | None = None  # (x, y, d) in the left image
     last_ncc: float | None = None
     patch_size_px: int = 0
@@ -140,6 +149,7 @@ class TrackStats:
     def as_dict(self) -> TrackFigures:
         errors = np.asarray(self.retinal_error_px, dtype=float)
         latency = np.asarray(self.frame_to_command_s, dtype=float) * 1e3
+        skew = np.asarray(self.skew_s, dtype=float) * 1e3
 
         def q(values: np.ndarray, p: float) -> float | None:
             return float(np.percentile(values, p)) if len(values) else None
@@ -149,6 +159,8 @@ class TrackStats:
                 "retinal_error_px": {"rms": float(np.sqrt(np.mean(errors ** 2))) if len(errors) else None,
                                      "p95": q(errors, 95), "last": float(errors[-1]) if len(errors) else None},
                 "frame_to_command_ms": {"p50": q(latency, 50), "p95": q(latency, 95), "count": len(latency)},
+                "pair_skew_ms": {"mean": float(skew.mean()) if len(skew) else None,
+                                 "max_abs": float(np.abs(skew).max()) if len(skew) else None},
                 "position": list(self.last_match) if self.last_match is not None else None,
                 "ncc": self.last_ncc, "patch_size_px": self.patch_size_px}
 
@@ -190,10 +202,16 @@ class Tracking:
             self.head.interrupt()
         self.head.bus.write_goals(joints_of(clamped))
 
-    def _pair(self, after_s: float) -> tuple[np.ndarray, np.ndarray, float]:
+    def _pair(self, after_s: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """The first pair exposed after `after_s`: its images, the left image's exposure time,
+        and the right's timestamp minus the left's (0 from a source that does not tell both)."""
         left, right = self.head.wait_pair(after_s, self.params.frame_timeout_s)
-        exposure_s = self.head.pairs.last_exposure_s
-        return left, right, self.clock.monotonic() if exposure_s is None else exposure_s
+        pairs = self.head.pairs
+        times = pairs.last_pair_times_s if isinstance(pairs, PairTimes) else None
+        if times is not None:
+            return left, right, times[0], times[1] - times[0]
+        exposure_s = pairs.last_exposure_s
+        return left, right, self.clock.monotonic() if exposure_s is None else exposure_s, 0.0
 
     def run(self, track_id: int, target: tuple[float, float] | None, preempted: Callable[[], bool],
             on_step: Callable[[PursuitStep], None] | None = None) -> TrackEnd:
@@ -215,12 +233,13 @@ class Tracking:
         p = self.params
         period = self.frame_period_s
         try:
-            left, right, exposure_s = self._pair(self.clock.monotonic())
+            left, right, exposure_s, lag_s = self._pair(self.clock.monotonic())
             pose = self._pose_at(poses, exposure_s)
             height, width = left.shape[:2]
             x, y = target if target is not None else ((width - 1) / 2.0, (height - 1) / 2.0)
             pursuit = Pursuit(self.map, (width, height), self.disparity_range, p)
-            step = None if pose is None else pursuit.start(left, right, exposure_s, pose, x, y)
+            step = None if pose is None else pursuit.start(left, right, exposure_s, pose, x, y, right_lag_s=lag_s,
+                                                           right_pose=self._right_pose(poses, exposure_s, lag_s, pose))
             if step is None:
                 why = ("no servo state around the frame's exposure" if pose is None else
                        f"no patch to follow at ({x:.1f}, {y:.1f}): too near the border, no texture there, or "
@@ -233,16 +252,20 @@ class Tracking:
             while True:
                 if preempted():
                     return self._ended(track_id, TrackOutcome.PREEMPTED, "a look or a newer track was queued", stats)
-                # The newest pair: the first exposed after the last one, or within the last period.
+                # The newest pair: the first exposed after the last one, or within the last
+                # period (and the pair's own skew: unsynchronised cameras).
                 now = self.clock.monotonic()
-                after_s = max(exposure_s + 0.5 * period, now - 0.9 * period)
-                left, right, exposure_s = self._pair(after_s)
+                first_s = exposure_s + min(0.0, lag_s)  # the last pair's earlier exposure
+                after_s = max(first_s + 0.5 * period, now - 0.9 * period - abs(lag_s))
+                left, right, exposure_s, lag_s = self._pair(after_s)
                 stats.frames += 1
                 pose = self._pose_at(poses, exposure_s)
                 if pose is None:  # the servo loop's states stopped: no command on a stale pose
                     stats.no_pose += 1
                     continue
-                step = pursuit.step(left, right, exposure_s, pose, self.clock.monotonic())
+                stats.skew_s.append(lag_s)
+                step = pursuit.step(left, right, exposure_s, pose, self.clock.monotonic(), right_lag_s=lag_s,
+                                    right_pose=self._right_pose(poses, exposure_s, lag_s, pose))
                 if on_step is not None:
                     on_step(step)
                 if step.lost:
@@ -271,6 +294,11 @@ class Tracking:
 
     def _pose_at(self, poses: ExposurePoses, exposure_s: float) -> np.ndarray | None:
         return poses.at(exposure_s)
+
+    def _right_pose(self, poses: ExposurePoses, exposure_s: float, lag_s: float,
+                    pose: np.ndarray) -> np.ndarray | None:
+        """The head's pose at the right image's exposure (`lag_s` after the left's)."""
+        return pose if lag_s == 0.0 else poses.at(exposure_s + lag_s)
 
     def _record(self, stats: TrackStats, step: PursuitStep, pursuit: Pursuit) -> None:
         assert step.match is not None

@@ -171,7 +171,7 @@ def test_the_capture_thread_and_render_make_the_same_webcam_frame():
     rendered = sim_camera({"model": "uvc_webcam"}, scene=scene, pose=lambda: joints)
     with streamed, rendered:
         streamed.enable()
-        frame = streamed.wait_frame(timeout_s=5.0)
+        frame = streamed.wait_frame(after_s=0.0, timeout_s=5.0)  # however early it came
         image = rendered.render(joints, frame.exposure_start_s)
     with sim_camera({}, scene=scene) as ideal:
         plain = ideal.render(joints, frame.exposure_start_s)

@@ -99,6 +99,8 @@ def test_state_reports_joints_pose_and_learning(head):
     assert pose["vergence"] == pytest.approx(j["left_eye"]["position_deg"] - j["right_eye"]["position_deg"], abs=1e-3)
     assert s["image_size"] == [320, 240] and s["torque"] is True
     assert s["servo_loop"]["rate_hz"] == 100.0
+    # The stereo pairs' skew: the packaged cameras are on one grid, so the pairs' stamps agree.
+    assert s["stereo"]["pairs"] >= 1 and s["stereo"]["max_abs_s"] <= 0.005
 
 
 def test_state_answers_while_the_map_is_busy(head):
