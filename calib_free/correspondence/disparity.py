@@ -45,32 +45,42 @@ def subpixel_peak(values: np.ndarray, iy: int, ix: int) -> tuple[float, float]:
 
 def horizontal_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, float],
                       patch_size: tuple[int, int], search: tuple[float, float],
-                      band_px: int = 0) -> tuple[float, float]:
+                      band_px: int = 0, row_offset_px: float = 0.0) -> tuple[float, float]:
     """Where the left image's patch around `centre` is in the right image, along the same rows
     and `band_px` rows either side (a fish-eye pair's vertical disparity away from the centre).
 
     Returns (x_r - x_l in px, sub-pixel; its NCC) for offsets searched within `search`
     (low, high); (0, 0) when the patch reaches beyond the image. A best match on the search's
-    left or right edge scores 0: the true one may lie beyond.
+    left or right edge scores 0: the true one may lie beyond. `row_offset_px`: the rows
+    searched are centred this far below the patch's (the pair's vertical misalignment).
     """
+    dx, _dy, ncc = stereo_offset(left, right, centre, patch_size, search, band_px, row_offset_px)
+    return dx, ncc
+
+
+def stereo_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, float],
+                  patch_size: tuple[int, int], search: tuple[float, float],
+                  band_px: int = 0, row_offset_px: float = 0.0) -> tuple[float, float, float]:
+    """`horizontal_offset` with the rows too: (x_r - x_l, y_r - y_l, NCC), both sub-pixel."""
     h, w = left.shape
     pw, ph = patch_size
     x0 = int(round(centre[0] - (pw - 1) / 2.0))
     y0 = int(round(centre[1] - (ph - 1) / 2.0))
     if x0 < 0 or y0 < 0 or x0 + pw > w or y0 + ph > h:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     patch = left[y0:y0 + ph, x0:x0 + pw]
     lo = max(0, x0 + int(np.floor(search[0])))
     hi = min(w, x0 + pw + int(np.ceil(search[1])))
-    if hi - lo < pw + 2:
-        return 0.0, 0.0
-    top, bottom = max(0, y0 - band_px), min(h, y0 + ph + band_px)
+    shift = int(round(row_offset_px))
+    top, bottom = max(0, y0 + shift - band_px), min(h, y0 + shift + ph + band_px)
+    if hi - lo < pw + 2 or bottom - top < ph:
+        return 0.0, 0.0, 0.0
     scores = np.nan_to_num(cv2.matchTemplate(right[top:bottom, lo:hi], patch, cv2.TM_CCOEFF_NORMED))
     iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
     if ix in (0, scores.shape[1] - 1):
-        return float(lo + ix - x0), 0.0
-    u, _ = subpixel_peak(scores, int(iy), int(ix))
-    return float(lo + u - x0), float(scores[iy, ix])
+        return float(lo + ix - x0), float(top + iy - y0), 0.0
+    u, v = subpixel_peak(scores, int(iy), int(ix))
+    return float(lo + u - x0), float(top + v - y0), float(scores[iy, ix])
 
 
 def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
@@ -90,13 +100,23 @@ def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_
 
 
 def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int] = (32, 20),
-                     search_px: int | None = None) -> tuple[float, float]:
-    """Horizontal offset (px, sub-pixel) of the left fovea's content in the right image, and its NCC.
+                     search_px: int | None = None, band_px: int = 0) -> tuple[float, float]:
+    """Horizontal offset (px, sub-pixel) of the left fovea's content in the right image, and its
+    NCC; `foveal_offset` without the rows."""
+    dx, _dy, ncc = foveal_offset(left, right, patch_size, search_px, band_px)
+    return dx, ncc
+
+
+def foveal_offset(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int] = (32, 20),
+                  search_px: int | None = None, band_px: int = 0) -> tuple[float, float, float]:
+    """Offset (dx, dy in px, sub-pixel) of the left fovea's content in the right image, and its NCC.
 
     Positive when the right eye sees the fixated content to the right of its centre: the same
     sign as d = x_r - x_l, so fine vergence drives it to zero. The search is a strip of
-    +-`search_px` (default: a third of the width) around the right image's centre; a best
-    match on the strip's edge scores 0 (the true one may lie beyond).
+    +-`search_px` (default: a third of the width) around the right image's centre and
+    `band_px` rows either side: two real cameras' optical centres differ by some rows, which
+    the eyes, turning about vertical axes, cannot take away. A best match on the strip's
+    left or right edge scores 0 (the true one may lie beyond).
     """
     left = as_grey_float(left)
     right = as_grey_float(right)
@@ -106,4 +126,4 @@ def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int,
     search_px = w // 3 if search_px is None else search_px
     pw, ph = patch_size
     centre = ((w - pw) // 2 + (pw - 1) / 2.0, (h - ph) // 2 + (ph - 1) / 2.0)
-    return horizontal_offset(left, right, centre, patch_size, (-search_px, search_px))
+    return stereo_offset(left, right, centre, patch_size, (-search_px, search_px), band_px)

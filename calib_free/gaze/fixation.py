@@ -120,6 +120,10 @@ class FixationParams:
     vergence_patch_size: tuple[int, int] = (32, 20)
     vergence_search_px: int | None = None  # how far either side of the right fovea to look (None: width/3)
     min_vergence_ncc: float = 0.6  # foveal patches less alike than this: nothing to verge on
+    # Rows either side of the right fovea's the foveal match may lie on: the two cameras'
+    # vertical misalignment (optical centres off the image centre by up to 10 px each on
+    # board-lens webcams), which no eye movement removes.
+    vergence_band_px: int = 24
     confidence_floor: float = 0.3  # the least confidence (eq. 7) that teaches
     settle_timeout_s: float = 3.0
     frame_timeout_s: float = 2.0
@@ -357,7 +361,8 @@ class FixationController:
         gain = self.vergence_gain(width, height)
         last_step: tuple[float, float] | None = None  # (vergence moved, disparity before it)
         for step in range(p.max_vergence_steps + 1):
-            disparity, score = foveal_disparity(left, right, p.vergence_patch_size, p.vergence_search_px)
+            disparity, score = foveal_disparity(left, right, p.vergence_patch_size, p.vergence_search_px,
+                                                p.vergence_band_px)
             record.vergence_disparities_px.append(disparity)
             if last_step is not None and disparity != last_step[1]:
                 # Newton on disparity(vergence): the step that would cancel what is left.

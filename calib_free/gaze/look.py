@@ -280,7 +280,8 @@ class LookController:
         assert left is not None and right is not None
         fp = self.fixation.params
         search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
-        d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search))
+        d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search),
+                                   fp.vergence_band_px)
         if ncc >= fp.min_vergence_ncc:
             return d
         if fixation.outcome is FixationOutcome.NOT_CONVERGED and fixation.vergence_disparities_px:

@@ -110,6 +110,7 @@ declare_settings(
                                     expected="at least 3 x 3 pixels, and within the image"),
     vergence_search_px=config_meta(lo=1, hi=MAX_IMAGE_SIDE),
     min_vergence_ncc=config_meta(lo=-1.0, hi=1.0),
+    vergence_band_px=config_meta(lo=0, hi=MAX_IMAGE_SIDE),
     settle_timeout_s=config_meta(above=0.0, hi=60.0, expected="a positive time, at most 60 s"),
     frame_timeout_s=config_meta(above=0.0, hi=60.0, expected="a positive time, at most 60 s"),
     exploration_step_deg=config_meta(check=lambda steps: all(0.0 < v <= 360.0 for v in steps),

@@ -122,7 +122,8 @@ class Head:
                  clock: Clock = SYSTEM_CLOCK, vergence_range: tuple[float, float] | None = None,
                  interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
                  goals_in_force: Callable[[], Mapping[str, float]] | None = None,
-                 settle_s: float = 0.05, tolerance_deg: float = 0.3, poll_s: float = 0.01) -> None:
+                 settle_s: float = 0.05, tolerance_deg: float = 1.0, steady_deg: float = 0.3,
+                 poll_s: float = 0.01) -> None:
         self._bus = bus
         self.pairs = pairs
         self.clock = clock
@@ -130,7 +131,12 @@ class Head:
         self.observer = observer
         self.goals_in_force = goals_in_force
         self.settle_s = settle_s
+        # At rest: no servo reports motion and the pose stays within `steady_deg` for
+        # `settle_s` (a reading wobbles by a tick, 0.09 deg, an eye pair's vergence by two),
+        # within `tolerance_deg` of the goal: a loaded servo rests short of its goal (the
+        # tilt droops under the head's weight), by more than a tick.
         self.tolerance_deg = tolerance_deg
+        self.steady_deg = steady_deg
         self.poll_s = poll_s
         v_low, v_high = vergence_limits(joints, vergence_range)
         self.pose_low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle, v_low])
@@ -212,7 +218,7 @@ class Head:
         return v
 
     def wait_settled(self, timeout_s: float) -> float:
-        """Block until the servos report no motion, at their goal, for `settle_s`."""
+        """Block until the servos report no motion and hold still near their goal for `settle_s`."""
         if self.phase in ("idle", "choosing target"):
             self.set_phase("at rest")
         if self.goals_in_force is not None:
@@ -223,13 +229,15 @@ class Head:
                 else None
         deadline = self.clock.monotonic() + timeout_s
         rest_since: float | None = None
+        rest_pose = np.zeros(3)
         while True:
             state = self._read_state()
-            at_goal = self._goal is None or bool(np.all(
-                np.abs(pose_of(state.positions) - self._goal) <= self.tolerance_deg))
+            pose = pose_of(state.positions)
+            at_goal = self._goal is None or bool(np.all(np.abs(pose - self._goal) <= self.tolerance_deg))
             if not state.moving and at_goal:
-                rest_since = state.time_s if rest_since is None else rest_since
-                if state.time_s - rest_since >= self.settle_s:
+                if rest_since is None or np.any(np.abs(pose - rest_pose) > self.steady_deg):
+                    rest_since, rest_pose = state.time_s, pose
+                elif state.time_s - rest_since >= self.settle_s:
                     break
             else:
                 rest_since = None
