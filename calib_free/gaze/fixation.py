@@ -25,7 +25,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation, stereo_inconsistency
+from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation
+from calib_free.correspondence.stereo import stereo_inconsistency
 from calib_free.correspondence.disparity import as_grey_float, foveal_disparity
 from calib_free.map.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
