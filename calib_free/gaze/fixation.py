@@ -16,6 +16,7 @@ Poses are absolute (pan, tilt, vergence) in degrees; commands relative; image po
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import enum
 import logging
@@ -227,6 +228,15 @@ class FixationRecord:
     def confidence(self) -> float:
         return float("nan") if self.match is None else self.match.confidence
 
+    @property
+    def landing_error_px(self) -> float | None:
+        """How far from the image target it aimed at (a client's or an exploratory one) the
+        saccade landed, in the image before it: from the correspondence, only if it taught."""
+        aim = self.target if self.target is not None else self.explore_target
+        if aim is None or not self.taught or self.position is None:
+            return None
+        return float(np.hypot(*(self.position[:2] - np.asarray(aim, dtype=float)[:2])))
+
     _NOT_IN_DICT = frozenset({"match", "pre_left_image", "final_left_image", "final_right_image"})
 
     def as_dict(self) -> dict[str, Any]:
@@ -245,6 +255,11 @@ class FixationController:
 
     # deg of vergence per px of disparity a real head can have (negative: d < 0 converges)
     PLAUSIBLE_GAIN = (-2.0, -0.02)
+    # The map's expected landing error: the LANDING_QUANTILE of the landing errors of the last
+    # LANDING_WINDOW taught fixations aimed at an image target, once MIN_LANDINGS are known.
+    LANDING_WINDOW = 200
+    MIN_LANDINGS = 20
+    LANDING_QUANTILE = 90.0
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
@@ -258,6 +273,7 @@ class FixationController:
         self.rng = np.random.default_rng(seed)
         self.clock = clock
         self.count = 0
+        self._landings: collections.deque[float] = collections.deque(maxlen=self.LANDING_WINDOW)
         p = self.params
         # Where exploratory fixations go: `params.exploration`'s policy, drawing from `rng`.
         self.exploration: ExplorationPolicy = exploration if exploration is not None else make_exploration(
@@ -281,6 +297,15 @@ class FixationController:
         if self.PLAUSIBLE_GAIN[0] <= slope <= self.PLAUSIBLE_GAIN[1]:
             return float(slope)
         return -abs(p.fallback_vergence_gain)
+
+    def expected_landing_error_px(self) -> float | None:
+        """How far from its image target a saccade through the map lands (px, in the image
+        before it): a high quantile of the recent taught fixations' landing errors; None
+        until `MIN_LANDINGS` are known (a young map, or one that taught nothing aimed)."""
+        landings = list(self._landings)  # (a copy: the fixation thread appends)
+        if len(landings) < self.MIN_LANDINGS:
+            return None
+        return float(np.percentile(landings, self.LANDING_QUANTILE))
 
     # -- one fixation ---------------------------------------------------------------------
     def random_command(self, pose: np.ndarray) -> np.ndarray:
@@ -314,6 +339,9 @@ class FixationController:
             assert record.position is not None and record.executed is not None
             self.learner.submit(Sample(record.position, record.executed, record.confidence, tag=record.index,
                                        pose=record.pose_before))
+        landing = record.landing_error_px
+        if landing is not None:
+            self._landings.append(landing)
         self.exploration.observe(record)
         return record
 
