@@ -29,6 +29,9 @@ no estimate gives them back, so where more than `MAX_CLIPPED_SHARE` of it is cli
 factors are left out for it and C is its NCC (`clipped`). On the generated room, brighter
 than the photo room, a gain of 1.4 clips a fifth of the foveae this much.
 
+A change that moves no grey level of the shared view by more than `UNSEEN_CHANGE` is within
+the estimate's own spread: none is assumed, and the factors read the images as they are.
+
 A change beyond `max_gain` or `max_offset` is clamped to those bounds: what remains is read
 by the factors as a difference of the patches, as without compensation. Where the shared
 view cannot be found (registration NCC below `MIN_REGISTRATION_NCC`: a view with nothing in
@@ -52,6 +55,11 @@ SATURATED = (4.0, 251.0)  # grey levels: a quantile outside this open range in e
 # A foveal patch with more than this share of its pixels at the ends of the 8-bit range
 # (0 or 255) has lost its mean and variance to the clipping: the factors are not applied to it.
 MAX_CLIPPED_SHARE = 0.05
+# A change moving no grey level of the shared view (its 5-95 % range) by more than this is
+# within the estimate's own spread, and none is assumed: on rendered saccades without a change
+# the estimate moves some level of that range by 3.2 grey levels at p90 in the photo room,
+# 5.5 in the generated one.
+UNSEEN_CHANGE = 4.0
 MIN_SPAN = 4.0  # grey levels: the quantiles used must span at least this in each window (else no line to fit)
 
 
@@ -112,8 +120,9 @@ def brightness_change(pre: np.ndarray, post: np.ndarray, max_gain: float, max_of
     if not ncc >= MIN_REGISTRATION_NCC:
         return BrightnessChange(registration_ncc=float(ncc))
     shared = coarse[iy:iy + template.shape[0], ix:ix + template.shape[1]]
-    gain, offset, mean_pre, fitted = quantile_line(shared, template, QUANTILES, *SATURATED, MIN_SPAN)
-    if not fitted:
+    gain, offset, mean_pre, low, high, fitted = quantile_line(
+        np.sort(shared, axis=None), np.sort(template, axis=None), QUANTILES, *SATURATED, MIN_SPAN)
+    if not fitted or max(abs((gain - 1.0) * low + offset), abs((gain - 1.0) * high + offset)) <= UNSEEN_CHANGE:
         return BrightnessChange(registration_ncc=float(ncc))
     clamped = float(np.clip(gain, 1.0 / max_gain, max_gain))
     # A clamped gain's offset: the line of that slope through the quantiles' means, then bounded.

@@ -461,6 +461,7 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     `patch_size` there (wider while its peak is not distinct), refined, relocated and aligned
     at full resolution; confidence c1(context) d b."""
     pyramid = _Pyramid(pre)
+    pyramid.level(levels)  # first: the registration's coarser level is then made from it
     brightness = _brightness(pyramid, post, params)
     peak = _context_peak(pyramid, post, params, levels, brightness)
     if peak is None:

@@ -46,6 +46,14 @@ def test_the_estimate_recovers_the_change_across_a_saccade(gain, offset):
     assert change.registration_ncc > 0.8
 
 
+def test_no_change_is_seen_where_there_is_none():
+    """Across a saccade without a change of brightness the estimate's own spread is no change."""
+    tex = scene_texture(1)
+    for dx, dy in ((50, -30), (-40, 25), (15, 60)):
+        change = brightness_change(view(tex, 200, 150), view(tex, 200 + dx, 150 + dy), 2.0, 32.0)
+        assert (change.gain, change.offset) == (1.0, 0.0) and change.registration_ncc > 0.8
+
+
 def test_saturated_highlights_leave_the_gain_alone():
     """Bright shading clipped at 255 by a gain of 1.4: the clipped quantiles are left out."""
     tex = np.clip(scene_texture(2).astype(np.float32) + 50, 0, 255).astype(np.uint8)
