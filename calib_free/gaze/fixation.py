@@ -16,7 +16,6 @@ Poses are absolute (pan, tilt, vergence) in degrees; commands relative; image po
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import enum
 import logging
@@ -255,11 +254,6 @@ class FixationController:
 
     # deg of vergence per px of disparity a real head can have (negative: d < 0 converges)
     PLAUSIBLE_GAIN = (-2.0, -0.02)
-    # The map's expected landing error: the LANDING_QUANTILE of the landing errors of the last
-    # LANDING_WINDOW taught fixations aimed at an image target, once MIN_LANDINGS are known.
-    LANDING_WINDOW = 200
-    MIN_LANDINGS = 20
-    LANDING_QUANTILE = 90.0
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
@@ -273,7 +267,6 @@ class FixationController:
         self.rng = np.random.default_rng(seed)
         self.clock = clock
         self.count = 0
-        self._landings: collections.deque[float] = collections.deque(maxlen=self.LANDING_WINDOW)
         p = self.params
         # Where exploratory fixations go: `params.exploration`'s policy, drawing from `rng`.
         self.exploration: ExplorationPolicy = exploration if exploration is not None else make_exploration(
@@ -297,15 +290,6 @@ class FixationController:
         if self.PLAUSIBLE_GAIN[0] <= slope <= self.PLAUSIBLE_GAIN[1]:
             return float(slope)
         return -abs(p.fallback_vergence_gain)
-
-    def expected_landing_error_px(self) -> float | None:
-        """How far from its image target a saccade through the map lands (px, in the image
-        before it): a high quantile of the recent taught fixations' landing errors; None
-        until `MIN_LANDINGS` are known (a young map, or one that taught nothing aimed)."""
-        landings = list(self._landings)  # (a copy: the fixation thread appends)
-        if len(landings) < self.MIN_LANDINGS:
-            return None
-        return float(np.percentile(landings, self.LANDING_QUANTILE))
 
     # -- one fixation ---------------------------------------------------------------------
     def random_command(self, pose: np.ndarray) -> np.ndarray:
@@ -339,9 +323,6 @@ class FixationController:
             assert record.position is not None and record.executed is not None
             self.learner.submit(Sample(record.position, record.executed, record.confidence, tag=record.index,
                                        pose=record.pose_before))
-        landing = record.landing_error_px
-        if landing is not None:
-            self._landings.append(landing)
         self.exploration.observe(record)
         return record
 
