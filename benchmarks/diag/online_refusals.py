@@ -35,7 +35,8 @@ import numpy as np
 
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
-from calib_free.correspondence.search import CorrespondenceParams, match_fixation, stereo_inconsistency
+from calib_free.correspondence.search import CorrespondenceParams, match_fixation
+from calib_free.correspondence.stereo import stereo_inconsistency
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams
 from drivers.servo.joints import JOINTS

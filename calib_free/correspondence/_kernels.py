@@ -276,3 +276,41 @@ def block_means(image: np.ndarray, scale: int) -> np.ndarray:
                 total += column_sums[x]
             out[by, bx] = total * inverse
     return out
+
+
+@njit(cache=True, nogil=True)
+def _quantile(ordered: np.ndarray, percent: float) -> float:
+    """The `percent` quantile of sorted values, linearly interpolated (numpy's default)."""
+    position = percent / 100.0 * (ordered.size - 1)
+    below = int(np.floor(position))
+    above = min(below + 1, ordered.size - 1)
+    return float(ordered[below] + (position - below) * (ordered[above] - ordered[below]))
+
+
+@njit(cache=True, nogil=True)
+def quantile_line(sa: np.ndarray, sb: np.ndarray, percents: np.ndarray, low: float, high: float,
+                  min_span: float) -> tuple[float, float, float, float, float, bool]:
+    """The least-squares line b = gain a + offset through the pairs of `percents` quantiles of
+    a and of b, given as their sorted values `sa` and `sb` (1-D; numpy sorts faster than
+    numba), leaving out the pairs where either quantile lies outside the open range (low,
+    high): (gain, offset, the mean, the least and the greatest of the a quantiles used, True);
+    (1, 0, 0, 0, 0, False) when fewer than 3 pairs remain or either side's quantiles span less
+    than `min_span`."""
+    xs = np.empty(percents.size)
+    ys = np.empty(percents.size)
+    n = 0
+    for p in percents:
+        x, y = _quantile(sa, p), _quantile(sb, p)
+        if low < x < high and low < y < high:
+            xs[n], ys[n] = x, y
+            n += 1
+    if n < 3 or xs[n - 1] - xs[0] < min_span or ys[n - 1] - ys[0] < min_span:
+        return 1.0, 0.0, 0.0, 0.0, 0.0, False  # (quantiles rise with the percent: the first and last span them)
+    mx, my = xs[:n].mean(), ys[:n].mean()
+    sxx = 0.0
+    sxy = 0.0
+    for k in range(n):
+        sxx += (xs[k] - mx) ** 2
+        sxy += (xs[k] - mx) * (ys[k] - my)
+    gain = sxy / sxx
+    return gain, my - gain * mx, mx, xs[0], xs[n - 1], True

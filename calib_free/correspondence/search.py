@@ -65,9 +65,11 @@ import cv2
 import numpy as np
 
 from calib_free.correspondence._kernels import block_means, competing_mass, correspondence_factors, second_peak
-from calib_free.correspondence.disparity import as_grey_float, horizontal_offset, subpixel_peak
+from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
 from calib_free.errors import CorrespondenceError
 from calib_free.correspondence.alignment import ALIGNMENT_WARPS, centre_weighted_peak, warp_aligned
+from calib_free.correspondence.photometric import (NO_CHANGE, BrightnessChange, brightness_change, clipped,
+                                                   registration_level)
 
 
 PROFILES = ("default", "paper")
@@ -140,6 +142,13 @@ class CorrespondenceParams:
     # experiment (5 seeds, 1,000 fixations) 1.5 taught no more fixations than 1 within the
     # seeds' spread, and landed no better: 1 is kept.
     backward_patch_factor: float = 1.0
+    # Default profile: eq. 1's factors read the foveal patch's mean and variance through the
+    # change of brightness estimated between the two images (`photometric`: an exposure or
+    # gain that followed the view), clamped to a gain within [1/max_gain, max_gain] and an
+    # offset within +-max_offset grey levels. max_gain 2: one photographic stop either way.
+    compensate_brightness: bool = True
+    max_gain: float = 2.0
+    max_offset: float = 32.0
 
     @classmethod
     def profile_values(cls, profile: str, **overrides: Any) -> "CorrespondenceParams":
@@ -179,6 +188,8 @@ class CorrespondenceParams:
             raise ValueError(f"min_correlation (tau) must be in (-1, 1), got {self.min_correlation}")
         if not 0.0 < self.min_ratio_to_compete <= 1.0:
             raise ValueError(f"min_ratio_to_compete must be in (0, 1], got {self.min_ratio_to_compete}")
+        if not 1.0 <= self.max_gain <= 16.0 or not 0.0 <= self.max_offset <= 255.0:
+            raise ValueError(f"max_gain must be 1 to 16 and max_offset 0 to 255, got {self.max_gain}, {self.max_offset}")
         if self.tolerance_radius <= 0 or self.mean_scale <= 0:
             raise ValueError("tolerance_radius and mean_scale must be positive")
 
@@ -201,6 +212,7 @@ class EyeMatch:
     context_c_max: float = float("nan")
     second_peak: float = float("nan")
     backward_px: float = float("nan")
+    brightness: BrightnessChange = NO_CHANGE  # the change the factors read the fovea through
 
     def __post_init__(self) -> None:
         if np.isnan(self.confidence):
@@ -231,7 +243,8 @@ class FixationMatch:
         for side, m in (("left", self.left), ("right", self.right)):
             if not np.isnan(m.context_c_max):
                 out.update({f"context_c_max_{side}": m.context_c_max, f"second_peak_{side}": m.second_peak,
-                            f"backward_px_{side}": m.backward_px})
+                            f"backward_px_{side}": m.backward_px, f"gain_{side}": m.brightness.gain,
+                            f"offset_{side}": m.brightness.offset})
         return out
 
 
@@ -245,8 +258,10 @@ def foveal_patch(image: np.ndarray, patch_size: tuple[int, int]) -> np.ndarray:
     return image[y0:y0 + ph, x0:x0 + pw]
 
 
-def correspondence_map(pre: np.ndarray, patch: np.ndarray, params: CorrespondenceParams) -> np.ndarray:
-    """Eq. 1 with the bounded factors: C for every placement of `patch` in `pre`.
+def correspondence_map(pre: np.ndarray, patch: np.ndarray, params: CorrespondenceParams,
+                       brightness: BrightnessChange = NO_CHANGE) -> np.ndarray:
+    """Eq. 1 with the bounded factors: C for every placement of `patch` in `pre`, the patch's
+    mean and variance read in `pre`'s grey levels through `brightness`.
 
     C[v, u] belongs to the patch whose top-left pixel is (u, v) in `pre`.
     """
@@ -257,16 +272,16 @@ def correspondence_map(pre: np.ndarray, patch: np.ndarray, params: Correspondenc
         raise CorrespondenceError(f"patch {pw} x {ph} is larger than the image {pre.shape[1]} x {pre.shape[0]}")
     ncc = cv2.matchTemplate(pre, patch, cv2.TM_CCOEFF_NORMED)
     cv2.patchNaNs(ncc, 0.0)  # OpenCV scores a flat window 0; NaN would be no evidence too
-    if not params.use_factors:
-        return ncc
+    if not params.use_factors or (params.compensate_brightness and not params.paper and clipped(patch)):
+        return ncc  # (a clipped patch's mean and variance are not its surface's: `photometric`)
     # Mean and mean square of every pre-fixation patch, by box filters (valid placements:
     # their top-left part), then f1 and f2 in one compiled pass.
     mean = cv2.boxFilter(pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True, borderType=cv2.BORDER_CONSTANT)
     mean_sq = cv2.sqrBoxFilter(pre, cv2.CV_32F, (pw, ph), anchor=(0, 0), normalize=True,
                                borderType=cv2.BORDER_CONSTANT)
     patch_mean, patch_std = (float(v[0, 0]) for v in cv2.meanStdDev(patch))
-    cmap: np.ndarray = correspondence_factors(ncc, mean, mean_sq, patch_mean, patch_std * patch_std,
-                                              params.mean_scale)
+    patch_mean, patch_var = brightness.to_pre(patch_mean, patch_std * patch_std)
+    cmap: np.ndarray = correspondence_factors(ncc, mean, mean_sq, patch_mean, patch_var, params.mean_scale)
     return cmap
 
 
@@ -349,14 +364,14 @@ def _eqs_4_6(c_max: float, competitors: float, params: CorrespondenceParams,
 
 
 def _refine(pre: np.ndarray, patch: np.ndarray, centre: tuple[float, float], margin: int,
-            params: CorrespondenceParams) -> tuple[float, float, float]:
+            params: CorrespondenceParams, brightness: BrightnessChange = NO_CHANGE) -> tuple[float, float, float]:
     """Eq. 1 at full resolution within `margin` px of a coarse peak's `centre`: (x, y, c_max)."""
     ph, pw = patch.shape
     u0 = min(max(int(round(centre[0] - (pw - 1) / 2.0)) - margin, 0), pre.shape[1] - pw)
     v0 = min(max(int(round(centre[1] - (ph - 1) / 2.0)) - margin, 0), pre.shape[0] - ph)
     u1 = min(pre.shape[1], u0 + pw + 2 * margin)
     v1 = min(pre.shape[0], v0 + ph + 2 * margin)
-    fine = correspondence_map(pre[v0:v1, u0:u1], patch, params)
+    fine = correspondence_map(pre[v0:v1, u0:u1], patch, params, brightness)
     _, c_max, _, (fx, fy) = cv2.minMaxLoc(fine)
     u, v = subpixel_peak(fine, fy, fx)
     # A placement's top-left (u, v) holds a patch centred at (u + (pw-1)/2, v + (ph-1)/2).
@@ -369,30 +384,43 @@ def _coarse_centre(ix: int, iy: int, coarse_patch: tuple[int, int], scale: int) 
     return (ix + (cpw - 1) / 2.0 + 0.5) * scale - 0.5, (iy + (cph - 1) / 2.0 + 0.5) * scale - 0.5
 
 
+def _brightness(pre: _Pyramid, post: np.ndarray, params: CorrespondenceParams) -> BrightnessChange:
+    """The change of brightness eq. 1's factors read the fovea through: estimated in the
+    default profile (`compensate_brightness`), none in the paper's."""
+    if params.paper or not params.compensate_brightness or not params.use_factors:
+        return NO_CHANGE
+    image = pre.level(0)
+    return brightness_change(image, post, params.max_gain, params.max_offset,
+                             pre.level(registration_level(image.shape[1])))
+
+
 def _match_plain(pre: np.ndarray, post: np.ndarray, params: CorrespondenceParams, levels: int) -> EyeMatch:
     """Eqs. 1-6: the best C over the image (searched at 1/2**levels, refined at full
     resolution), c1 of its peak, c2 of the competing mass."""
     scale = 2 ** levels
     pw, ph = params.patch_size
     patch = as_grey_float(foveal_patch(post, params.patch_size))
+    pyramid = _Pyramid(pre)
+    brightness = _brightness(pyramid, post, params)
     if levels:
-        coarse_pre = _Pyramid(pre).level(levels)
+        coarse_pre = pyramid.level(levels)
         coarse_patch = _coarse_fovea(post, levels, (max(3, pw // scale), max(3, ph // scale)))
     else:
         coarse_pre, coarse_patch = pre, patch
-    cmap = correspondence_map(coarse_pre, coarse_patch, params)
+    cmap = correspondence_map(coarse_pre, coarse_patch, params, brightness)
     _, coarse_max, _, (ix, iy) = cv2.minMaxLoc(cmap)
     competitors = _competing_mass(cmap, coarse_max, ix, iy, params.tolerance_radius * coarse_pre.shape[1], params)
     if levels:
         centre = _coarse_centre(ix, iy, (coarse_patch.shape[1], coarse_patch.shape[0]), scale)
-        x, y, c_max = _refine(pre, patch, centre, 2 * scale, params)
+        x, y, c_max = _refine(pre, patch, centre, 2 * scale, params, brightness)
     else:
         u, v = subpixel_peak(cmap, iy, ix)
         x, y, c_max = u + (pw - 1) / 2.0, v + (ph - 1) / 2.0, float(coarse_max)
     if not params.paper and params.refine_sigma_fraction > 0:
         x, y = centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * pw)
     c1, c2 = _eqs_4_6(c_max, competitors, params)
-    return EyeMatch(x=float(x), y=float(y), c_max=c_max, c1=c1, c2=c2, competitors=competitors)
+    return EyeMatch(x=float(x), y=float(y), c_max=c_max, c1=c1, c2=c2, competitors=competitors,
+                    brightness=brightness)
 
 
 @dataclass(frozen=True)
@@ -412,7 +440,8 @@ class _ContextPeak:
         return self.c_max - self.second
 
 
-def _context_peak(pre: _Pyramid, post: np.ndarray, params: CorrespondenceParams, levels: int) -> _ContextPeak | None:
+def _context_peak(pre: _Pyramid, post: np.ndarray, params: CorrespondenceParams, levels: int,
+                  brightness: BrightnessChange) -> _ContextPeak | None:
     """Eq. 1 with the fovea's context at 1/2**levels (a patch of `patch_size` there); None when
     the image is too small at that level."""
     pw, ph = params.patch_size
@@ -421,7 +450,7 @@ def _context_peak(pre: _Pyramid, post: np.ndarray, params: CorrespondenceParams,
     if min(size) < 3:
         return None
     coarse_pre = pre.level(levels)
-    cmap = correspondence_map(coarse_pre, _coarse_fovea(post, levels, size), params)
+    cmap = correspondence_map(coarse_pre, _coarse_fovea(post, levels, size), params, brightness)
     _, c_max, _, (ix, iy) = cv2.minMaxLoc(cmap)
     competitors = _competing_mass(cmap, c_max, ix, iy, params.tolerance_radius * coarse_pre.shape[1], params)
     return _ContextPeak(levels, size, ix, iy, float(c_max), _second_peak(cmap, ix, iy), competitors)
@@ -432,13 +461,15 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     `patch_size` there (wider while its peak is not distinct), refined, relocated and aligned
     at full resolution; confidence c1(context) d b."""
     pyramid = _Pyramid(pre)
-    peak = _context_peak(pyramid, post, params, levels)
+    pyramid.level(levels)  # first: the registration's coarser level is then made from it
+    brightness = _brightness(pyramid, post, params)
+    peak = _context_peak(pyramid, post, params, levels, brightness)
     if peak is None:
         return _match_plain(pre, post, params, 0)  # too small an image for a context
     for wider in range(levels + 1, levels + 1 + params.wider_context_levels):
         if peak.margin >= params.distinct_margin:
             break
-        candidate = _context_peak(pyramid, post, params, wider)
+        candidate = _context_peak(pyramid, post, params, wider, brightness)
         if candidate is None:
             break
         if candidate.margin > peak.margin:
@@ -448,7 +479,8 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     f = params.refine_patch_factor or (2.0 if pre.shape[1] <= 400 else 3.0)
     refine_size = (min(int(round(f * pw)), pre.shape[1] - 2), min(int(round(f * ph)), pre.shape[0] - 2))
     patch = as_grey_float(foveal_patch(post, refine_size))
-    x, y, c_max = _refine(pre, patch, _coarse_centre(peak.ix, peak.iy, peak.size, scale), 2 * scale, params)
+    x, y, c_max = _refine(pre, patch, _coarse_centre(peak.ix, peak.iy, peak.size, scale), 2 * scale, params,
+                          brightness)
     if params.refine_sigma_fraction > 0:
         x, y = centre_weighted_peak(pre, patch, x, y, params.refine_sigma_fraction * refine_size[0])
     if params.alignment_iterations > 0:
@@ -460,7 +492,7 @@ def _match_in_context(pre: np.ndarray, post: np.ndarray, params: CorrespondenceP
     agrees = 0.0 if backward < 0 else 1.0 / (1.0 + (backward / params.backward_tolerance_px) ** 4)
     return EyeMatch(x=float(x), y=float(y), c_max=c_max, c1=c1, c2=c2, competitors=peak.competitors,
                     confidence=float(c1_context * distinct * agrees), context_c_max=peak.c_max,
-                    second_peak=peak.second, backward_px=backward)
+                    second_peak=peak.second, backward_px=backward, brightness=brightness)
 
 
 _PEAK_RADIUS = 3  # coarse pixels: a peak is the maximum of its 7 x 7 neighbourhood
@@ -543,45 +575,3 @@ def _eye_pool() -> ThreadPoolExecutor:
         if _POOL is None:
             _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="correspondence-right-eye")
         return _POOL
-
-
-def stereo_inconsistency(match: FixationMatch, pre_left: np.ndarray, pre_right: np.ndarray,
-                         params: CorrespondenceParams) -> str:
-    """Why the left and right matches of a fixation cannot both be right ('' if they agree).
-
-    Each eye's patch is found on its own (II-B), so on repetitive texture each can land on a
-    different repeat. Two checks the geometry allows without calibration: the rows agree
-    within `max_vertical_disparity_px` (the paper's lens: 3.5 px at most, II-A footnote), and
-    the pre-fixation pair's own disparity at (x*, y*) equals d* within `stereo_tolerance_px`.
-    """
-    left, right = match.left, match.right
-    vertical = abs(left.y - right.y)
-    if vertical > params.max_vertical_disparity_px:
-        return f"left and right rows differ by {vertical:.1f} px > {params.max_vertical_disparity_px} px"
-    d_star = right.x - left.x
-    margin = 3 * params.stereo_tolerance_px + 2
-    d_pre, score = horizontal_offset(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y),
-                                     params.patch_size, (d_star - margin, d_star + margin))
-    if score < params.min_correlation or abs(d_pre - d_star) > params.stereo_tolerance_px:
-        return (f"the pre-fixation pair's disparity at (x*, y*) is {d_pre:.1f} px (NCC {score:.2f}), "
-                f"d* = {d_star:.1f} px")
-    search_px = pre_left.shape[1] / 3.0
-    rival = row_rival_ncc(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y), params.patch_size,
-                          d_pre, search_px)
-    if rival > score - params.stereo_rival_margin:
-        return (f"the patch at (x*, y*) repeats along its rows in the right image (NCC {rival:.2f} against "
-                f"{score:.2f} at d* = {d_star:.1f} px): the eyes may have verged on different repeats")
-    return ""
-
-
-def row_rival_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
-                  d: float, search_px: float) -> float:
-    """NCC of the best placement of the left patch at `xy` along the same rows of `right`,
-    within +-`search_px` of disparity and more than half a patch from `d`: how well a repeat
-    of it matches (-1 when nothing is searched)."""
-    exclude = patch_size[0] / 2.0
-    best = -1.0
-    for side in ((-search_px, d - exclude), (d + exclude, search_px)):
-        if side[1] - side[0] > patch_size[0]:
-            best = max(best, horizontal_offset(left, right, xy, patch_size, side)[1])
-    return best

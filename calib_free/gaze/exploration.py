@@ -51,7 +51,8 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import cv2
 import numpy as np
 
-from calib_free.correspondence.search import CorrespondenceParams, correspondence_map, row_rival_ncc
+from calib_free.correspondence.search import CorrespondenceParams, correspondence_map
+from calib_free.correspondence.stereo import row_rival_ncc
 from calib_free.correspondence.disparity import horizontal_offset
 from calib_free.errors import OutOfRangeError
 

@@ -25,7 +25,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation, stereo_inconsistency
+from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation
+from calib_free.correspondence.stereo import stereo_inconsistency
 from calib_free.correspondence.disparity import as_grey_float, foveal_disparity
 from calib_free.map.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
@@ -229,6 +230,15 @@ class FixationRecord:
     @property
     def confidence(self) -> float:
         return float("nan") if self.match is None else self.match.confidence
+
+    @property
+    def landing_error_px(self) -> float | None:
+        """How far from the image target it aimed at (a client's or an exploratory one) the
+        saccade landed, in the image before it: from the correspondence, only if it taught."""
+        aim = self.target if self.target is not None else self.explore_target
+        if aim is None or not self.taught or self.position is None:
+            return None
+        return float(np.hypot(*(self.position[:2] - np.asarray(aim, dtype=float)[:2])))
 
     _NOT_IN_DICT = frozenset({"match", "pre_left_image", "final_left_image", "final_right_image"})
 

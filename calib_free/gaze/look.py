@@ -16,6 +16,12 @@ the saccade is the view the target was chosen in and its patch is the target's. 
 sent without its disparity is looked at with the one `target_disparity` measures in that
 view, else from the depth the eyes fixate.
 
+Where the target's patch matches two places of the new image nearly alike (a texture that
+repeats), the look takes the one alone near where the fixation was expected to bring the
+target, the fovea, within a reach that grows with the fixation's landing error, measured by
+its correspondence when that was accepted (`calib_free.gaze.refind.find_target`); a repeat
+within that reach, or no measured landing error, leaves the patch ambiguous.
+
 The target not found again, or found where the eyes converged far from the vergence the map
 gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth), fails the
 look saying so. A look's figures come only from accepted measurements: `final_error_px` from
@@ -198,8 +204,9 @@ class LookController:
                 record.outcome, record.detail = fixation.outcome, fixation.detail
                 return
             sighting, why = None, ""
+            expected = self._expected_error_px(fixation)
             for variant in variants:
-                sighting, reason = find_target(source, source_xy, final_left, variant, warps)
+                sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected)
                 why = why or reason
                 if sighting is not None:
                     variants = [variant]  # the same patch from here on, its warp carried over
@@ -237,6 +244,17 @@ class LookController:
                 return
             d = self._disparity_at(fixation, sighting)
             fixation = self._fixate(record, (sighting.x, sighting.y, d))
+
+    @staticmethod
+    def _expected_error_px(fixation: FixationRecord) -> float | None:
+        """How far from the fovea `fixation` is expected to have left the target (px, in the
+        image before it): its own landing error where its correspondence was accepted (what
+        landed on the fovea, and where the target was, both measured); None otherwise. The
+        map's recent landing errors are no stand-in: a fixation whose correspondence was
+        refused went otherwise than the map's typical one (a depth not measured, eyes that did
+        not converge), and with them a look took a nearby repeat for the target in 5 of 100
+        random pixels (`benchmarks.bench.looks`, docs/results/looks.md)."""
+        return fixation.landing_error_px
 
     def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None) -> FixationRecord:
         fixation = self.fixation.fixate(target, reference_pose)

@@ -24,6 +24,13 @@ from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
 from calib_free.gaze.fixation import LookParams
 
 MIN_PATCH_STD = 2.0  # grey levels: a flatter patch has nothing to be found by
+# Where two places match the target's patch nearly alike, the one within this many times the
+# expected landing error of the fovea is the target, if it is the only one there.
+PRIOR_SIGMAS = 3.0
+# The least expected error (px, in the image searched): sub-pixel localisation, and fine vergence
+# moving the left eye by a fraction of a degree after the saccade.
+MIN_EXPECTED_ERROR_PX = 1.0
+PEAK_SEPARATION_PX = 2.0  # two local maxima of the scores this near are one place (a plateau)
 REFINE_BELOW_NCC = 0.2  # a best match this far below min_target_ncc is still refined before judged
 
 
@@ -86,12 +93,17 @@ def warped_patch(source: np.ndarray, source_xy: tuple[float, float], warp: np.nd
 
 
 def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
-                warps: list[np.ndarray] | None = None) -> tuple[TargetSighting | None, str]:
+                warps: list[np.ndarray] | None = None,
+                expected_error_px: float | None = None) -> tuple[TargetSighting | None, str]:
     """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
     `params.search_radius_px` of the fovea; (sighting, '') or (None, why not).
 
     `warps`: the linear warps to try (default: `candidate_warps`, for a patch brought from
-    wherever it was to near the fovea)."""
+    wherever it was to near the fovea). `expected_error_px`: how far from the fovea the
+    fixation is expected to have brought the target, in `source`'s pixels (its landing error);
+    where two places match the patch nearly alike, the one alone within
+    `PRIOR_SIGMAS` times that (magnified as the patch is, at least `MIN_EXPECTED_ERROR_PX`) of
+    the fovea is the target (`expected_place`). None: no such prior."""
     source, image = as_grey_float(source), as_grey_float(image)
     w, h = params.target_patch_size
     height, width = image.shape
@@ -155,14 +167,52 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
             continue
         second = second_peak(region, ix, iy, max(w, h) / 2)
         if second > peak - params.ambiguity_ncc_margin:
-            why = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
-                   f"(margin {params.ambiguity_ncc_margin})")
-            continue
+            ambiguous = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
+                         f"(margin {params.ambiguity_ncc_margin})")
+            if expected_error_px is None:
+                why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
+                       "correspondence was not accepted)")
+                continue
+            reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
+            origin = (x0 + b[0] + c[0], y0 + a[0] + c[1])  # image position of the region's (0, 0)
+            chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
+                                          (centre[0] - origin[0], centre[1] - origin[1]), reach)
+            if chosen is None:
+                where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
+                         f"({PRIOR_SIGMAS:g} x the landing error)")
+                why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer than "
+                       "the map can tell apart" if near else f"{ambiguous}, and neither lies {where}")
+                continue
+            if chosen != (ix, iy):
+                (ix, iy), peak, position = chosen, float(region[chosen[1], chosen[0]]), None
         if position is None:
             u, v = subpixel_peak(region, iy, ix)
             position = (x0 + b[0] + u + c[0], y0 + a[0] + v + c[1])
         return TargetSighting(float(position[0]), float(position[1]), peak, warp), ""
     return None, why
+
+
+def expected_place(scores: np.ndarray, threshold: float, expected: tuple[float, float],
+                   reach_px: float) -> tuple[tuple[int, int] | None, int]:
+    """The one place of `scores` matching at least `threshold` within `reach_px` of `expected`
+    (both in `scores`' coordinates), (ix, iy), or None when none or more than one lies there;
+    and how many lie there. Places are local maxima farther than `PEAK_SEPARATION_PX` from
+    every better one: a fine periodic texture's repeats lie nearer each other than half a
+    patch, and the one at `expected` must not be taken for a ripple of a better one."""
+    maxima = (scores >= cv2.dilate(scores, np.ones((3, 3), np.uint8))) & (scores >= threshold)
+    ys, xs = np.nonzero(maxima)
+    order = np.argsort(-scores[ys, xs])
+    places: list[tuple[int, int]] = []
+    for k in order:
+        if all(np.hypot(xs[k] - u, ys[k] - v) > PEAK_SEPARATION_PX for u, v in places):
+            places.append((int(xs[k]), int(ys[k])))
+    near = [(u, v) for u, v in places if np.hypot(u - expected[0], v - expected[1]) <= reach_px]
+    return (near[0] if len(near) == 1 else None), len(near)
+
+
+def _magnification(warp: np.ndarray) -> float:
+    """The most a linear warp stretches a direction (its largest singular value)."""
+    return float(np.linalg.svd(warp, compute_uv=False)[0])
 
 
 def second_peak(scores: np.ndarray, ix: int, iy: int, min_distance_px: float) -> float:

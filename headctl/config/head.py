@@ -122,6 +122,8 @@ declare_settings(
     patch_size=config_meta(check=_each(3, MAX_IMAGE_SIDE), expected="at least 3 x 3 pixels, and within the image"),
     tolerance_radius=config_meta(above=0.0, hi=10.0),
     mean_scale=config_meta(above=0.0, hi=1000.0),
+    max_gain=config_meta(lo=1.0, hi=16.0),
+    max_offset=config_meta(lo=0.0, hi=255.0),
     pyramid_levels=config_meta(lo=0, hi=8),
     max_vertical_disparity_px=config_meta(lo=0.0, hi=float(MAX_IMAGE_SIDE)),
     stereo_tolerance_px=config_meta(lo=0.0, hi=float(MAX_IMAGE_SIDE)),

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from calib_free.correspondence.search import (CorrespondenceError, CorrespondenceParams, EyeMatch, FixationMatch,
-                                       _backward_distance, correspondence_map, foveal_patch, match_eye,
-                                       stereo_inconsistency)
+                                       _backward_distance, correspondence_map, foveal_patch, match_eye)
+from calib_free.correspondence.stereo import stereo_inconsistency
 from calib_free.correspondence.disparity import foveal_disparity
 from headctl.service.head import joints_of
 from calib_free.sim.head_model import HeadModel, JointLimits

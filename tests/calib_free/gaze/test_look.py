@@ -227,3 +227,96 @@ def test_a_target_without_a_patch_to_find_it_by_is_refused_whatever_its_disparit
         target_disparity(left, np.roll(left, 6, axis=1), 150.0, 9.6, (32, 20), (-60.0, 60.0), LookParams())
     assert str(err.value).startswith("the target at (150, 9.6) cannot be looked at: ")
     assert "beyond the image" in str(err.value)
+
+
+# --- a texture that repeats after the saccade: the expected landing tells the copies apart ----
+def with_a_copy_beside(image: np.ndarray, at: np.ndarray, offset: tuple[int, int], size: int = 31) -> np.ndarray:
+    """`image` with the square of `size` around `at` copied `offset` px away (a repeat; nearer
+    than `size`, the copy covers part of the original)."""
+    out = image.copy()
+    u, v, h = int(round(at[0])), int(round(at[1])), size // 2
+    du, dv = offset
+    out[v + dv - h:v + dv + h + 1, u + du - h:u + du + h + 1] = image[v - h:v + h + 1, u - h:u + h + 1]
+    return out
+
+
+def test_the_expected_landing_picks_the_copy_the_saccade_brought_to_the_fovea():
+    """The view after the saccade holds the target's patch twice, at the fovea (0.4 px off) and
+    28 px beside it: alike, ambiguous without a prior; with the saccade's landing error known,
+    the copy near where it was expected to bring the target is it."""
+    source = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source_xy = (230.4, 80.7)
+    landed = FOVEA + np.array([0.4, -0.3])
+    shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
+    after = with_a_copy_beside(cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR), landed, (28, 0))
+    identity = [np.eye(2)]
+    sighting, why = find_target(source, source_xy, after, LookParams(), identity)
+    assert sighting is None and "ambiguous" in why and "where the saccade landed is not known" in why
+    sighting, why = find_target(source, source_xy, after, LookParams(), identity, expected_error_px=0.3)
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
+    # On whichever side the copy lies.
+    other_side = with_a_copy_beside(cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR), landed,
+                                    (-26, 5))
+    assert find_target(source, source_xy, other_side, LookParams(), identity)[0] is None
+    sighting, _ = find_target(source, source_xy, other_side, LookParams(), identity, expected_error_px=0.5)
+    assert sighting is not None and np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
+
+
+def test_a_repeat_within_the_maps_landing_error_is_refused_saying_so():
+    source = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source_xy = (230.4, 80.7)
+    shift = np.array([[1.0, 0.0, FOVEA[0] - source_xy[0]], [0.0, 1.0, FOVEA[1] - source_xy[1]]])
+    after = with_a_copy_beside(cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR), FOVEA, (22, 16),
+                               size=21)
+    # A saccade that landed 10 px off cannot tell apart copies 27 px apart: 3 x 10 px reaches both.
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=10.0)
+    assert sighting is None
+    assert "ambiguous" in why and "2 of them lie within 30.0 px of the fovea" in why and "repeats" in why
+    assert find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=2.0)[0] is not None
+
+
+def test_a_look_tells_the_target_from_a_repeat_that_appears_after_the_saccade():
+    """Once the head moved, a copy of the target's surroundings (45 x 45 px, more than either of
+    the look's patches) shows 46 px beside it, a repeat the view before did not hold. The first
+    fixation's correspondence measured where it landed; the look takes the copy there, the
+    true one."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+
+    def repeat(h) -> None:
+        if len(h.moves) == 1:
+            h.plane = with_a_copy_beside(h.plane, texel, (46, 0), size=45)
+
+    head.on_move = repeat
+    controller, _ = looker(head, gain=1.0, search_radius_px=150)  # the copy within the near search
+    record = controller.look((*target, 0.0))
+    assert record.fixations[0].landing_error_px is not None  # its correspondence was accepted
+    assert record.on_target and true_error_px(head, texel) <= 1.0, record.detail
+    # The same look where no correspondence is accepted: where the saccade landed is not known.
+    head = PlanarHead()
+    head.on_move = repeat
+    controller, _ = looker(head, gain=1.0, params=FixationParams(confidence_floor=1.0), search_radius_px=150)
+    record = controller.look((*target, 0.0))
+    assert record.outcome is LookOutcome.TARGET_LOST and "ambiguous" in record.detail
+    assert "where the saccade landed is not known" in record.detail
+
+
+def test_a_fine_periodic_texture_is_told_apart_at_its_own_period():
+    """Stripes 8 px apart: the patch matches every stripe alike, nearer each other than half the
+    patch; the stripe where the map lands it is the target."""
+    rng = np.random.default_rng(9)
+    xs, ys = np.meshgrid(np.arange(WIDTH), np.arange(HEIGHT))
+    profile = cv2.GaussianBlur(rng.random((HEIGHT, 1), dtype=np.float32), (0, 0), 6.0)[:, 0]
+    stripes = 128 + 60 * np.sin(2 * np.pi * xs / 8.0) * (0.5 + profile[ys] / profile.max())
+    source = stripes.astype(np.float32)
+    source_xy = (212.0, 92.3)
+    landed = FOVEA + np.array([0.3, 0.2])
+    shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
+    after = cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    after = after + rng.normal(0, 2.0, after.shape).astype(np.float32)
+    assert find_target(source, source_xy, after, LookParams(), [np.eye(2)])[0] is None
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=0.3)
+    assert sighting is not None, why
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.5
