@@ -108,15 +108,17 @@ def foveal_disparity(left: np.ndarray, right: np.ndarray, patch_size: tuple[int,
 
 
 def foveal_offset(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int] = (32, 20),
-                  search_px: int | None = None, band_px: int = 0) -> tuple[float, float, float]:
+                  search_px: int | None = None, band_px: int = 0,
+                  row_offset_px: float = 0.0) -> tuple[float, float, float]:
     """Offset (dx, dy in px, sub-pixel) of the left fovea's content in the right image, and its NCC.
 
     Positive when the right eye sees the fixated content to the right of its centre: the same
     sign as d = x_r - x_l, so fine vergence drives it to zero. The search is a strip of
     +-`search_px` (default: a third of the width) around the right image's centre and
     `band_px` rows either side: two real cameras' optical centres differ by some rows, which
-    the eyes, turning about vertical axes, cannot take away. A best match on the strip's
-    left or right edge scores 0 (the true one may lie beyond).
+    the eyes, turning about vertical axes, cannot take away; the band is centred
+    `row_offset_px` below the fovea's row. A best match on the strip's left or right edge
+    scores 0 (the true one may lie beyond).
     """
     left = as_grey_float(left)
     right = as_grey_float(right)
@@ -126,4 +128,4 @@ def foveal_offset(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, in
     search_px = w // 3 if search_px is None else search_px
     pw, ph = patch_size
     centre = ((w - pw) // 2 + (pw - 1) / 2.0, (h - ph) // 2 + (ph - 1) / 2.0)
-    return stereo_offset(left, right, centre, patch_size, (-search_px, search_px), band_px)
+    return stereo_offset(left, right, centre, patch_size, (-search_px, search_px), band_px, row_offset_px)

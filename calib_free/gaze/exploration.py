@@ -105,6 +105,8 @@ class ExplorationView:
     check_position: Callable[[np.ndarray], str]
     # The map's predictive variance at (x, y, d), when it has one.
     uncertainty: Callable[[np.ndarray], float] | None = None
+    # How far the right camera's rows lie below the left's (their vertical misalignment).
+    row_offset_px: float = 0.0
 
 
 class FixationOutcomeView(Protocol):
@@ -394,7 +396,8 @@ class TeachingExplorer:
         NCC, why not). Whether it lies there unambiguously: `row_rival_problem`."""
         p, cp = self.params, self.correspondence
         x, y = float(xy[0]), float(xy[1])
-        d, ncc = horizontal_offset(view.pre_left, view.pre_right, (x, y), cp.patch_size, (-search, search))
+        d, ncc = horizontal_offset(view.pre_left, view.pre_right, (x, y), cp.patch_size, (-search, search),
+                                   row_offset_px=view.row_offset_px)
         if ncc < p.min_stereo_ncc:
             return None, ncc, "no match in the right image"
         target = np.array([x, y, d])
@@ -407,7 +410,8 @@ class TeachingExplorer:
         """Why the target's d is ambiguous ('' if not): its patch matches nearly as well (NCC
         within `stereo_rival_margin` of `ncc`) elsewhere along the same rows of the right image."""
         x, y, d = (float(v) for v in target)
-        rival = row_rival_ncc(view.pre_left, view.pre_right, (x, y), self.correspondence.patch_size, d, search)
+        rival = row_rival_ncc(view.pre_left, view.pre_right, (x, y), self.correspondence.patch_size, d, search,
+                              view.row_offset_px)
         return "a rival along the row" if rival > ncc - self.params.stereo_rival_margin else ""
 
     def repeat_problem(self, view: ExplorationView, target: np.ndarray) -> str:

@@ -27,7 +27,7 @@ import numpy as np
 
 from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation
 from calib_free.correspondence.stereo import stereo_inconsistency
-from calib_free.correspondence.disparity import as_grey_float, foveal_disparity
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, foveal_offset
 from calib_free.map.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
 from calib_free.gaze.exploration import (EXPLORATION_KINDS, ExplorationPolicy, ExplorationView, UncertainMap,
@@ -121,9 +121,10 @@ class FixationParams:
     vergence_patch_size: tuple[int, int] = (32, 20)
     vergence_search_px: int | None = None  # how far either side of the right fovea to look (None: width/3)
     min_vergence_ncc: float = 0.6  # foveal patches less alike than this: nothing to verge on
-    # Rows either side of the right fovea's the foveal match may lie on: the two cameras'
-    # vertical misalignment (optical centres off the image centre by up to 10 px each on
-    # board-lens webcams), which no eye movement removes.
+    # Rows either side of the right fovea's the foveal match may lie on when it is not found
+    # near the rows it was last found on: the two cameras' vertical misalignment (optical
+    # centres off the image centre by up to 10 px each on board-lens webcams), which no eye
+    # movement removes.
     vergence_band_px: int = 24
     confidence_floor: float = 0.3  # the least confidence (eq. 7) that teaches
     settle_timeout_s: float = 3.0
@@ -271,6 +272,9 @@ class FixationController:
         self.rng = np.random.default_rng(seed)
         self.clock = clock
         self.count = 0
+        # How far the right camera's rows lie below the left's at the foveae (their vertical
+        # misalignment): where the last converged fixation found the foveal match.
+        self.row_offset_px = 0.0
         p = self.params
         # Where exploratory fixations go: `params.exploration`'s policy, drawing from `rng`.
         self.exploration: ExplorationPolicy = exploration if exploration is not None else make_exploration(
@@ -294,6 +298,17 @@ class FixationController:
         if self.PLAUSIBLE_GAIN[0] <= slope <= self.PLAUSIBLE_GAIN[1]:
             return float(slope)
         return -abs(p.fallback_vergence_gain)
+
+    def foveal_offset(self, left: np.ndarray, right: np.ndarray) -> tuple[float, float, float]:
+        """The foveal match (dx, dy, NCC): on the rows it was last found on, else within
+        `vergence_band_px` rows of the fovea's (the cameras' misalignment found afresh)."""
+        p = self.params
+        near = foveal_offset(left, right, p.vergence_patch_size, p.vergence_search_px, DISPARITY_BAND_PX,
+                             self.row_offset_px)
+        if near[2] >= p.min_vergence_ncc or p.vergence_band_px <= DISPARITY_BAND_PX:
+            return near
+        wide = foveal_offset(left, right, p.vergence_patch_size, p.vergence_search_px, p.vergence_band_px)
+        return wide if wide[2] > near[2] else near
 
     # -- one fixation ---------------------------------------------------------------------
     def random_command(self, pose: np.ndarray) -> np.ndarray:
@@ -349,7 +364,8 @@ class FixationController:
             choice = self.exploration.choose(ExplorationView(
                 pose_before, head.pose_low, head.pose_high, pre_left, pre_right,
                 lambda r: gaze_map.command(r, pose=pose_before), gaze_map.check_position,
-                (lambda r: gaze_map.uncertainty(r, pose=pose_before)) if isinstance(gaze_map, UncertainMap) else None))
+                (lambda r: gaze_map.uncertainty(r, pose=pose_before)) if isinstance(gaze_map, UncertainMap) else None,
+                self.row_offset_px))
             planned, record.explore_target = choice.command, choice.target
         else:
             try:
@@ -371,8 +387,7 @@ class FixationController:
         gain = self.vergence_gain(width, height)
         last_step: tuple[float, float] | None = None  # (vergence moved, disparity before it)
         for step in range(p.max_vergence_steps + 1):
-            disparity, score = foveal_disparity(left, right, p.vergence_patch_size, p.vergence_search_px,
-                                                p.vergence_band_px)
+            disparity, rows, score = self.foveal_offset(left, right)
             record.vergence_disparities_px.append(disparity)
             if last_step is not None and disparity != last_step[1]:
                 # Newton on disparity(vergence): the step that would cancel what is left.
@@ -385,6 +400,7 @@ class FixationController:
                 break
             if abs(disparity) <= p.vergence_tolerance_px:
                 record.converged = True
+                self.row_offset_px = rows
                 break
             if step == p.max_vergence_steps:
                 break
@@ -418,7 +434,7 @@ class FixationController:
             return
         # The stereo consistency check goes beyond eqs. 1-7: not in the paper's profile.
         problem = "" if p.correspondence.paper else stereo_inconsistency(record.match, pre_left, pre_right,
-                                                                          p.correspondence)
+                                                                          p.correspondence, self.row_offset_px)
         if problem:
             record.outcome, record.detail = FixationOutcome.INCONSISTENT, problem
             return
