@@ -2,7 +2,7 @@
 traceback, an unlocated error, a leaked API token, or a `check` that passes where `run`
 refuses?
 
-Every config starts from configs/sim.yaml with an API token added (so that every case also
+Every config starts from configs/sim-ideal.yaml with an API token added (so that every case also
 checks that the token never shows). Two sets:
 
 1. By hand, about 150: files that are not UTF-8, not YAML or not files; nesting, aliases and
@@ -56,7 +56,7 @@ from headctl.errors import ConfigError
 ROOT = Path(__file__).resolve().parents[2]
 TOKEN = "hostile-bench-token-8d41c2"
 TLS = ROOT / "tests" / "data" / "tls"
-SIM_TEXT = (ROOT / "configs" / "sim.yaml").read_text()
+SIM_TEXT = (ROOT / "configs" / "sim-ideal.yaml").read_text()  # no simulation-only sections
 
 
 def base() -> dict:

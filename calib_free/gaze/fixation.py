@@ -27,7 +27,7 @@ import numpy as np
 
 from calib_free.correspondence.search import CorrespondenceParams, FixationMatch, match_fixation
 from calib_free.correspondence.stereo import stereo_inconsistency
-from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, foveal_offset
+from calib_free.correspondence.disparity import as_grey_float, foveal_offset
 from calib_free.map.adapter import Sample
 from calib_free.errors import CalibFreeError, OutOfRangeError
 from calib_free.gaze.exploration import (EXPLORATION_KINDS, ExplorationPolicy, ExplorationView, UncertainMap,
@@ -259,6 +259,8 @@ class FixationController:
 
     # deg of vergence per px of disparity a real head can have (negative: d < 0 converges)
     PLAUSIBLE_GAIN = (-2.0, -0.02)
+    STUCK_PX = 0.25  # a vergence step that changed the foveal disparity less than this did not happen
+    MAX_BOOST = 2.0  # the longest a stuck step grows, times the gain's
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
@@ -303,9 +305,8 @@ class FixationController:
         """The foveal match (dx, dy, NCC): on the rows it was last found on, else within
         `vergence_band_px` rows of the fovea's (the cameras' misalignment found afresh)."""
         p = self.params
-        near = foveal_offset(left, right, p.vergence_patch_size, p.vergence_search_px, DISPARITY_BAND_PX,
-                             self.row_offset_px)
-        if near[2] >= p.min_vergence_ncc or p.vergence_band_px <= DISPARITY_BAND_PX:
+        near = foveal_offset(left, right, p.vergence_patch_size, p.vergence_search_px, 0, self.row_offset_px)
+        if near[2] >= p.min_vergence_ncc or p.vergence_band_px <= 0:
             return near
         wide = foveal_offset(left, right, p.vergence_patch_size, p.vergence_search_px, p.vergence_band_px)
         return wide if wide[2] > near[2] else near
@@ -386,6 +387,7 @@ class FixationController:
         # uses the map's gain; later ones the secant of what the last step really did.
         gain = self.vergence_gain(width, height)
         last_step: tuple[float, float] | None = None  # (vergence moved, disparity before it)
+        boost = 1.0
         for step in range(p.max_vergence_steps + 1):
             disparity, rows, score = self.foveal_offset(left, right)
             record.vergence_disparities_px.append(disparity)
@@ -405,8 +407,12 @@ class FixationController:
             if step == p.max_vergence_steps:
                 break
             record.vergence_steps += 1
+            # A step the eyes did not make (smaller than the servos' dead band, or taken up by
+            # the play of a reversal) left the disparity as it was: the next is twice as long.
+            stuck = last_step is not None and abs(disparity - last_step[1]) < self.STUCK_PX
+            boost = min(boost * 2.0, self.MAX_BOOST) if stuck else 1.0
             before = head.read_pose()[2]
-            vergence = head.verge_to(before + gain * disparity)  # the eyes only: pan and tilt stay put
+            vergence = head.verge_to(before + boost * gain * disparity)  # the eyes only: pan and tilt stay put
             commanded = commanded + np.array([0.0, 0.0, vergence - before])
             rest_s = head.wait_settled(p.settle_timeout_s)
             left, right = head.wait_pair(rest_s, p.frame_timeout_s)

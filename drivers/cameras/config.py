@@ -18,7 +18,7 @@ from drivers.config.reader import check_settings, read_config, setting
 from drivers.errors import CameraConfigError
 from drivers.sim.passers_by import PassersByConfig
 from drivers.sim.room_light import LightConfig
-from drivers.sim.sensor_config import SensorConfig
+from drivers.sim.camera_effects.sensor_config import SensorConfig
 
 ImageMode = Literal["grey", "colour"]
 
@@ -38,7 +38,7 @@ TimingModel = Literal["ideal", "free_running"]
 @dataclass(frozen=True)
 class FrameTimingConfig:
     """When a simulated camera's frames are exposed, stamped and delivered (`timing:` of a
-    simulated camera; `drivers.sim.frame_timing`). `model` names a preset of typical values
+    simulated camera; `drivers.sim.camera_effects.frame_timing`). `model` names a preset of typical values
     (`ideal`: both eyes on one grid, as hardware-triggered cameras; `free_running`: two USB
     webcams, each on its own clock); a key given overrides the preset's value, None keeps it."""
 

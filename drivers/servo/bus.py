@@ -2,8 +2,7 @@
 
 This module owns everything a servo backend shares:
 
-* the four joint names (`JOINTS`, from `drivers.servo.joints`); vergence (left_eye = +v/2, right_eye = -v/2) is
-  composed above this layer;
+* the four joint names (`JOINTS`, `drivers.servo.joints`); vergence is composed above this layer;
 * the config a bus is built from (`ServoBusConfig`), defined in `drivers.servo.config` and
   checked against its backend by `drivers.backends`;
 * joint states (`JointState`, `BusState`), with the meanings of a servo's hardware error
@@ -441,8 +440,7 @@ class ServoBus(Device, abc.ABC):
                     log.warning("%s", err)
             torque = "torque restored" + (f" except on {', '.join(refused)} (hardware error)" if refused else "")
         else:
-            present = self._read_servos()
-            self._write_servo_goals({j: present[j].position for j in joints})
+            self._write_servo_goals(self._goals_at_present(joints))
             torque = "torque left off"
             if self.is_enabled:
                 self._set_torque(self.present_joints, False)
@@ -504,9 +502,15 @@ class ServoBus(Device, abc.ABC):
     def _restore_torque(self, joints: Iterable[str]) -> None:
         """Torque on without a jump: read positions back, goal = present, then torque."""
         joints = list(joints)
-        present = self._read_servos()
-        self._write_servo_goals({j: present[j].position for j in joints})
+        self._write_servo_goals(self._goals_at_present(joints))
         self._set_torque(joints, True)
+
+    def _goals_at_present(self, joints: Iterable[str]) -> dict[str, float]:
+        """Goals (servo frame) where the joints are, within their limits: a joint resting on a
+        limit reads a tick beyond it now and then (the reading wobbles)."""
+        present, config = self._read_servos(), self.config.joints
+        return {j: config[j].servo_angle(min(max(config[j].joint_angle(present[j].position), config[j].min_angle),
+                                             config[j].max_angle)) for j in joints}
 
     def _check_joint(self, joint: str) -> None:
         if joint not in self.config.joints:

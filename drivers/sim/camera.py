@@ -1,6 +1,6 @@
 """The simulated camera: one eye of the simulated head, a first-class `Camera` backend.
 
-Its frame times come from `drivers.sim.frame_timing.FrameTiming` (config `timing:`): by
+Its frame times come from `drivers.sim.camera_effects.frame_timing.FrameTiming` (config `timing:`): by
 default (`ideal`) frames fall on a grid of the injected clock (frame n at n / fps seconds),
 so the left and right cameras of a head, sharing a clock, produce frames with identical
 timestamps, like hardware-triggered stereo cameras; `free_running` gives each eye its own
@@ -22,13 +22,13 @@ Pacing: with `paced_by_clock` (default) the thread sleeps on the clock until the
 Without it the thread only watches the clock, and frames appear as someone else (a test,
 the simulated servo loop) advances it.
 
-The image is a real camera's (`sensor:` config, `drivers.sim.sensor_config`; the default
+The image is a real camera's (`sensor:` config, `drivers.sim.camera_effects.sensor_config`; the default
 `ideal` camera shows the render as it is): `_image_at` renders the frame over its exposure
-(`drivers.sim.shutter`: motion blur, rolling shutter) through this unit's lens
-(`drivers.sim.lens_error`), multiplies it by the room's light over the exposure
-(`Scene.light`), and passes it through the sensor (`drivers.sim.sensor`: vignetting, noise,
+(`drivers.sim.camera_effects.shutter`: motion blur, rolling shutter) through this unit's lens
+(`drivers.sim.camera_effects.lens_error`), multiplies it by the room's light over the exposure
+(`Scene.light`), and passes it through the sensor (`drivers.sim.camera_effects.sensor`: vignetting, noise,
 this unit's response, MJPEG) at the exposure and gain of the auto exposure
-(`drivers.sim.auto_exposure`), which the driver can lock, unlock or set by hand. Both the
+(`drivers.sim.camera_effects.auto_exposure`), which the driver can lock, unlock or set by hand. Both the
 capture thread and the synchronous `render()` make their images with it.
 
 Unplugging (`unplug()`, `replug()`): the camera behaves as a USB camera whose device node
@@ -50,12 +50,12 @@ from drivers.cameras.camera import Camera, Capabilities, ErrorCallback, Grab
 from drivers.cameras.config import CameraConfig
 from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import CameraConfigError, CameraError, CameraLostError, DeviceStateError
-from drivers.sim.auto_exposure import AutoExposure, ExposureState
-from drivers.sim.lens_error import unit_lens
+from drivers.sim.camera_effects.auto_exposure import AutoExposure, ExposureState
+from drivers.sim.camera_effects.lens_error import unit_lens
 from drivers.sim.scene import HeadGeometry, Scene, shared_scene
-from drivers.sim.sensor import SensorPipeline, exposure_scale, mjpeg_round_trip
-from drivers.sim.shutter import ExposureRenderer, PoseAt
-from drivers.sim.frame_timing import FrameTiming
+from drivers.sim.camera_effects.sensor import SensorPipeline, exposure_scale, mjpeg_round_trip
+from drivers.sim.camera_effects.shutter import ExposureRenderer, PoseAt
+from drivers.sim.camera_effects.frame_timing import FrameTiming
 
 log = logging.getLogger(__name__)
 

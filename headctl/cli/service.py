@@ -279,6 +279,9 @@ def _status(args: argparse.Namespace) -> int:
 def format_status(s: JSONObject) -> str:
     """The daemon's state for people."""
     lines = [f"{s['state']}  (pid {s['pid']}, up {s['uptime_s']:.0f} s, {s['config']})"]
+    world = s.get("world")
+    if isinstance(world, dict):
+        lines.append(f"  simulated world: {world['text']}")
     if s.get("api"):
         lines.append(f"  api and dashboard: {s['api']}/")
     lines += [f"  fault: {f}" for f in s["faults"]]

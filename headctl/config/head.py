@@ -197,7 +197,7 @@ class ServiceConfig:
     realtime_priority: int = setting(0, lo=0, hi=99, expected="0 (off) to 99")
     # the servo loop in a process of its own (nothing in the service can stall it); false: a thread
     servo_process: bool = True
-    # supervision (headctl.service.restarts): a part that died is restarted after a back-off
+    # supervision (headctl.service.supervision.restarts): a part that died is restarted after a back-off
     # doubling from restart_backoff_s to restart_backoff_max_s; more than restart_limit
     # failures within restart_window_s and the service exits (3) for systemd to restart it
     restart_limit: int = setting(5, lo=1, hi=1000, expected="at least 1, at most 1000")

@@ -113,6 +113,16 @@ class OnlineResult:
         result.refused = sum(1 for _, r in self.adaptations if not r.accepted)
         return result
 
+    def measured_landing(self, over: int = 200) -> dict[str, float | int | None]:
+        """Where the last `over` taught fixations that aimed at an image target ended, as their
+        own correspondence measured it (`FixationRecord.landing_error_px`): the landing error a
+        real head can know, in whatever world, beside the geometric model's (`landing`)."""
+        errors = [e for e in (r.landing_error_px for r in self.records) if e is not None][-over:]
+        if not errors:
+            return {"fixations": 0, "median_px": None, "p90_px": None}
+        return {"fixations": len(errors), "median_px": float(np.median(errors)),
+                "p90_px": float(np.percentile(errors, 90))}
+
     def vergence_convergence(self) -> dict[str, float]:
         """Of the fixations whose foveae matched, how many converged, and in how many steps."""
         matched = [r for r in self.records if r.vergence_disparities_px and r.outcome is not FixationOutcome.NO_VERGENCE_MATCH]
@@ -247,8 +257,10 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
     lock = threading.Lock()
     if exploration is None:
         exploration = exploration_for(profile)
-    fixation = FixationParams(executed_command=spec.executed_command, exploration=exploration,
-                              correspondence=CorrespondenceParams.profile_values(profile))
+    config = config if config is not None else load_config()
+    # The config's fixation settings (its head's), with the experiment's exploration and profile.
+    fixation = dataclasses.replace(config.fixation.params, executed_command=spec.executed_command,
+                                   exploration=exploration, correspondence=CorrespondenceParams.profile_values(profile))
     result.exploration = exploration
     gm = GazeMap.for_image(width, height, seed=seed, profile=profile)
 

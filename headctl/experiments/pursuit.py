@@ -37,7 +37,7 @@ from drivers.cameras.config import FrameTimingConfig
 from drivers.cameras.stereo import DEFAULT_TOLERANCE_PERIODS, FrameMatcher, StereoFrames
 from drivers.servo.bus import BusState
 from drivers.sim.camera import SimulatedCamera
-from drivers.sim.frame_timing import FrameSlot
+from drivers.sim.camera_effects.frame_timing import FrameSlot
 from drivers.sim.motion import MovingObject, SceneMotion
 from drivers.config.reader import read_config
 from headctl.config.head import HeadConfig, load_config
@@ -62,7 +62,7 @@ def learned_map(rig: SimulatedHeadRig, fixations: int = 3000, seed: int = 0) -> 
 
 class GridPairs:
     """The cameras and the servo loop on the manual clock: each eye's frames rendered at the
-    exposures of its own timing (`drivers.sim.frame_timing.FrameTiming`, from the camera's
+    exposures of its own timing (`drivers.sim.camera_effects.frame_timing.FrameTiming`, from the camera's
     config: one grid n / fps for both eyes when ideal, each eye its own phase, drift, jitter,
     lost and late frames when free-running), paired as `drivers.cameras.stereo.StereoPair`
     pairs them, each pair handed over `delay_s` after its later exposure (frames go on being

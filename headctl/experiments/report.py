@@ -46,6 +46,7 @@ class OnlineFigures(TypedDict):
     fixations_per_s: float | None
     median_confidence_taught: float | None
     vergence: dict[str, float]
+    measured_landing: dict[str, float | int | None]
     landing_at_fixations: list[int]
     landing_start_px: float | None
     exploration: str
@@ -110,6 +111,7 @@ def online_summary(result: OnlineResult) -> OnlineSummary:
             "fixations_per_s": len(records) / result.seconds if result.seconds else None,
             "median_confidence_taught": float(np.median(confidences)) if confidences else None,
             "vergence": result.vergence_convergence(),
+            "measured_landing": result.measured_landing(),
             "landing_at_fixations": result.landing_fixations,
             "landing_start_px": result.landing_start_px,
             "exploration": result.exploration,
@@ -207,6 +209,10 @@ def format_summary(s: RunSummary) -> str:
                      "the curves above are per taught fixation")
         for outcome, count in sorted(o["outcomes"].items(), key=lambda kv: -kv[1]):
             lines.append(f"    {outcome:<34} {count:6d}")
+        ml = o["measured_landing"]
+        if ml["median_px"] is not None:
+            lines.append(f"  landing as the fixations measured it: median {ml['median_px']:.2f} px, p90 "
+                         f"{ml['p90_px']:.2f} px (the last {ml['fixations']} taught fixations with an aim)")
         v = o["vergence"]
         lines.append(f"  fine vergence: {v['converged']} of {v['matched']} converged "
                      f"({100 * v['converged_fraction']:.1f} %), median {v['median_steps']:.0f} steps; "

@@ -53,13 +53,13 @@ from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
 from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
-from headctl.service.restarts import EXIT_GAVE_UP, Restartable, RestartRecord, Restarts, RestartSettings
+from headctl.service.supervision.restarts import EXIT_GAVE_UP, Restartable, RestartRecord, Restarts, RestartSettings
 from headctl.service.servo_io.loop import ServoIO, ServoLoop
 from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.status import FaultWatcher
 from headctl.service.tracking import Tracking
-from headctl.service.supervisor import Supervisor, status_line
-from headctl.service.systemd import SystemdNotifier
+from headctl.service.supervision.supervisor import Supervisor, status_line
+from headctl.service.supervision.systemd import SystemdNotifier
 
 log = logging.getLogger(__name__)
 

@@ -122,8 +122,8 @@ class Head:
                  clock: Clock = SYSTEM_CLOCK, vergence_range: tuple[float, float] | None = None,
                  interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
                  goals_in_force: Callable[[], Mapping[str, float]] | None = None,
-                 settle_s: float = 0.05, tolerance_deg: float = 1.0, steady_deg: float = 0.3,
-                 poll_s: float = 0.01) -> None:
+                 settle_s: float = 0.05, tolerance_deg: float = 0.3, steady_deg: float = 0.3,
+                 short_tolerance_deg: float = 1.0, short_settle_s: float = 0.15, poll_s: float = 0.01) -> None:
         self._bus = bus
         self.pairs = pairs
         self.clock = clock
@@ -131,12 +131,15 @@ class Head:
         self.observer = observer
         self.goals_in_force = goals_in_force
         self.settle_s = settle_s
-        # At rest: no servo reports motion and the pose stays within `steady_deg` for
-        # `settle_s` (a reading wobbles by a tick, 0.09 deg, an eye pair's vergence by two),
-        # within `tolerance_deg` of the goal: a loaded servo rests short of its goal (the
-        # tilt droops under the head's weight), by more than a tick.
+        # At rest: no servo reports motion and the pose stays within `steady_deg` (a reading
+        # wobbles by a tick, 0.09 deg, an eye pair's vergence by two) for `settle_s` within
+        # `tolerance_deg` of the goal, or for `short_settle_s` within `short_tolerance_deg` of
+        # it: a loaded servo rests short of its goal (the tilt droops under the head's weight),
+        # and the longer wait tells a servo that stopped short from one that has not started.
         self.tolerance_deg = tolerance_deg
         self.steady_deg = steady_deg
+        self.short_tolerance_deg = short_tolerance_deg
+        self.short_settle_s = short_settle_s
         self.poll_s = poll_s
         v_low, v_high = vergence_limits(joints, vergence_range)
         self.pose_low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle, v_low])
@@ -233,11 +236,12 @@ class Head:
         while True:
             state = self._read_state()
             pose = pose_of(state.positions)
-            at_goal = self._goal is None or bool(np.all(np.abs(pose - self._goal) <= self.tolerance_deg))
-            if not state.moving and at_goal:
+            off = np.zeros(3) if self._goal is None else np.abs(pose - self._goal)
+            at_goal = bool(np.all(off <= self.tolerance_deg))
+            if not state.moving and np.all(off <= self.short_tolerance_deg):
                 if rest_since is None or np.any(np.abs(pose - rest_pose) > self.steady_deg):
                     rest_since, rest_pose = state.time_s, pose
-                elif state.time_s - rest_since >= self.settle_s:
+                elif state.time_s - rest_since >= (self.settle_s if at_goal else self.short_settle_s):
                     break
             else:
                 rest_since = None

@@ -19,6 +19,7 @@ import numpy as np
 from calib_free.gaze.fixation import FixationRecord
 from drivers.cameras.camera import StreamHealth
 from drivers.cameras.stereo import SkewStats
+from headctl.config.world import simulated_world
 from headctl.json_types import JSONObject
 from headctl.service.events import EventHub, LogEntry, plain
 from headctl.service.parts import ServiceParts, ServicePhase
@@ -141,6 +142,7 @@ class StatusSnapshot:
     event_counts: dict[str, int]  # events published, by type
     restarts: dict[str, int] = dataclasses.field(default_factory=dict)  # by part, done by the supervisor
     stereo: SkewStats | None = None  # the recent stereo pairs' skew (right - left timestamp), unpaired frames
+    world: JSONObject | None = None  # a simulated head's world (headctl.config.world); None: a real head
 
     def as_dict(self) -> JSONObject:
         """The JSON of `GET /api/v1/state` (valid JSON whatever the values: NaN becomes null)."""
@@ -156,6 +158,7 @@ class StatusSnapshot:
             "cameras": {side: dataclasses.asdict(c) for side, c in self.cameras.items()},
             "hardware_errors": self.hardware_errors,
             "events": self.warnings, "event_counts": self.warning_counts, "restarts": self.restarts,
+            "world": self.world,
             "stereo": dataclasses.asdict(self.stereo) if self.stereo is not None else None})
         return out
 
@@ -228,6 +231,7 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
     config = parts.config
     running = parts.running
     now = parts.clock.monotonic()
+    world = simulated_world(config)
     faults = {**fault_items(parts), **(api_faults or {})}
     joints: dict[str, JointStatus] = {}
     pose = None
@@ -275,7 +279,8 @@ def status_snapshot(parts: ServiceParts, api_faults: dict[str, str] | None = Non
                                                                                     "reboots": []},
         warnings=list(parts.warnings.events), warning_counts=dict(parts.warnings.counts),
         event_counts=dict(parts.hub.counts), restarts=dict(parts.restarts),
-        stereo=running.pair.skew_stats() if running is not None else None)
+        stereo=running.pair.skew_stats() if running is not None else None,
+        world=None if world is None else world.as_dict())
 
 
 def _fixation_status(parts: ServiceParts) -> FixationStatus:

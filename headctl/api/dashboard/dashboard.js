@@ -404,6 +404,13 @@
     lastState = st;
     setBadge($("service-state"), st.state || "unknown");
     $("uptime").textContent = fmtDuration(st.uptime_s);
+    // A simulated head's world (ideal, realistic or mixed), its parts in the tooltip.
+    $("world").hidden = !st.world;
+    if (st.world) {
+      $("world-kind").textContent = st.world.kind;
+      $("world-kind").dataset.state = st.world.kind;
+      $("world").title = st.world.text;
+    }
     toggles.explore.value = st.fixation && typeof st.fixation.explore === "boolean" ? st.fixation.explore : null;
     let torque = typeof st.torque === "boolean" ? st.torque : null;
     if (torque === null && st.joints && Object.keys(st.joints).length) {

@@ -162,7 +162,7 @@ class ServoLoopProcess:
         """The child's exit code once it exited (negative: killed by that signal), else None."""
         return self._process.exitcode
 
-    # -- supervision (`headctl.service.restarts.Restartable`) -------------------------------------
+    # -- supervision (`headctl.service.supervision.restarts.Restartable`) -------------------------------------
     counts = True  # its deaths count toward the service giving up
 
     def failure(self) -> str | None:

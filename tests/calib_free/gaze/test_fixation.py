@@ -11,8 +11,10 @@ from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter, Sample
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, HeadTimeoutError
 from headctl.cli.main import main
+from headctl.config.head import load_config
 from headctl.experiments.online import SimulatedHeadRig
 from headctl.experiments.perturbations import PanReadingOffset
+from tests.support import SIM_IDEAL
 
 
 class FrozenEyesHead:
@@ -86,7 +88,7 @@ def test_fixation_params_are_checked():
 def explored():
     """60 exploratory fixations of the simulated head from a random map."""
     gm = GazeMap.for_image(320, 240, seed=0)
-    with SimulatedHeadRig(seed=0) as rig:
+    with SimulatedHeadRig(seed=0, config=load_config(SIM_IDEAL)) as rig:
         controller = FixationController(rig.head, gm, rig.fixation, seed=3, clock=rig.clock.monotonic)
         records = [controller.fixate() for _ in range(60)]
         limits = (rig.head.pose_low, rig.head.pose_high)
@@ -162,7 +164,7 @@ def test_online_experiment_command(tmp_path, capsys):
 
 
 def test_the_head_clamps_goals_and_the_pan_reading_offset_shifts_moves():
-    with SimulatedHeadRig(seed=0) as rig:
+    with SimulatedHeadRig(seed=0, config=load_config(SIM_IDEAL)) as rig:
         head = rig.head
         head.move_to(np.array([100.0, -90.0, 50.0]))  # far outside every limit
         head.wait_settled(5.0)
@@ -182,7 +184,7 @@ def test_with_the_pan_reading_offset_no_goal_is_clamped_by_the_bus_and_moves_sta
     # The head clips a goal in the coordinates it writes, the joints' own: near the pan
     # limit the bus sends what was asked, and the head moves exactly the commanded move plus
     # the offset -- what `executed_command="commanded"` teaches stays consistent.
-    with SimulatedHeadRig(seed=0) as rig:
+    with SimulatedHeadRig(seed=0, config=load_config(SIM_IDEAL)) as rig:
         head = rig.head
         controller = FixationController(head, GazeMap.for_image(320, 240, seed=0), seed=3)
         head.move_to(np.array([32.0, 0.0, 6.0]))

@@ -8,7 +8,7 @@ import pytest
 from drivers.cameras.camera import Frame
 from drivers.cameras.config import FrameTimingConfig
 from drivers.cameras.stereo import DEFAULT_TOLERANCE_PERIODS, FrameMatcher
-from drivers.sim.frame_timing import FrameTiming
+from drivers.sim.camera_effects.frame_timing import FrameTiming
 
 FPS = 30.0
 PERIOD_S = 1 / FPS

@@ -1,4 +1,4 @@
-"""The simulated camera's auto exposure and gain (`drivers.sim.auto_exposure`): the lag after a
+"""The simulated camera's auto exposure and gain (`drivers.sim.camera_effects.auto_exposure`): the lag after a
 change of brightness, locked across a saccade, manual, and what the camera declares."""
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from drivers.cameras.stereo import StereoPair
 from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError
 from drivers.sim.camera import SimulatedCamera
-from drivers.sim.frame_timing import FrameTiming
+from drivers.sim.camera_effects.frame_timing import FrameTiming
 
 HEAD = HeadModel.default(160, 120)
 REST = {"pan": 0.0, "tilt": 0.0, "left_eye": 2.0, "right_eye": -2.0}

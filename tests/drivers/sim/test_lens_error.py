@@ -1,4 +1,4 @@
-"""Each eye's lens as its unit has it (`drivers.sim.lens_error`): a known point lands where the
+"""Each eye's lens as its unit has it (`drivers.sim.camera_effects.lens_error`): a known point lands where the
 unit's focal length, principal point and roll put it, while the head model keeps the
 nominal lens."""
 from __future__ import annotations
@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from drivers.sim.lens_error import ErredLens, LensError, draw_lens_error
+from drivers.sim.camera_effects.lens_error import ErredLens, LensError, draw_lens_error
 from drivers.sim.scene import Marker
-from drivers.sim.sensor_config import SENSOR_PRESETS
+from drivers.sim.camera_effects.sensor_config import SENSOR_PRESETS
 from tests.drivers.sim.test_camera_geometry import marker_centroid
 from tests.support.sim_camera import REST, sim_camera, wall_scene
 

@@ -1,4 +1,4 @@
-"""The simulated camera's photometry (`drivers.sim.sensor`) and its `sensor:` config: each
+"""The simulated camera's photometry (`drivers.sim.camera_effects.sensor`) and its `sensor:` config: each
 effect at the size configured, none in the ideal camera."""
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from drivers.clock import ManualClock
 from drivers.errors import CameraConfigError
 from drivers.sim.camera import SimulatedCamera
 from drivers.sim.scene import EyeRenderer, Scene
-from drivers.sim.sensor import SensorPipeline
-from drivers.sim.sensor_config import SENSOR_PRESETS, SensorParams
+from drivers.sim.camera_effects.sensor import SensorPipeline
+from drivers.sim.camera_effects.sensor_config import SENSOR_PRESETS, SensorParams
 from tests.support.sim_camera import REST, sim_camera, wall_scene
 
 LENS = HeadModel.default(160, 120).lens_left

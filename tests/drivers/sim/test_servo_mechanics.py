@@ -284,3 +284,28 @@ def test_no_goal_outside_the_joint_limits_reaches_a_servo_whatever_the_mechanics
         lo, hi = limits[joint]
         assert lo <= sim.config.joints[joint].joint_angle(servo_goal) <= hi, joint
     sim.close()
+
+
+def test_torque_back_on_at_a_limit_holds_within_it_however_the_reading_wobbles(monkeypatch):
+    received: list[tuple[object, float]] = []
+    command = ServoMechanics.command
+
+    def spy(self, axis, goal_deg):
+        received.append((axis, goal_deg))
+        command(self, axis, goal_deg)
+    monkeypatch.setattr(ServoMechanics, "command", spy)
+    clock = ManualClock()
+    joints = {"pan": {"min_angle": -40, "max_angle": 40}}
+    sim = sim_bus(clock, {"model": "xm430_head", "read_wobble_ticks": 2}, joints=joints)
+    settle(sim, clock, {"pan": 40.0})  # on its upper limit
+    pan_axis = sim._servos["pan"].axis
+    readings = []
+    for _ in range(40):  # goal := present each time torque comes back, on a reading that wobbles
+        sim.disable()
+        sim.enable()
+        readings.append(sim.read_state().joints["pan"].position)
+        clock.advance(0.01)
+    assert max(readings) > 40.0  # the reading did go beyond the limit
+    goals = [sim.config.joints["pan"].joint_angle(g) for axis, g in received if axis is pan_axis]
+    assert goals and max(goals) <= 40.0 + 1e-9
+    sim.close()

@@ -1,4 +1,4 @@
-"""A frame rendered over its exposure (`drivers.sim.shutter`): motion blur only while the head
+"""A frame rendered over its exposure (`drivers.sim.camera_effects.shutter`): motion blur only while the head
 moves, and a rolling shutter's rows exposed one after another, so a vertical edge leans
 while the head pans. A still head costs one render, as the ideal camera's."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.sim.scene import Marker
-from drivers.sim.shutter import RowBand, row_bands
+from drivers.sim.camera_effects.shutter import RowBand, row_bands
 from tests.support.sim_camera import REST, PanningPose, sim_camera, wall_scene
 
 SIZE = (320, 240)

@@ -24,7 +24,7 @@ SCRIPT = textwrap.dedent("""
     log = logging.getLogger("headctl.service.fixation_thread")
     for i in range(10000):
         log.info("fixation aborted: %s", f"servo-bus: no servo state within 1.0 s ({i})")
-    logging.getLogger("headctl.service.supervisor").warning("something else")
+    logging.getLogger("headctl.service.supervision.supervisor").warning("something else")
 """)
 
 

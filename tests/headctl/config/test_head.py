@@ -13,7 +13,7 @@ from headctl.config.head import DEFAULT_CONFIG, check_runtime, load_config
 from headctl.errors import ConfigError
 from tests.support import CONFIGS, TLS
 
-EXAMPLES = ["sim.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]
+EXAMPLES = ["sim.yaml", "sim-ideal.yaml", "xm430-u2d2-aravis.yaml", "usb-webcams.yaml"]
 
 
 
@@ -24,7 +24,9 @@ def _write(tmp_path, data, name="head.yaml"):
 
 
 def _sim():
-    return yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+    """The kind simulated head's config: no simulation-only sections, so its edits into real
+    heads' configs stay short."""
+    return yaml.safe_load((CONFIGS / "sim-ideal.yaml").read_text())
 
 
 @pytest.mark.parametrize("name", EXAMPLES)
@@ -362,11 +364,12 @@ def test_allocations_waits_and_physical_ranges_are_bounded_when_the_config_loads
 
 
 def test_duplicate_keys_and_broken_files_are_refused_where_they_are(tmp_path):
-    text = (CONFIGS / "sim.yaml").read_text()
+    text = (CONFIGS / "sim-ideal.yaml").read_text()
     path = tmp_path / "head.yaml"
     path.write_text(text.replace("    tilt:", "    pan:       {id: 9, min_angle: -5, max_angle: 5}\n    tilt:", 1))
-    with pytest.raises(ConfigError, match=r"head\.yaml: servo_bus\.joints\.pan: got a second 'pan' key at line 10, "
-                                          r"column 5 \(the first is at line 9, column 5\)"):
+    first = next(n for n, line in enumerate(text.splitlines(), 1) if line.startswith("    pan:"))
+    with pytest.raises(ConfigError, match=rf"head\.yaml: servo_bus\.joints\.pan: got a second 'pan' key at line {first + 1}, "
+                                          rf"column 5 \(the first is at line {first}, column 5\)"):
         load_config(path)
     path.write_bytes(b"\x80\x81")
     with pytest.raises(ConfigError, match=r"head\.yaml: not UTF-8: byte 0x80 at line 1, column 1"):
@@ -451,7 +454,7 @@ def test_a_home_directory_that_cannot_be_found_is_a_located_error(tmp_path, monk
         raise RuntimeError("Could not determine home directory.")
 
     monkeypatch.setattr(type(tmp_path), "expanduser", no_home)
-    with pytest.raises(ConfigError, match=r"state_dir: got '~/.local/state/headctl/sim', expected a path that can "
+    with pytest.raises(ConfigError, match=r"state_dir: got '~/.local/state/headctl/sim-ideal', expected a path that can "
                                           r"be expanded \(Could not determine home directory\.\)"):
         load_config(path)
 

@@ -2,7 +2,7 @@
 refuse them with a located `ConfigError` (never another exception), the API token never shows,
 and `check --no-connect` refuses exactly the configs `run` refuses.
 
-The generated ones start from the valid configs/sim.yaml (with an API token added) and delete,
+The generated ones start from the valid configs/sim-ideal.yaml (with an API token added) and delete,
 rename and duplicate keys, replace values with random YAML scalars, lists and mappings of
 random depth, huge numbers and raw YAML oddities, and replace or splice in random bytes. The
 file is written by a small emitter of flow-style YAML, which (unlike a YAML library) can write
@@ -31,7 +31,7 @@ from headctl.errors import ConfigError
 from tests.support import CONFIGS
 
 TOKEN = "hostile-token-5f3a9c1e7b"  # in the api section of every generated config
-BASE = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
+BASE = yaml.safe_load((CONFIGS / "sim-ideal.yaml").read_text())
 
 
 @pytest.fixture(scope="module")
@@ -214,7 +214,7 @@ def _on_dynamixel(data: dict) -> dict:
 
 
 def _text(replace):
-    return lambda folder: replace((CONFIGS / "sim.yaml").read_text()).encode()
+    return lambda folder: replace((CONFIGS / "sim-ideal.yaml").read_text()).encode()
 
 
 HOSTILE = {
@@ -229,7 +229,7 @@ HOSTILE = {
     "a key the sim servo backend does not use": _edited(lambda d, f: d["servo_bus"].update(protocol=1.0)),
     "a key the sim camera backend does not use": _edited(lambda d, f: d["cameras"]["left"].update(serial="X")),
     "not UTF-8": lambda folder: b"\x80\x81",
-    "UTF-16": lambda folder: (CONFIGS / "sim.yaml").read_text().encode("utf-16"),
+    "UTF-16": lambda folder: (CONFIGS / "sim-ideal.yaml").read_text().encode("utf-16"),
     "5000-deep nesting": lambda folder: b"servo_bus: " + b"[" * 5000 + b"]" * 5000,
     "camera width 1e9": _edited(lambda d, f: [d["cameras"][s].update(width=10**9) for s in ("left", "right")]),
     "duplicate key": _text(lambda t: t.replace("state_dir:", "state_dir: /tmp\nstate_dir:")),

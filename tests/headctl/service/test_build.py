@@ -22,8 +22,8 @@ from headctl.service.events import EventHub, EventLog
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, ServiceParts
 from headctl.service.status import FaultWatcher
-from headctl.service.supervisor import Supervisor
-from headctl.service.systemd import SystemdNotifier
+from headctl.service.supervision.supervisor import Supervisor
+from headctl.service.supervision.systemd import SystemdNotifier
 
 
 def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_servos():

@@ -9,7 +9,7 @@ import signal
 import pytest
 import yaml
 
-from headctl.service.restarts import EXIT_GAVE_UP
+from headctl.service.supervision.restarts import EXIT_GAVE_UP
 from tests.support.daemon_proc import SIM
 
 pytestmark = [pytest.mark.timeout(180), pytest.mark.slow]

@@ -1,4 +1,4 @@
-"""The one restart policy (`headctl.service.restarts`) on a manual clock: back-off doubling to
+"""The one restart policy (`headctl.service.supervision.restarts`) on a manual clock: back-off doubling to
 its cap and starting over after a healthy run, a failed restart counted, one window for every
 part, giving up past the limit, a part that does not count never giving up; its config keys."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import yaml
 from drivers.clock import ManualClock
 from headctl.config.head import load_config
 from headctl.errors import ConfigError
-from headctl.service.restarts import RestartRecord, Restarts, RestartSettings
+from headctl.service.supervision.restarts import RestartRecord, Restarts, RestartSettings
 from tests.support.daemon_proc import SIM
 
 

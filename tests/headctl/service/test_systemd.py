@@ -1,4 +1,4 @@
-"""sd_notify (headctl.service.systemd) and the one-daemon-per-state-directory lock."""
+"""sd_notify (headctl.service.supervision.systemd) and the one-daemon-per-state-directory lock."""
 from __future__ import annotations
 
 import os
@@ -10,7 +10,7 @@ import pytest
 
 from headctl.errors import HeadctlError
 from headctl.service.persistence import StateDirLock
-from headctl.service.systemd import SystemdNotifier
+from headctl.service.supervision.systemd import SystemdNotifier
 
 
 def test_sd_notify_datagrams_reach_the_notify_socket(tmp_path):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.sim.scene import Lens
-from drivers.sim.sensor_config import SensorParams
+from drivers.sim.camera_effects.sensor_config import SensorParams
 
 _LENS_STREAM = 0x1E45  # the lens draws' own random stream, apart from noise and photometry
 _FIELD_TOLERANCE_RAD = 1e-4  # a ray the nominal lens sends back elsewhere is beyond its field

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.sim.room_light import Illumination
 from drivers.sim.scene import EyeRenderer, HeadGeometry, Lens, Scene, joints_tuple
-from drivers.sim.sensor_config import SensorParams
+from drivers.sim.camera_effects.sensor_config import SensorParams
 
 PoseAt = Callable[[float], Mapping[str, float]]  # joint angles (degrees) at a time of the clock
 

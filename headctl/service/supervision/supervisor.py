@@ -20,11 +20,11 @@ from drivers.cameras.camera import StreamHealth
 from drivers.errors import DriverError
 from headctl.service.fixation_thread import FixationCounts
 from headctl.service.parts import ServiceParts
-from headctl.service.restarts import Restarts
+from headctl.service.supervision.restarts import Restarts
 from headctl.service.servo_io.loop import join_thread
 from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.status import FaultWatcher, service_state
-from headctl.service.systemd import SystemdNotifier
+from headctl.service.supervision.systemd import SystemdNotifier
 
 log = logging.getLogger(__name__)
 

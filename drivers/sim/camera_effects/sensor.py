@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from drivers.sim.scene import Lens
-from drivers.sim.sensor_config import SensorParams
+from drivers.sim.camera_effects.sensor_config import SensorParams
 
 _UNIT_STREAM = 0x5E45  # the photometric draws' random stream
 _NOISE_STREAM = 0x401E  # the per-frame noise's

@@ -8,8 +8,8 @@ may differ; what differs between two units of one model (their lenses, their pho
 response) is drawn per eye from the camera's seed within the ranges given here.
 
 Plain data, read by `drivers.config.reader`; the effects themselves are in
-`drivers.sim.sensor` (photometry, noise, compression), `drivers.sim.auto_exposure`,
-`drivers.sim.lens_error` and `drivers.sim.shutter` (motion blur, rolling shutter).
+`drivers.sim.camera_effects.sensor` (photometry, noise, compression), `drivers.sim.camera_effects.auto_exposure`,
+`drivers.sim.camera_effects.lens_error` and `drivers.sim.camera_effects.shutter` (motion blur, rolling shutter).
 """
 from __future__ import annotations
 

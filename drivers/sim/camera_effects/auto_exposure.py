@@ -1,7 +1,7 @@
 """The simulated camera's auto exposure and auto gain, with the lag a real one has.
 
 A webcam's auto exposure meters each frame's level (the mean of its middle, centre-weighted
-as UVC webcams meter by default: `drivers.sim.sensor`) and moves its exposure time and
+as UVC webcams meter by default: `drivers.sim.camera_effects.sensor`) and moves its exposure time and
 gain toward a target for the frames that follow: a fraction of the remaining error each
 frame (`ae_speed`), at most `ae_max_step_ev` stops at a time, so a change in the view's
 brightness takes a few frames to settle. Exposure first (up to `max_exposure_us`, at most
@@ -26,7 +26,7 @@ import threading
 from dataclasses import dataclass
 
 from drivers.cameras.camera import ExposureMode
-from drivers.sim.sensor_config import SensorParams
+from drivers.sim.camera_effects.sensor_config import SensorParams
 
 log = logging.getLogger(__name__)
 
