@@ -18,6 +18,7 @@ from drivers.clock import ManualClock
 from headctl.config.head import HeadConfig, load_config
 from headctl.api.compose import serve
 from headctl.service.daemon import Daemon
+from tests.support import SIM_IDEAL
 from tests.support.daemon_proc import DaemonProcess
 
 T = TypeVar("T")
@@ -37,10 +38,12 @@ def wait_until(predicate: Callable[[], T], timeout_s: float = 5.0, what: str = "
         time.sleep(poll_s)
 
 
-def sim_head_config(state_dir: Path, *, frame_timeout_s: float | None = None, **api: Any) -> HeadConfig:
-    """The packaged simulated head's config with its state in `state_dir` and the API on an
-    ephemeral port (`api` overrides other api keys)."""
-    config = load_config().with_state_dir(state_dir).with_api(port=0, **api)
+def sim_head_config(state_dir: Path, *, frame_timeout_s: float | None = None, realistic: bool = False,
+                    **api: Any) -> HeadConfig:
+    """The kind simulated head's config (configs/sim-ideal.yaml; `realistic`: the packaged
+    configs/sim.yaml) with its state in `state_dir` and the API on an ephemeral port (`api`
+    overrides other api keys)."""
+    config = load_config(None if realistic else SIM_IDEAL).with_state_dir(state_dir).with_api(port=0, **api)
     if frame_timeout_s is not None:
         fixation = config.fixation
         params = dataclasses.replace(fixation.params, frame_timeout_s=frame_timeout_s)

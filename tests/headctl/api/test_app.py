@@ -35,7 +35,7 @@ from headctl.config.head import load_config
 from headctl.api.compose import serve
 from tests.conftest import sim_head_config, wait_until
 from headctl.errors import HeadctlError
-from tests.support import TLS
+from tests.support import SIM_IDEAL, TLS
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -774,7 +774,7 @@ def test_map_save_load_reset_and_their_refusals(head):
         code, answer, _ = raw(client, "POST", "/api/v1/map/load", json.dumps(body))
         assert code == status and answer["field"] == field and words in answer["reason"], answer
     # A map made for another image size is refused, the running one kept.
-    other = GazeMap(load_config().map_params().__class__.profile_values("default", image_size=(640, 480)))
+    other = GazeMap(load_config(SIM_IDEAL).map_params().__class__.profile_values("default", image_size=(640, 480)))
     write_map(other, state_dir / "other.npz")
     code, answer, _ = raw(client, "POST", "/api/v1/map/load", json.dumps({"name": "other.npz"}))
     assert code == 409 and "other map parameters" in answer["reason"]
@@ -1028,7 +1028,7 @@ def test_https_with_the_daemons_own_certificate(tmp_path, start_service):
     daemon = start_service(sim_head_config(tmp_path / "state", **tls))
     assert daemon.api_url.startswith("https://127.0.0.1:")
     # A client made from the head's config finds the URL and pins the daemon's certificate.
-    pinned = ApiClient.for_config(load_config().with_state_dir(tmp_path / "state").with_api(**tls))
+    pinned = ApiClient.for_config(load_config(SIM_IDEAL).with_state_dir(tmp_path / "state").with_api(**tls))
     assert pinned.url == daemon.api_url and pinned.state()["api"] == daemon.api_url
     assert next(pinned.events(after=0))["seq"] >= 1  # the event stream over TLS too
     assert pinned.set_exploration(False) is False
@@ -1045,7 +1045,7 @@ def test_https_with_the_daemons_own_certificate(tmp_path, start_service):
 
 
 def test_a_certificate_the_server_cannot_use_is_an_error_at_start(tmp_path):
-    config = load_config().with_state_dir(tmp_path).with_api(
+    config = load_config(SIM_IDEAL).with_state_dir(tmp_path).with_api(
         port=0, tls_cert=str(TLS / "head-cert.pem"), tls_key=str(TLS / "other-key.pem"))
     with pytest.raises(HeadctlError, match="api.tls_cert .*head-cert.pem, api.tls_key .*other-key.pem: "
                                             "cannot serve HTTPS"):

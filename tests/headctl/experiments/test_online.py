@@ -58,3 +58,22 @@ def test_an_online_run_without_the_pose_teaches_without_it_and_lands_on_both_tar
     result = run_online(OnlineSpec("short", 8), seed=0, landing_every=4, landing_count=20, use_pose=False)
     assert len(result.landing) == len(result.landing_joint_range) == 2
     assert poses and all(p is None for p in poses)
+
+
+def test_the_realistic_world_teaches_from_a_random_map_as_the_ideal_one_does():
+    """configs/sim.yaml's world: webcams with lens differences, auto exposure held per
+    fixation, MJPEG, a free-running pair, XM430 play and droop, a room whose light changes.
+    Fixations from a random map still converge and teach, only when converged and confident."""
+    from calib_free.gaze.fixation import FixationParams
+    from headctl.config.head import load_config
+    from headctl.config.world import WorldKind, simulated_world
+
+    config = load_config()
+    world = simulated_world(config)
+    assert world is not None and world.kind is WorldKind.REALISTIC
+    result = run_online(OnlineSpec("online", 60, (), "realistic"), seed=0, landing_every=0, config=config)
+    taught = [r for r in result.records if r.taught]
+    assert len(taught) >= 30, result.outcomes()
+    floor = FixationParams().confidence_floor
+    assert all(r.converged and r.confidence >= floor for r in taught)
+    assert result.config_path == str(config.path)

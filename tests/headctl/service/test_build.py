@@ -24,10 +24,11 @@ from headctl.service.parts import LearningLog, ServiceParts
 from headctl.service.status import FaultWatcher
 from headctl.service.supervision.supervisor import Supervisor
 from headctl.service.supervision.systemd import SystemdNotifier
+from tests.support import SIM_IDEAL
 
 
 def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_servos():
-    config = load_config()
+    config = load_config(SIM_IDEAL)
     clock = ManualClock()
     devices = HeadDevices.build(config, clock)
     assert isinstance(devices.bus, SimulatedServoBus) and devices.world is not None
@@ -48,7 +49,7 @@ def test_the_simulated_head_is_built_through_the_backend_table_and_renders_its_s
 
 
 def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path):
-    config = load_config()
+    config = load_config(SIM_IDEAL)
     photos = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=SceneConfig(room="photos")))
     joints = dict(SIM_START_JOINTS)
     views = {}
@@ -64,8 +65,8 @@ def test_a_config_with_the_photo_room_gives_the_cameras_the_photo_room(tmp_path)
 
 
 def test_the_experiments_build_the_head_the_service_builds():
-    config = load_config()
-    with SimulatedHeadRig(seed=0) as rig:
+    config = load_config(SIM_IDEAL)
+    with SimulatedHeadRig(seed=0, config=load_config(SIM_IDEAL)) as rig:
         service_head = build_head(config, rig.bus, rig.pairs)
         np.testing.assert_array_equal(rig.head.pose_low, service_head.pose_low)
         np.testing.assert_array_equal(rig.head.pose_high, service_head.pose_high)
@@ -93,7 +94,7 @@ class StubCamera:
 
 def supervised(camera: StubCamera):
     clock = ManualClock()
-    config = load_config()
+    config = load_config(SIM_IDEAL)
     parts = ServiceParts(config=config, clock=clock, hub=EventHub(), warnings=EventLog(), looks=LookQueue(),
                          learning=LearningLog(clock), started_s=0.0,
                          devices=HeadDevices(bus=None, cameras={"left": camera}, world=None))  # type: ignore[arg-type]
@@ -131,7 +132,7 @@ def test_a_fault_is_published_when_it_appears_and_when_it_clears():
 
 
 def test_the_worlds_room_has_the_configs_light_and_passers_by():
-    config = load_config()
+    config = load_config(SIM_IDEAL)
     room = SceneConfig(light=LightConfig(model="home"), passers_by=PassersByConfig(model="home"))
     lit = dataclasses.replace(config, cameras=dataclasses.replace(config.cameras, scene=room))
     world = HeadDevices.build(lit, ManualClock()).world

@@ -10,6 +10,7 @@ from drivers.sim.camera import TimedPoseSource
 from headctl.config.head import load_config
 from headctl.service.build import HeadDevices
 from headctl.service.servo_io.process import ServoLoopProcess
+from tests.support import SIM_IDEAL
 from tests.conftest import wait_until
 
 pytestmark = pytest.mark.timeout(60)
@@ -17,7 +18,7 @@ pytestmark = pytest.mark.timeout(60)
 
 def test_the_worlds_pose_sources_give_the_joints_at_a_past_time_and_fail_when_stalled():
     clock = ManualClock()
-    devices = HeadDevices.build(load_config(), clock)
+    devices = HeadDevices.build(load_config(SIM_IDEAL), clock)
     assert devices.world is not None and devices.bus is not None
     with devices:
         devices.bus.enable()
@@ -40,7 +41,7 @@ def test_the_worlds_pose_sources_give_the_joints_at_a_past_time_and_fail_when_st
 
 
 def test_the_servo_process_publishes_where_the_joints_were():
-    servo = ServoLoopProcess(load_config()).start()
+    servo = ServoLoopProcess(load_config(SIM_IDEAL)).start()
     try:
         before = servo.fresh_state()
         servo.request_goals({"pan": 30.0})

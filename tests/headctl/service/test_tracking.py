@@ -13,7 +13,9 @@ from drivers.sim.motion import MovingObject
 from headctl.api.client import ApiClient
 from headctl.experiments.pursuit import run_speed
 from headctl.api.compose import serve
+from headctl.config.head import load_config
 from tests.conftest import sim_head_config, wait_until
+from tests.support import SIM_IDEAL
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -100,7 +102,7 @@ def test_a_target_that_outruns_the_head_is_lost_and_said_so():
             return DEFAULT_JACOBIAN @ (np.asarray(r) - [159.5, 119.5, 0.0])
 
     events = []
-    run = run_speed(300.0, DefaultMap(), duration_s=1.2, settle_s=0.0,
+    run = run_speed(300.0, DefaultMap(), duration_s=1.2, settle_s=0.0, base=load_config(SIM_IDEAL),
                     obj=MovingObject(turn_deg_s2=1e5, sweep_deg=40.0),
                     publish=lambda type_, **fields: events.append((type_, fields)))
     assert run.lost >= 1 and run.outcomes[0] == "lost"

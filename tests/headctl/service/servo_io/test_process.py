@@ -16,7 +16,7 @@ from headctl.config.head import load_config
 from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.servo_io.shared import SIZE, SharedState
 from tests.conftest import wait_until
-from tests.support import ROOT
+from tests.support import ROOT, SIM_IDEAL
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.timeout(120)
 def servo():
     """One servo process on the simulated head's servos for the module's tests."""
     changes: list[int] = []
-    process = ServoLoopProcess(load_config(), on_fault_change=lambda: changes.append(1)).start()
+    process = ServoLoopProcess(load_config(SIM_IDEAL), on_fault_change=lambda: changes.append(1)).start()
     process.changes = changes  # type: ignore[attr-defined]
     yield process
     process.stop()
@@ -67,7 +67,7 @@ def test_torque_off_and_on_again(servo):
 
 
 def test_a_silent_service_gets_the_present_position_held():
-    config = load_config()
+    config = load_config(SIM_IDEAL)
     config = dataclasses.replace(config, service=dataclasses.replace(config.service, input_timeout_s=0.2))
     process = ServoLoopProcess(config).start()
     try:
@@ -156,7 +156,7 @@ def test_a_killed_child_is_replaced_where_the_servos_are_with_torque_as_switched
 
     from headctl.errors import ServoLoopStoppedError
 
-    process = ServoLoopProcess(load_config()).start()
+    process = ServoLoopProcess(load_config(SIM_IDEAL)).start()
     try:
         process.request_goals({"pan": 20.0})
         wait_until(lambda: abs(process.fresh_state()["pan"].position - 20.0) < 0.1 and
