@@ -118,6 +118,8 @@ def _interrupted(err: BaseException) -> FixationInterrupted:
 class Head:
     """A `GazeHead` over a joint bus and a pair source; see the module docstring."""
 
+    REST_POSE_KEPT_S = 0.5  # a rest's mean pose stands for the pose this long (torque may go off)
+
     def __init__(self, bus: JointBus, pairs: PairSource, joints: Mapping[str, JointConfig], *,
                  clock: Clock = SYSTEM_CLOCK, vergence_range: tuple[float, float] | None = None,
                  interrupt: Callable[[], None] | None = None, observer: HeadObserver | None = None,
@@ -145,6 +147,8 @@ class Head:
         self.pose_low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle, v_low])
         self.pose_high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle, v_high])
         self._goal: np.ndarray | None = None
+        # (when, the mean pose) of the last rest, until a goal is sent or REST_POSE_KEPT_S pass
+        self._rest_pose: tuple[float, np.ndarray] | None = None
         self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
         self.phase = "idle"
 
@@ -158,6 +162,7 @@ class Head:
         forgotten, its readings may not be this one's."""
         self._bus = bus
         self._goal = None
+        self._rest_pose = None
 
     # -- the bus, interruptible ------------------------------------------------------------
     def _check(self) -> None:
@@ -173,6 +178,7 @@ class Head:
 
     def _write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
         self._check()
+        self._rest_pose = None  # the head may move
         try:
             return self.bus.write_goals(goals)
         except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
@@ -186,6 +192,11 @@ class Head:
 
     # -- GazeHead ----------------------------------------------------------------------------
     def read_pose(self) -> np.ndarray:
+        """The pose now; at rest (after `wait_settled`, before the next goal), the mean of the
+        readings while the head held still: a reading wobbles by a tick (0.09 deg), and the
+        executed command is the difference of two poses."""
+        if self._rest_pose is not None and self.clock.monotonic() - self._rest_pose[0] <= self.REST_POSE_KEPT_S:
+            return self._rest_pose[1].copy()
         return self.pose_from(self._read_state().positions)
 
     def pose_from(self, positions: Mapping[str, float]) -> np.ndarray:
@@ -233,6 +244,7 @@ class Head:
         deadline = self.clock.monotonic() + timeout_s
         rest_since: float | None = None
         rest_pose = np.zeros(3)
+        held: list[np.ndarray] = []  # the poses read since the head held still
         while True:
             state = self._read_state()
             pose = pose_of(state.positions)
@@ -240,9 +252,11 @@ class Head:
             at_goal = bool(np.all(off <= self.tolerance_deg))
             if not state.moving and np.all(off <= self.short_tolerance_deg):
                 if rest_since is None or np.any(np.abs(pose - rest_pose) > self.steady_deg):
-                    rest_since, rest_pose = state.time_s, pose
-                elif state.time_s - rest_since >= (self.settle_s if at_goal else self.short_settle_s):
-                    break
+                    rest_since, rest_pose, held = state.time_s, pose, [self.pose_from(state.positions)]
+                else:
+                    held.append(self.pose_from(state.positions))
+                    if state.time_s - rest_since >= (self.settle_s if at_goal else self.short_settle_s):
+                        break
             else:
                 rest_since = None
             if self.clock.monotonic() >= deadline:
@@ -250,6 +264,7 @@ class Head:
                                        f"(moving: {state.moving}, at goal: {at_goal})")
             self._check()
             self.clock.sleep(self.poll_s)
+        self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
         if self._saccade is not None:
             onset_s, goal = self._saccade
             self._saccade = None
