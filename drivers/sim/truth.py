@@ -12,7 +12,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from drivers.sim.scene import HeadGeometry, Scene
+from drivers.sim.scene import HeadGeometry, Lens, Scene
 
 OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])  # in camera coordinates
 
@@ -44,6 +44,15 @@ def axis_point(scene: Scene, rotation: np.ndarray, centre: np.ndarray) -> np.nda
     """The world point on an eye's fovea: its optical axis' first surface, for the eye frame
     (`rotation`, `centre`)."""
     return first_surface(scene, centre, rotation.T @ OPTICAL_AXIS)
+
+
+def centre_point(scene: Scene, lens: Lens, rotation: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """The world point on the image centre of an eye that sees through `lens` (where
+    correspondence takes its foveal patch), for the eye frame (`rotation`, `centre`): the
+    optical axis' first surface when the lens's principal point is the image centre, elsewhere
+    for a unit's lens off it (`drivers.sim.camera_effects.lens_error`)."""
+    middle = np.array([[(lens.width - 1) / 2.0, (lens.height - 1) / 2.0]])
+    return first_surface(scene, centre, rotation.T @ lens.unproject(middle)[0])
 
 
 def foveal_point(geometry: HeadGeometry, scene: Scene, joints: Mapping[str, float], eye: int = 0) -> np.ndarray:
