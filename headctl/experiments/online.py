@@ -52,9 +52,9 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class OnlineSpec(ExperimentSpec):
-    """An experiment on images; `executed_command` as in `FixationParams`."""
+    """An experiment on images; `executed_command` as in `FixationParams` (None: the config's)."""
 
-    executed_command: str = "encoders"
+    executed_command: str | None = None
 
 
 ONLINE_EXPERIMENTS = {
@@ -259,7 +259,8 @@ def run_online(spec: OnlineSpec, profile: str = "default", seed: int = 0, width:
         exploration = exploration_for(profile)
     config = config if config is not None else load_config()
     # The config's fixation settings (its head's), with the experiment's exploration and profile.
-    fixation = dataclasses.replace(config.fixation.params, executed_command=spec.executed_command,
+    executed = spec.executed_command or config.fixation.params.executed_command
+    fixation = dataclasses.replace(config.fixation.params, executed_command=executed,
                                    exploration=exploration, correspondence=CorrespondenceParams.profile_values(profile))
     result.exploration = exploration
     gm = GazeMap.for_image(width, height, seed=seed, profile=profile)
