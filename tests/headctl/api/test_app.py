@@ -101,6 +101,7 @@ def test_state_reports_joints_pose_and_learning(head):
     assert s["servo_loop"]["rate_hz"] == 100.0
     # The stereo pairs' skew: the packaged cameras are on one grid, so the pairs' stamps agree.
     assert s["stereo"]["pairs"] >= 1 and s["stereo"]["max_abs_s"] <= 0.005
+    assert s["world"]["kind"] == "ideal" and s["world"]["parts"]["servos"] == "ideal"  # configs/sim-ideal.yaml
 
 
 def test_state_answers_while_the_map_is_busy(head):
