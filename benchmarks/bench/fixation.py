@@ -16,8 +16,9 @@ simulated fixation cycle.
    along the radius from the image centre, by the truth's eccentricity, with the affine and
    the quadratic alignment (`alignment_warp`); a bias the same way every time is learned by
    the map as if it were the head's.
-4. Fixations per second of the simulated head (servo motion model on a manual clock,
-   rendering, fine vergence, correspondence, the adapter thread), from a random map.
+4. Fixations per second of the simulated head of `--config` (default: the packaged
+   sim.yaml; servo motion model on a manual clock, rendering through its cameras' sensor,
+   fine vergence, correspondence, the adapter thread), from a random map.
 
 `--baseline REV` also loads the correspondence (with the rest of `calib_free`) as it is at
 the git revision REV and measures it beside the working tree's in items 1 and 2, on the same
@@ -25,7 +26,7 @@ pairs in the same run (so that a change is judged on one machine state). 0 for `
 `--accuracy` or `--bias` skips that item.
 
     .venv/bin/python -m benchmarks.bench.fixation [--pairs 30] [--rounds 3] [--fixations 200]
-        [--accuracy 0] [--bias 0] [--baseline HEAD]
+        [--accuracy 0] [--bias 0] [--baseline HEAD] [--config configs/sim-ideal.yaml]
 """
 from __future__ import annotations
 
@@ -54,6 +55,7 @@ from calib_free.gaze.fixation import FixationController
 from headctl.service.head import joints_of
 from calib_free.sim.head_model import HeadModel, JointLimits
 from drivers.sim.scene import StereoRenderer, shared_scene
+from headctl.config.head import DEFAULT_CONFIG, load_config
 from headctl.experiments.online import SimulatedHeadRig
 from headctl.experiments.saccades import SaccadeCase, Scored, saccade_cases
 from headctl.experiments.saccades import accuracy as accuracy_of
@@ -189,10 +191,10 @@ def radial_bias(saccades: int) -> None:
                   f"{np.median(table[:, 2]):.3f} px; " + "; ".join(cells))
 
 
-def fixations_per_s(count: int) -> tuple[float, float]:
+def fixations_per_s(count: int, config_path: Path | None = None) -> tuple[float, float]:
     gm = GazeMap.for_image(320, 240, seed=0)
     taught = 0
-    with SimulatedHeadRig(seed=0) as rig, MapAdapter(gm) as adapter:
+    with SimulatedHeadRig(seed=0, config=load_config(config_path)) as rig, MapAdapter(gm) as adapter:
         controller = FixationController(rig.head, adapter, rig.fixation, seed=1, clock=rig.clock.monotonic)
         controller.fixate()  # warm up
         started = time.perf_counter()
@@ -215,6 +217,8 @@ def main() -> None:
     parser.add_argument("--bias", type=int, default=0, help="saccades per room for the radial bias (0: skip)")
     parser.add_argument("--baseline", metavar="REV", default=None,
                         help="also measure calib_free/correspondence/search.py as at this git revision")
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
+                        help="the simulated head of item 4 (default: the packaged sim.yaml, the realistic world)")
     args = parser.parse_args()
     baseline = load_baseline(args.baseline) if args.baseline else None
     rev = args.baseline or ""
@@ -241,8 +245,8 @@ def main() -> None:
     if args.bias > 0:
         radial_bias(args.bias)
     if args.fixations > 0:
-        rate, taught_rate = fixations_per_s(args.fixations)
-        print(f"simulated fixation cycle, 320x240: {rate:.1f} fixations/s ({taught_rate:.1f} taught/s); "
+        rate, taught_rate = fixations_per_s(args.fixations, args.config)
+        print(f"simulated fixation cycle, 320x240, {args.config.name}: {rate:.1f} fixations/s ({taught_rate:.1f} taught/s); "
               f"goal >= 20 -> {'met' if rate >= 20 else 'NOT met'}")
     print(f"load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 

@@ -58,12 +58,19 @@ def true_error_px(rig: SimulatedHeadRig, before: dict[str, float], after: dict[s
                   xy: tuple[float, float]) -> tuple[float, bool]:
     """Distance from the left fovea, at the joints `after`, of the point pixel `xy` showed at
     the joints `before`; and whether that point is hidden from the left eye there."""
-    model, scene = rig.model, shared_scene(rig.config.cameras.left.seed, False)
+    return world_error_px(rig.model, shared_scene(rig.config.cameras.left.seed, False), rig.model.lens_left,
+                          before, after, xy)
+
+
+def world_error_px(model, scene, lens, before: dict[str, float], after: dict[str, float],
+                   xy: tuple[float, float]) -> tuple[float, bool]:
+    """`true_error_px` in `scene` seen through `lens`, the left camera's own (a simulated unit's
+    lens differs from the model's); the fovea is the model's, the image centre the method uses."""
     (rotation, centre), _ = model.eye_frames_from_joints(*(before[j] for j in JOINT_ORDER))
-    ray = model.lens_left.unproject(np.array([xy]))[0]
+    ray = lens.unproject(np.array([xy]))[0]
     point = first_surface(scene, centre, rotation.T @ ray)
     (rotation, centre), _ = model.eye_frames_from_joints(*(after[j] for j in JOINT_ORDER))
-    uv, _ = model.lens_left.project(((point - centre) @ rotation.T)[None])
+    uv, _ = lens.project(((point - centre) @ rotation.T)[None])
     hidden = hidden_from(scene, centre, point, 1e-3)
     cx, cy = model.lens_left.principal_point
     return float(np.hypot(uv[0, 0] - cx, uv[0, 1] - cy)), hidden

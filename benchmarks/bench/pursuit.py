@@ -18,7 +18,11 @@ simulated cameras rendered their frames (from a frame's timestamp to its render'
 to its image ready; what a frame shows is the world at its timestamp all the same) and the
 load average (1 min) before and after each speed.
 
-    .venv/bin/python -m benchmarks.bench.pursuit [--speeds 10,20,30] [--seconds 8]
+    .venv/bin/python -m benchmarks.bench.pursuit [--config configs/sim.yaml] [--speeds 10,20,30] [--seconds 8]
+
+The map is learned on the geometric head model, the same for every config (the nominal
+lenses and exact servos): a realistic world's tracker starts from a map that does not know
+its lens and servo differences.
 """
 from __future__ import annotations
 
@@ -37,19 +41,20 @@ from calib_free.map.file import write_map
 from drivers.sim.motion import MovingObject
 from headctl.api.client import ApiClient
 from headctl.api.compose import serve
-from headctl.config.head import load_config
+from headctl.config.head import DEFAULT_CONFIG, load_config
 from headctl.experiments.online import SimulatedHeadRig
 from headctl.experiments.pursuit import learned_map
 
 TRUTH_DELAY_S = 0.02  # the truth is taken this far in the past: inside the joints' trace, never extrapolated
 
 
-def cube_in_left_image(world, cube: MovingObject, time_s: float) -> np.ndarray:
-    """The cube's front-face centre in the left image at `time_s`, both from the same instant."""
+def cube_in_left_image(world, cube: MovingObject, time_s: float, lens) -> np.ndarray:
+    """The cube's front-face centre in the left image at `time_s`, both from the same instant,
+    through `lens`, the left camera's own (a simulated unit's lens differs from the model's)."""
     point = cube.centre(world.scene.motion.elapsed_s(time_s)) - np.array([cube.size_m / 2, 0.0, 0.0])
     j = world.true_joints_at(time_s)
     (rotation, centre), _ = world.model.eye_frames_from_joints(j["pan"], j["tilt"], j["left_eye"], j["right_eye"])
-    uv, _ = world.model.lens_left.project((rotation @ (point - centre))[None])
+    uv, _ = lens.project((rotation @ (point - centre))[None])
     return np.asarray(uv[0])
 
 
@@ -76,18 +81,20 @@ def render_lags_ms(cameras) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG,
+                        help="the simulated head (default: the packaged sim.yaml, the realistic world)")
     parser.add_argument("--speeds", default="10,20,30")
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--start", choices=("fixated", "anywhere"), default="fixated")
     parser.add_argument("--lead-ms", type=float, default=None,
                         help="the pursuit's lead (tracking.lead_s; default: the config's)")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp, SimulatedHeadRig() as rig:
+    with tempfile.TemporaryDirectory() as tmp, SimulatedHeadRig(config=load_config(args.config)) as rig:
         state = Path(tmp)
         write_map(learned_map(rig), state / "gaze_map.npz")
         for speed in (float(s) for s in args.speeds.split(",")):
             cube = MovingObject(speed_deg_s=speed)
-            config = load_config().with_state_dir(state).with_api(port=0)
+            config = load_config(args.config).with_state_dir(state).with_api(port=0)
             config = dataclasses.replace(config, sim_objects=(cube,),
                                          fixation=dataclasses.replace(config.fixation, explore=False))
             if args.lead_ms is not None:
@@ -97,18 +104,21 @@ def main() -> int:
             with serve(config) as daemon:
                 client = ApiClient(daemon.api_url)
                 world = daemon.parts.devices.world
+                lens = getattr(daemon.parts.devices.cameras["left"], "unit_lens", world.model.lens_left)
                 time.sleep(0.5)
                 if args.start == "fixated":
                     world.scene.motion.start_s = math.inf  # the cube rests at its sweep's centre
                     look_at_sweep_centre(daemon, world, cube)
                     time.sleep(TRUTH_DELAY_S)
-                x, y = cube_in_left_image(world, cube, time.monotonic() - TRUTH_DELAY_S)
+                x, y = cube_in_left_image(world, cube, time.monotonic() - TRUTH_DELAY_S, lens)
                 client.track(float(x), float(y))
                 if args.start == "fixated":
                     deadline = time.monotonic() + 5.0
                     while not (client.get_track()["result"].get("stats") or {}).get("found"):
                         if time.monotonic() > deadline:
-                            raise SystemExit(f"{speed:g} deg/s: the track found no patch within 5 s")
+                            track = client.get_track()
+                            raise SystemExit(f"{speed:g} deg/s: the track found no patch within 5 s: "
+                                             f"{track['state']} {track['outcome']} {track['detail']}")
                         time.sleep(0.005)
                     world.scene.motion.start_s = time.monotonic()  # the sweep starts from the centre
                 started = time.monotonic()
@@ -116,7 +126,7 @@ def main() -> int:
                 while time.monotonic() - started < args.seconds:
                     time.sleep(0.02)
                     if time.monotonic() - started >= 1.0:
-                        uv = cube_in_left_image(world, cube, time.monotonic() - TRUTH_DELAY_S)
+                        uv = cube_in_left_image(world, cube, time.monotonic() - TRUTH_DELAY_S, lens)
                         truth.append(float(np.hypot(*(uv - (159.5, 119.5)))))
                 track = client.get_track()
                 stats = track["result"].get("stats") or {}
