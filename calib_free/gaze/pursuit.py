@@ -42,7 +42,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, stereo_offset
 from calib_free.errors import OutOfRangeError
 
 log = logging.getLogger(__name__)
@@ -55,6 +55,10 @@ class PursuitParams:
     patch_size_px: int = 24  # the square template, px
     search_radius_px: int = 24  # the patch is looked for this far around where it is predicted
     min_ncc: float = 0.6  # a best match below this: not found in this pair
+    # Rows either side of the target's own its right-image match is looked for when a track
+    # starts: the two cameras' vertical misalignment (docs/method.md); later pairs look a few
+    # rows around where the start found it.
+    row_band_px: int = 24
     refresh_ncc: float = 0.85  # found, but below this: the template is taken again where it was found
     disparity_search_px: float = 8.0  # the right image is searched this far either side of the last d
     lost_after_frames: int = 10  # pairs in a row without the patch: the track is lost
@@ -187,6 +191,7 @@ class PatchTracker:
         self.template: np.ndarray | None = None
         self.first: np.ndarray | None = None  # the template as taken at start: what drift is corrected to
         self.refreshes = 0
+        self.row_offset_px = 0.0  # how far below the left patch's rows its right match lies
 
     def _take(self, left: np.ndarray, x: float, y: float) -> np.ndarray:
         size = self.params.patch_size_px
@@ -204,7 +209,11 @@ class PatchTracker:
         else:
             margin = self.params.disparity_search_px
             search = (max(self.disparity_range[0], d_hint - margin), min(self.disparity_range[1], d_hint + margin))
-        return horizontal_offset(left, right, (x, y), (size, size), search)
+        band, rows = (self.params.row_band_px, 0.0) if d_hint is None else (DISPARITY_BAND_PX, self.row_offset_px)
+        d, dy, ncc = stereo_offset(left, right, (x, y), (size, size), search, band, rows)
+        if ncc >= self.params.min_ncc:
+            self.row_offset_px = dy
+        return d, ncc
 
     def start(self, left: np.ndarray, right: np.ndarray, x: float, y: float,
               d: float | None = None) -> PatchMatch | None:
