@@ -14,6 +14,7 @@ declare_settings(
     patch_size_px=config_meta(lo=5, hi=MAX_IMAGE_SIDE, expected="a square patch side of at least 5 px"),
     search_radius_px=config_meta(lo=1, hi=MAX_IMAGE_SIDE),
     min_ncc=config_meta(lo=-1.0, hi=1.0),
+    row_band_px=config_meta(lo=0, hi=MAX_IMAGE_SIDE),
     refresh_ncc=config_meta(lo=-1.0, hi=1.0),
     disparity_search_px=config_meta(above=0.0, hi=float(MAX_IMAGE_SIDE)),
     lost_after_frames=config_meta(lo=1, hi=10_000),
