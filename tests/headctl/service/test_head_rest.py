@@ -1,0 +1,44 @@
+"""`headctl.service.head.Head` at rest on servos that droop and whose readings wobble."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from headctl.config.head import parse_config, read_yaml
+from headctl.experiments.online import SimulatedHeadRig
+from tests.support import SIM_IDEAL
+
+
+def _rig(mechanics: dict) -> SimulatedHeadRig:
+    data = copy.deepcopy(read_yaml(SIM_IDEAL))
+    data["servo_bus"]["mechanics"] = mechanics
+    return SimulatedHeadRig(seed=0, config=parse_config(data, SIM_IDEAL))
+
+
+def test_the_pose_at_rest_is_the_mean_of_the_readings_that_wobble():
+    with _rig({"model": "xm430_head", "read_wobble_ticks": 2, "backlash_deg": 0.0,
+               "sag_deg_at_horizontal": 0.0}) as rig:
+        head = rig.head
+        at_rest, single = [], []
+        for i in range(12):
+            head.move_to(np.array([5.0 + (i % 2), -3.0, 6.0]))  # back and forth between two poses
+            head.wait_settled(5.0)
+            if i % 2 == 0:
+                at_rest.append(head.read_pose())
+                single.append(head.pose_from(head.bus.read_state().positions))
+        spread_rest = np.ptp(np.array(at_rest)[:, 0])
+        spread_single = np.ptp(np.array(single)[:, 0])
+        assert spread_single > 0.1  # two ticks of wobble show in single readings
+        assert spread_rest < spread_single / 2
+        head.move_to(np.array([9.0, -3.0, 6.0]))  # a goal sent: the rest's mean no longer stands
+        rig.clock.advance(0.2)  # within the time a rest's mean would stand (0.5 s)
+        assert head.read_pose()[0] > 7.0
+
+
+def test_a_tilt_that_droops_short_of_its_goal_comes_to_rest():
+    with _rig({"model": "xm430_head", "sag_deg_at_horizontal": 0.6}) as rig:
+        head = rig.head
+        head.move_to(np.array([0.0, 0.0, 6.0]))
+        head.wait_settled(5.0)  # 0.6 deg short of the tilt's goal: more than the 0.3 deg of "at goal"
+        assert 0.3 < -head.read_pose()[1] < 1.0
