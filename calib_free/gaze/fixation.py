@@ -153,6 +153,17 @@ class FixationParams:
             raise ValueError(f"exploration must be one of {', '.join(EXPLORATION_KINDS)}, got {self.exploration!r}")
 
 
+STUCK_PX = 0.25  # a corrective step that changed its error by less than this was not made
+MAX_BOOST = 2.0  # the most a step not made is lengthened, times its own
+
+
+def next_boost(boost: float, change: float | None) -> float:
+    """How much longer than planned the next corrective step goes, after one that changed its
+    error by `change` (None: the first). A step smaller than the servos' dead band, or taken up
+    by the play of a reversal, leaves the error as it was: the next is twice as long."""
+    return min(boost * 2.0, MAX_BOOST) if change is not None and abs(change) < STUCK_PX else 1.0
+
+
 class FixationOutcome(enum.StrEnum):
     """How a fixation ended: it taught the map, or why it did not. The values are what the
     status, the events and the logs show."""
@@ -259,8 +270,6 @@ class FixationController:
 
     # deg of vergence per px of disparity a real head can have (negative: d < 0 converges)
     PLAUSIBLE_GAIN = (-2.0, -0.02)
-    STUCK_PX = 0.25  # a vergence step that changed the foveal disparity less than this did not happen
-    MAX_BOOST = 2.0  # the longest a stuck step grows, times the gain's
 
     def __init__(self, head: GazeHead, gaze_map: MapReader, params: FixationParams | None = None,
                  image_size: tuple[int, int] | None = None, seed: int | None = None,
@@ -407,10 +416,7 @@ class FixationController:
             if step == p.max_vergence_steps:
                 break
             record.vergence_steps += 1
-            # A step the eyes did not make (smaller than the servos' dead band, or taken up by
-            # the play of a reversal) left the disparity as it was: the next is twice as long.
-            stuck = last_step is not None and abs(disparity - last_step[1]) < self.STUCK_PX
-            boost = min(boost * 2.0, self.MAX_BOOST) if stuck else 1.0
+            boost = next_boost(boost, None if last_step is None else disparity - last_step[1])
             before = head.read_pose()[2]
             vergence = head.verge_to(before + boost * gain * disparity)  # the eyes only: pan and tilt stay put
             commanded = commanded + np.array([0.0, 0.0, vergence - before])

@@ -40,7 +40,7 @@ import numpy as np
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
-                                      HeadTimeoutError, LookParams, PairTimeoutError)
+                                      HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
 from calib_free.gaze.refind import (TargetSighting, find_target, fovea, patch_problem, patch_variants,
                                     target_patch_problem)
 from calib_free.map.gaze_map import Vector
@@ -198,6 +198,8 @@ class LookController:
             if not variants:
                 record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, problems[0]
                 return
+        last_error: float | None = None  # the target's distance from the fovea before the last step
+        boost = 1.0
         while True:
             final_left = fixation.final_left_image
             if fixation.outcome in _STOPS_A_LOOK or final_left is None or source is None:
@@ -242,8 +244,13 @@ class LookController:
                 record.detail = (f"{error:.2f} px from the fovea (tolerance {p.tolerance_px} px) after "
                                  f"{record.corrective_steps} corrective steps")
                 return
+            # A step that left the target where it was: the next aims farther beyond the fovea.
+            boost = next_boost(boost, None if last_error is None else error - last_error)
+            last_error = error
+            cx, cy = fovea(final_left)
+            aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
             d = self._disparity_at(fixation, sighting)
-            fixation = self._fixate(record, (sighting.x, sighting.y, d))
+            fixation = self._fixate(record, (aim_x, aim_y, d))
 
     @staticmethod
     def _expected_error_px(fixation: FixationRecord) -> float | None:
