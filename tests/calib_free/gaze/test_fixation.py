@@ -218,3 +218,13 @@ def test_a_missing_stereo_pair_is_told_apart_from_a_head_that_does_not_settle():
 
     record = FixationController(Blind(), GazeMap.for_image(320, 240, seed=0)).fixate()
     assert record.outcome == "no stereo pair in time"
+
+
+def test_a_step_the_servos_did_not_make_is_followed_by_a_longer_one_up_to_twice():
+    from calib_free.gaze.fixation import MAX_BOOST, next_boost
+
+    assert next_boost(1.0, None) == 1.0  # the first step: as planned
+    assert next_boost(1.0, -3.2) == 1.0  # it moved the error: as planned
+    assert next_boost(1.0, 0.1) == 2.0  # it did not: twice as long
+    assert next_boost(2.0, 0.0) == MAX_BOOST == 2.0  # and no longer
+    assert next_boost(2.0, 1.5) == 1.0  # once a step moves, back to plan
