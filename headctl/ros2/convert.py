@@ -148,3 +148,9 @@ def gaze_state(event: Mapping[str, JSON], prefix: str = "") -> m.DiagnosticStatu
     message = ": ".join(p for p in (outcome, detail) if p) or state or kind
     return m.DiagnosticStatus(level=level, name=kind, message=message, hardware_id=prefix + "headctl",
                               values=_values(event))
+
+
+def due(time_s: float, last_s: float | None, rate_hz: float) -> bool:
+    """Whether a joint state read at `time_s` is one to send at `rate_hz`, the last sent read
+    at `last_s`: a new read, at least 0.9 of a period after it."""
+    return time_s != last_s and (last_s is None or time_s - last_s >= 0.9 / rate_hz)

@@ -191,8 +191,7 @@ class Recording(threading.Thread):
 
     def _joints(self) -> None:
         state = self.service.joint_state()
-        last = self._last_read_s
-        if state is None or state.time_s == last or (last is not None and state.time_s - last < 0.9 / self.joints_hz):
+        if state is None or not convert.due(state.time_s, self._last_read_s, self.joints_hz):
             return
         self._last_read_s = state.time_s
         stamp = self.stamps.of(state.time_s)

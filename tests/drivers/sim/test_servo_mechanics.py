@@ -259,14 +259,20 @@ def test_a_read_costs_the_latency_timer_plus_the_bytes_on_the_wire():
 
 
 # --- safety --------------------------------------------------------------------------------
-def test_no_goal_outside_the_joint_limits_reaches_a_servo_whatever_the_mechanics(monkeypatch):
-    received: list[tuple[object, float]] = []  # (the servo's axis, the goal its controller got)
+@pytest.fixture
+def received(monkeypatch) -> list[tuple[object, float]]:
+    """(the servo's axis, the goal its controller got), for every goal a servo's controller gets."""
+    got: list[tuple[object, float]] = []
     command = ServoMechanics.command
 
     def spy(self, axis, goal_deg):
-        received.append((axis, goal_deg))
+        got.append((axis, goal_deg))
         command(self, axis, goal_deg)
     monkeypatch.setattr(ServoMechanics, "command", spy)
+    return got
+
+
+def test_no_goal_outside_the_joint_limits_reaches_a_servo_whatever_the_mechanics(received):
     clock = ManualClock()
     limits = {"pan": (-40, 40), "tilt": (-25, 25), "left_eye": (-15, 15), "right_eye": (-15, 15)}
     joints = {j: {"min_angle": lo, "max_angle": hi, "direction": -1 if j == "tilt" else 1, "zero_offset": 4.0}
@@ -286,14 +292,7 @@ def test_no_goal_outside_the_joint_limits_reaches_a_servo_whatever_the_mechanics
     sim.close()
 
 
-def test_torque_back_on_at_a_limit_holds_within_it_however_the_reading_wobbles(monkeypatch):
-    received: list[tuple[object, float]] = []
-    command = ServoMechanics.command
-
-    def spy(self, axis, goal_deg):
-        received.append((axis, goal_deg))
-        command(self, axis, goal_deg)
-    monkeypatch.setattr(ServoMechanics, "command", spy)
+def test_torque_back_on_at_a_limit_holds_within_it_however_the_reading_wobbles(received):
     clock = ManualClock()
     joints = {"pan": {"min_angle": -40, "max_angle": 40}}
     sim = sim_bus(clock, {"model": "xm430_head", "read_wobble_ticks": 2}, joints=joints)
