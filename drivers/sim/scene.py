@@ -11,8 +11,8 @@ gives each eye's rotation and optical centre per frame. `drivers` never imports
 `calib_free` (layers: drivers know nothing above them); the service hands the model in.
 
 World frame: x forward, y left, z up, metres. Everything is an axis-aligned box, so each
-ray meets a face through the slab test: a few vectorised numpy operations per box and
-per frame, then one `cv2.remap` of a texture atlas. No Python loop over pixels.
+ray meets a face through the slab test: one compiled pass over the pixels a frame
+(`drivers.sim.ray_cast`), then one `cv2.remap` of a texture atlas.
 """
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from drivers.servo.joints import JOINTS
+from drivers.sim.ray_cast import atlas_maps
 from drivers.sim.room_light import CONSTANT_LIGHT, Illumination
 from drivers.sim.textures import PhotoSet, photo_set, photo_texture
 
@@ -305,9 +306,10 @@ class EyeRenderer:
     """Renders one lens's view of a scene from an eye pose (R camera-from-world, centre).
 
     Per frame: rotate the precomputed rays (cv2.transform), intersect the room (nearest exit
-    plane) and each box (slab entry) on whole-image float32 planes, then sample the atlas
-    with one cv2.remap. A box is only tested inside the image rectangle its edges project
-    to (its silhouette is bounded by its projected edges), which keeps far objects cheap.
+    plane) and each box (slab entry) pixel by pixel in float32 (`drivers.sim.ray_cast`), then
+    sample the atlas with one cv2.remap. A box is only tested inside the image rectangle its
+    edges project to (its silhouette is bounded by its projected edges), which keeps far
+    objects cheap.
     """
 
     _EDGE_SAMPLES = 4  # points per box edge: a projected edge bends well under the margin between them
@@ -323,7 +325,7 @@ class EyeRenderer:
         back, seen = lens.project(rays)
         self.valid = (seen & (np.abs(back - uv).max(axis=1) < 0.05)).reshape(self.height, self.width)
         self.rays_cam = np.ascontiguousarray(rays.reshape(self.height, self.width, 3), dtype=np.float32)
-        # Per-face tables for cv2.LUT (face ids fit in a byte: 6 per box).
+        # Per-face tables, indexed by face id (6 per box, at most 256 faces).
         if len(scene.faces) > 256:
             raise ValueError(f"scene has {len(scene.boxes)} boxes; at most 42 are supported")
         self._lut = {name: np.zeros(256, np.float32) for name in ("su", "ou", "sv", "ov")}
@@ -332,7 +334,7 @@ class EyeRenderer:
         self._lut["normal"] = np.zeros(256, np.uint8)
         self._lut["normal"][:len(scene.faces)] = [f.axis for f in scene.faces]
         self._face_axes = np.array([(f.u_axis, f.v_axis) for f in scene.faces], np.intp)
-        self._invalid = ~self.valid if not self.valid.all() else None
+        self._outside = np.ascontiguousarray(~self.valid)  # beyond the image circle: sampled off the atlas
         # Sample points along every box's edges, all boxes in one array (one projection a frame).
         self._edge_points = np.concatenate(
             [self._box_edge_points(b) for b in range(1, len(scene.boxes))] or [np.zeros((0, 3))])
@@ -375,84 +377,38 @@ class EyeRenderer:
         the moving boxes where they are at `time_s` on the scene's clock (None: now)."""
         scene = self.scene
         world_from_cam = np.asarray(rotation, np.float32).T
-        d = cv2.split(cv2.transform(self.rays_cam, world_from_cam))  # 3 planes (H, W)
+        directions = cv2.transform(self.rays_cam, world_from_cam)  # (H, W, 3)
         o = np.asarray(centre, np.float32)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            inv = [1.0 / dk for dk in d]
-            # The room, seen from inside: the nearest of the three exit planes.
-            t = [np.maximum((scene.lo[0, k] - o[k]) * inv[k], (scene.hi[0, k] - o[k]) * inv[k]) for k in range(3)]
-            nearer_y = t[1] < t[0]
-            best = np.minimum(t[0], t[1])
-            nearer_z = t[2] < best
-            np.minimum(best, t[2], out=best)
-            # Face ids in uint8 throughout: byte-wide temporaries, and what cv2.LUT indexes with.
-            face = np.where(nearer_z, _u8(d[2] > 0) + 4, np.where(nearer_y, _u8(d[1] > 0) + 2, _u8(d[0] > 0)))
-            # A box moved by s is met where the ray from o - s meets it unmoved.
-            shift = scene.motion.box_offsets(time_s) if scene.motion is not None else None
-            absent = None
-            if shift is not None and np.isnan(shift).any():  # boxes out of the world: not drawn
-                absent = np.isnan(shift).any(axis=1)
-                shift = np.where(absent[:, None], np.float32(0.0), shift)
-            for b, window in enumerate(self._footprints(rotation, centre, shift), start=1):
-                if window is not None and (absent is None or not absent[b]):
-                    self._hit_box(b, window, o if shift is None else o - shift[b], d, inv, best, face)
+        # A box moved by s is met where the ray from o - s meets it unmoved.
+        shift = scene.motion.box_offsets(time_s) if scene.motion is not None else None
+        absent = None
+        if shift is not None and np.isnan(shift).any():  # boxes out of the world: not drawn
+            absent = np.isnan(shift).any(axis=1)
+            shift = np.where(absent[:, None], np.float32(0.0), shift)
+        windows = np.zeros((len(scene.boxes), 4), np.int64)  # rows and columns each box may cover
+        for b, window in enumerate(self._footprints(rotation, centre, shift), start=1):
+            if window is not None and (absent is None or not absent[b]):
+                rows, columns = window
+                windows[b] = rows.start, rows.stop, columns.start, columns.stop
         # Atlas coordinates. A face's in-plane axes are (y, z), (x, z) or (x, y) by its normal, and
         # atlas x = su * (o_u + t d_u) + ou = (su t) d_u + (su o_u + ou): the per-face constant
-        # folds the eye's position in, so per pixel it is one product and one LUT per map.
-        lut = self._lut
-        normal = cv2.LUT(face, lut["normal"])
-        d_u = np.where(normal == 0, d[1], d[0])
-        d_v = np.where(normal == 2, d[1], d[2])
+        # folds the eye's position in, so per pixel it is one product and one sum per map.
         faces = self._face_axes
         offset_x = np.zeros(256, np.float32)
         offset_y = np.zeros(256, np.float32)
         # Each face's eye position relative to its box (a moving box carries its texture).
-        origin = np.broadcast_to(o, (len(faces), 3)) if shift is None else o - np.repeat(shift, 6, axis=0)
-        rows = np.arange(len(faces))
-        offset_x[:len(faces)] = lut["su"][:len(faces)] * origin[rows, faces[:, 0]] + lut["ou"][:len(faces)]
-        offset_y[:len(faces)] = lut["sv"][:len(faces)] * origin[rows, faces[:, 1]] + lut["ov"][:len(faces)]
-        best_d_u = best * d_u
-        best_d_u *= cv2.LUT(face, lut["su"])
-        map_x = best_d_u
-        map_x += cv2.LUT(face, offset_x)
-        best *= d_v
-        best *= cv2.LUT(face, lut["sv"])
-        map_y = best
-        map_y += cv2.LUT(face, offset_y)
-        if self._invalid is not None:
-            map_x[self._invalid] = -100.0  # outside the image circle: the border colour (black)
+        eye_in_box = np.broadcast_to(o, (len(scene.boxes), 3)) if shift is None else o - shift
+        origin = np.repeat(eye_in_box, 6, axis=0)
+        lut, n = self._lut, len(faces)
+        offset_x[:n] = lut["su"][:n] * origin[np.arange(n), faces[:, 0]] + lut["ou"][:n]
+        offset_y[:n] = lut["sv"][:n] * origin[np.arange(n), faces[:, 1]] + lut["ov"][:n]
+        map_x = np.empty((self.height, self.width), np.float32)
+        map_y = np.empty((self.height, self.width), np.float32)
+        atlas_maps(directions, o, scene.lo, scene.hi, np.ascontiguousarray(eye_in_box, np.float32), windows,
+                   lut["normal"], lut["su"], lut["sv"], offset_x, offset_y, self._outside, map_x, map_y)
         image = cv2.remap(scene.sampling_atlas, map_x, map_y, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR) if image.ndim == 3 else image
-
-    def _hit_box(self, b: int, window: tuple[slice, slice], o: np.ndarray, d: Sequence[np.ndarray],
-                 inv: list[np.ndarray], best: np.ndarray, face: np.ndarray) -> None:
-        """Slab entry into box `b` within `window`: where nearer, update depth and face id."""
-        lo, hi = self.scene.lo[b], self.scene.hi[b]
-        t_min, t_max = [], []
-        for k in range(3):
-            a = (lo[k] - o[k]) * inv[k][window]
-            c = (hi[k] - o[k]) * inv[k][window]
-            t_min.append(np.minimum(a, c))
-            t_max.append(np.maximum(a, c))
-        near01 = np.maximum(t_min[0], t_min[1])
-        t_near = np.maximum(near01, t_min[2])
-        t_far = np.minimum(np.minimum(t_max[0], t_max[1]), t_max[2])
-        best_w = best[window]
-        hit = (t_near <= t_far) & (t_near > 0) & (t_near < best_w)
-        if not hit.any():
-            return
-        # The entry face: the axis whose slab is entered last; its lo face if the ray runs +.
-        base = np.uint8(6 * b)
-        entry = np.where(t_min[2] >= near01, _u8(d[2][window] < 0) + (base + 4),
-                         np.where(t_min[1] >= t_min[0], _u8(d[1][window] < 0) + (base + 2), _u8(d[0][window] < 0) + base))
-        np.copyto(best_w, t_near, where=hit)
-        np.copyto(face[window], entry, where=hit)
-
-
-def _u8(mask: np.ndarray) -> np.ndarray:
-    """A boolean mask as 0/1 bytes, without a copy."""
-    return mask.view(np.uint8)
 
 
 def joints_tuple(joints: Mapping[str, float]) -> tuple[float, float, float, float]:
