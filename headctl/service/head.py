@@ -149,6 +149,12 @@ class Head:
         self._goal: np.ndarray | None = None
         # (when, the mean pose) of the last rest, until a goal is sent or REST_POSE_KEPT_S pass
         self._rest_pose: tuple[float, np.ndarray] | None = None
+        # Where the joints come to rest relative to their goals (pan, tilt, vergence), averaged
+        # over the last rests: a loaded servo's proportional control rests short of its goal by
+        # a load-dependent offset (the tilt droops under the head's weight) that the encoder
+        # reads. A rest is judged "at goal" against the goal plus this offset, so a drooping
+        # tilt is not made to wait the longer `short_settle_s` at every saccade and vergence step.
+        self.rest_offset = np.zeros(3)
         self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
         self.phase = "idle"
 
@@ -163,6 +169,7 @@ class Head:
         self._bus = bus
         self._goal = None
         self._rest_pose = None
+        self.rest_offset = np.zeros(3)
 
     # -- the bus, interruptible ------------------------------------------------------------
     def _check(self) -> None:
@@ -245,16 +252,18 @@ class Head:
         rest_since: float | None = None
         rest_pose = np.zeros(3)
         held: list[np.ndarray] = []  # the poses read since the head held still
+        raw: list[np.ndarray] = []  # ... as the bus reads them, as its goals are
         while True:
             state = self._read_state()
             pose = pose_of(state.positions)
-            off = np.zeros(3) if self._goal is None else np.abs(pose - self._goal)
+            off = np.zeros(3) if self._goal is None else np.abs(pose - self._goal - self.rest_offset)
             at_goal = bool(np.all(off <= self.tolerance_deg))
             if not state.moving and np.all(off <= self.short_tolerance_deg):
                 if rest_since is None or np.any(np.abs(pose - rest_pose) > self.steady_deg):
-                    rest_since, rest_pose, held = state.time_s, pose, [self.pose_from(state.positions)]
+                    rest_since, rest_pose, held, raw = state.time_s, pose, [self.pose_from(state.positions)], [pose]
                 else:
                     held.append(self.pose_from(state.positions))
+                    raw.append(pose)
                     if state.time_s - rest_since >= (self.settle_s if at_goal else self.short_settle_s):
                         break
             else:
@@ -265,6 +274,9 @@ class Head:
             self._check()
             self.clock.sleep(self.poll_s)
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
+        if self._goal is not None:
+            limit = self.short_tolerance_deg - self.tolerance_deg
+            self.rest_offset = np.clip(0.5 * (self.rest_offset + np.mean(raw, axis=0) - self._goal), -limit, limit)
         if self._saccade is not None:
             onset_s, goal = self._saccade
             self._saccade = None

@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+import pytest
 
 from headctl.config.head import parse_config, read_yaml
 from headctl.experiments.online import SimulatedHeadRig
@@ -42,3 +43,26 @@ def test_a_tilt_that_droops_short_of_its_goal_comes_to_rest():
         head.move_to(np.array([0.0, 0.0, 6.0]))
         head.wait_settled(5.0)  # 0.6 deg short of the tilt's goal: more than the 0.3 deg of "at goal"
         assert 0.3 < -head.read_pose()[1] < 1.0
+
+
+def _rest_time_s(rig, head) -> float:
+    started = rig.clock.monotonic()
+    head.wait_settled(5.0)
+    return rig.clock.monotonic() - started
+
+
+def test_the_droop_learned_at_one_rest_lets_the_next_come_to_rest_at_once():
+    with _rig({"model": "xm430_head", "sag_deg_at_horizontal": 0.6, "backlash_deg": 0.0,
+               "read_wobble_ticks": 0}) as rig:
+        head = rig.head
+        head.move_to(np.array([0.0, 0.0, 6.0]))
+        first = _rest_time_s(rig, head)  # 0.6 deg short of the tilt's goal: the longer wait
+        assert first >= head.short_settle_s
+        assert head.rest_offset[1] == pytest.approx(-0.3, abs=0.05)  # half the droop after one rest
+        head.move_to(np.array([0.0, 1.0, 6.0]))
+        head.wait_settled(5.0)
+        assert head.rest_offset[1] == pytest.approx(-0.45, abs=0.06)
+        head.verge_to(6.5)  # the eyes alone: the tilt still as far short of its goal
+        assert _rest_time_s(rig, head) < head.short_settle_s
+        head.move_to(np.array([3.0, 1.5, 6.0]))
+        assert _rest_time_s(rig, head) < head.short_settle_s + 0.1  # the move itself, then settle_s
