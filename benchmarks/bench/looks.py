@@ -232,7 +232,7 @@ def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
             continue
         target, measured = drawn
         before = world.true_joints()
-        record: LookRecord = looker.look(target, rig.head.read_pose())
+        record: LookRecord = looker.look(target, rig.head.read_pose(), depth_known=measured)
         truth, hidden = true_error_px(rig, before, world.true_joints(), target[:2])
         rows.append({"target": target, "d_measured": measured, "outcome": str(record.outcome),
                      "on_target": record.on_target,

@@ -19,12 +19,13 @@ view, else from the depth the eyes fixate.
 Where the target's patch matches two places of the new image nearly alike (a texture that
 repeats), the look takes the one alone near where the fixation was expected to bring the
 target, the fovea, within a reach that grows with the fixation's landing error, measured by
-its correspondence when that was accepted (`calib_free.gaze.refind.find_target`); a repeat
-within that reach, or no measured landing error, leaves the patch ambiguous.
+its correspondence when that was accepted, else by the left eye's alone
+(`calib_free.gaze.refind.find_target`, `left_landing_error_px`); a repeat within that reach,
+or no measured landing error, leaves the patch ambiguous.
 
 The target not found again, or found where the eyes converged far from the vergence the map
-gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth), fails the
-look saying so. A look's figures come only from accepted measurements: `final_error_px` from
+gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth; judged only
+where d is the target's, given or measured), fails the look saying so. A look's figures come only from accepted measurements: `final_error_px` from
 the target found after the last step, `landing_error_px` from a first fixation whose
 correspondence was accepted (it taught).
 """
@@ -38,6 +39,7 @@ from typing import Callable
 import numpy as np
 
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
+from calib_free.correspondence.search import CorrespondenceParams, match_eye
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
@@ -101,6 +103,23 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
     return TargetDisparity(d, ncc)
 
 
+def left_landing_error_px(fixation: FixationRecord, params: CorrespondenceParams,
+                          confidence_floor: float) -> float | None:
+    """Where the left fovea landed, in the image before `fixation`, from its aim: the left
+    eye's correspondence alone (`match_eye`), for a fixation that taught nothing (its eyes
+    did not converge, or the right eye's match was refused) but whose left eye's match is
+    confident (at least `confidence_floor`). A look finds its target in the left image, so
+    this is the landing that tells the target from a repeat of its texture. None when not
+    measured."""
+    pre, post, aim = fixation.pre_left_image, fixation.final_left_image, fixation.target
+    if pre is None or post is None or aim is None:
+        return None
+    match = match_eye(pre, post, params)
+    if not match.confidence >= confidence_floor:  # NaN: not measured
+        return None
+    return float(np.hypot(match.x - aim[0], match.y - aim[1]))
+
+
 @dataclass
 class LookRecord:
     """Everything about one look: its fixations (the first, then the corrective ones), where the
@@ -112,6 +131,7 @@ class LookRecord:
     outcome: LookOutcome | FixationOutcome | None = None
     detail: str = ""
     view_restored_deg: float | None = None  # how far the head was from the target's view when the look began
+    depth_known: bool = True  # d is the target's (given or measured), not the fixation's depth in its stead
     duration_s: float = 0.0
 
     @property
@@ -154,11 +174,13 @@ class LookController:
         self.on_fixation = on_fixation  # told of each of a look's fixations as it ends
         self.clock = fixation.clock
 
-    def look(self, target: Vector, reference_pose: Vector | None = None) -> LookRecord:
+    def look(self, target: Vector, reference_pose: Vector | None = None, depth_known: bool = True) -> LookRecord:
         """Look at an image target (x, y, d) chosen in the view of `reference_pose` (None: the
-        head's view now), until it is on the left fovea or the look fails."""
+        head's view now), until it is on the left fovea or the look fails. `depth_known`
+        False: d is not the target's (it could not be measured, `target_disparity`), so the
+        eyes' final vergence is not held against it."""
         started = self.clock()
-        record = LookRecord(np.asarray(target, dtype=float))
+        record = LookRecord(np.asarray(target, dtype=float), depth_known=depth_known)
         try:
             self._run(record, reference_pose)
         except FixationInterrupted as err:
@@ -252,16 +274,19 @@ class LookController:
             d = self._disparity_at(fixation, sighting)
             fixation = self._fixate(record, (aim_x, aim_y, d))
 
-    @staticmethod
-    def _expected_error_px(fixation: FixationRecord) -> float | None:
+    def _expected_error_px(self, fixation: FixationRecord) -> float | None:
         """How far from the fovea `fixation` is expected to have left the target (px, in the
         image before it): its own landing error where its correspondence was accepted (what
-        landed on the fovea, and where the target was, both measured); None otherwise. The
-        map's recent landing errors are no stand-in: a fixation whose correspondence was
-        refused went otherwise than the map's typical one (a depth not measured, eyes that did
-        not converge), and with them a look took a nearby repeat for the target in 5 of 100
+        landed on the fovea, and where the target was, both measured); else the left eye's
+        alone (`left_landing_error_px`); None when neither was measured. The map's recent
+        landing errors are no stand-in: a fixation whose correspondence was refused went
+        otherwise than the map's typical one (a depth not measured, eyes that did not
+        converge), and with them a look took a nearby repeat for the target in 5 of 100
         random pixels (`benchmarks.bench.looks`, docs/results/looks.md)."""
-        return fixation.landing_error_px
+        if fixation.landing_error_px is not None:
+            return fixation.landing_error_px
+        return left_landing_error_px(fixation, self.fixation.params.correspondence,
+                                     self.fixation.params.confidence_floor)
 
     def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None) -> FixationRecord:
         fixation = self.fixation.fixate(target, reference_pose)
@@ -273,9 +298,12 @@ class LookController:
     def _depth_mismatch(self, record: LookRecord, fixation: FixationRecord) -> str:
         """Why the eyes' final vergence cannot be the target's ('' if it can): converged, it
         differs from the vergence the map gave the first saccade for the target's d by more
-        than `max_vergence_mismatch_deg`."""
+        than `max_vergence_mismatch_deg`. Not judged where d was not the target's: the vergence
+        the map gives d = 0 is the depth the eyes fixated before, not the target's (in the
+        realistic world every such look refused so was truly on target,
+        docs/results/realistic-world.md)."""
         first = record.fixations[0]
-        if not fixation.converged or fixation.pose_after is None or first.pose_before is None or first.planned is None:
+        if not record.depth_known or not fixation.converged or fixation.pose_after is None or first.pose_before is None or first.planned is None:
             return ""
         head = self.fixation.head
         meant = float(np.clip(first.pose_before[2] + first.planned[2], head.pose_low[2], head.pose_high[2]))

@@ -237,7 +237,8 @@ class FixationThread(threading.Thread):
         self.head.set_phase("look at target")
         try:
             with self.exposure.held():  # one exposure for the look: its fixations find its first image's target
-                look = self.looker.look(target, None if reference is None else np.asarray(reference))
+                look = self.looker.look(target, None if reference is None else np.asarray(reference),
+                                         depth_known=job.request.depth_known)
         finally:
             self.head.set_phase("idle")
         fixations = look.fixations

@@ -59,6 +59,11 @@ class LookRequest:
     d_ncc: float | None = None
     d_reason: str = ""
 
+    @property
+    def depth_known(self) -> bool:
+        """d is the target's: given, or measured (not the fixation's depth in its stead)."""
+        return not self.d_reason
+
     def as_dict(self) -> dict[str, object]:
         names = ("pan", "tilt", "vergence") if self.kind is LookKind.ANGLES else ("x", "y", "d")
         out: dict[str, object] = {"kind": self.kind, **dict(zip(names, self.values))}

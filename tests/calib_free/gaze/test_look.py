@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import LookController, LookOutcome, target_disparity
+from calib_free.gaze.look import LookController, LookOutcome, left_landing_error_px, target_disparity
 from calib_free.gaze.refind import find_target, patch_problem
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, LookParams
 from headctl.config.head import load_config
@@ -276,6 +276,15 @@ def test_a_repeat_within_the_maps_landing_error_is_refused_saying_so():
     assert find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=2.0)[0] is not None
 
 
+def repeat_after_the_first_move(texel: np.ndarray):
+    """A plane head's `on_move` that copies the 45 x 45 texels around `texel` 46 px beside it
+    once the head has moved: a repeat the view before did not hold."""
+    def repeat(h) -> None:
+        if len(h.moves) == 1:
+            h.plane = with_a_copy_beside(h.plane, texel, (46, 0), size=45)
+    return repeat
+
+
 def test_a_look_tells_the_target_from_a_repeat_that_appears_after_the_saccade():
     """Once the head moved, a copy of the target's surroundings (45 x 45 px, more than either of
     the look's patches) shows 46 px beside it, a repeat the view before did not hold. The first
@@ -284,11 +293,7 @@ def test_a_look_tells_the_target_from_a_repeat_that_appears_after_the_saccade():
     head = PlanarHead()
     target = (236.0, 84.0)
     texel = head.texel_at(target)
-
-    def repeat(h) -> None:
-        if len(h.moves) == 1:
-            h.plane = with_a_copy_beside(h.plane, texel, (46, 0), size=45)
-
+    repeat = repeat_after_the_first_move(texel)
     head.on_move = repeat
     controller, _ = looker(head, gain=1.0, search_radius_px=150)  # the copy within the near search
     record = controller.look((*target, 0.0))
@@ -320,3 +325,39 @@ def test_a_fine_periodic_texture_is_told_apart_at_its_own_period():
     sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=0.3)
     assert sighting is not None, why
     assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.5
+
+
+class RightEyeDazzled(PlanarHead):
+    """A plane head whose right camera sees only noise once the head has moved (dazzled, say):
+    fine vergence finds nothing to verge on, no fixation teaches, the left eye sees as before."""
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        left, right = super().wait_pair(after_s, timeout_s)
+        if self.moves:
+            right = np.random.default_rng(len(self.moves)).uniform(0, 255, right.shape).astype(right.dtype)
+        return left, right
+
+
+def test_the_left_eyes_own_landing_tells_the_repeats_apart_when_nothing_taught():
+    """The repeat of the test above, after a saccade whose fixation taught nothing (the right
+    eye saw noise): the left eye's own correspondence measured where it landed, and the look
+    takes the copy there, the true one."""
+    head = RightEyeDazzled()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    head.on_move = repeat_after_the_first_move(texel)
+    controller, learner = looker(head, gain=1.0, search_radius_px=150)
+    record = controller.look((*target, 0.0))
+    first = record.fixations[0]
+    assert first.outcome is FixationOutcome.NO_VERGENCE_MATCH and first.landing_error_px is None
+    assert not learner.samples
+    assert record.on_target and true_error_px(head, texel) <= 1.0, record.detail
+    assert left_landing_error_px(first, FixationParams().correspondence, 0.3) == pytest.approx(0.0, abs=0.5)
+
+
+def test_the_left_eyes_landing_is_not_measured_where_its_view_is_flat():
+    head = PlanarHead(plane=np.full((600, 800), 128.0, dtype=np.float32))
+    controller, _ = looker(head)
+    fixation = controller.fixation.fixate((200.0, 100.0, 0.0))
+    assert fixation.pre_left_image is not None and fixation.final_left_image is not None
+    assert left_landing_error_px(fixation, FixationParams().correspondence, 0.3) is None
