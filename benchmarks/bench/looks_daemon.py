@@ -6,7 +6,9 @@ streamed cameras, the adapter learning, as `headctl run` does) explores from a r
 from a head near the centre of its range: an angles look to pan and tilt drawn within
 ±`--spread` degrees of 0 (the vergence as it is), then a look at a uniformly random pixel of the
 left image sent without d (`POST /api/v1/look/target`, the daemon measures d or refuses the
-pixel with 422). Reported: the share ending on target (`done`), the final error's quantiles
+pixel with 422, as it does one the map sends beyond the joint limits). Reported: the share
+ending on target (`done`) of all looks, of those within reach and of those the daemon took on
+(not refused), the final error's quantiles
 (the daemon's own, on target), the look's wall time (`duration_s`), and the others' outcomes
 and details; beside them the truth, the world point the pixel showed before the look (the
 first surface along its ray through the left camera's own lens) projected at the servos' true
@@ -60,6 +62,8 @@ def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, hei
 def failure_kind(row: dict[str, Any]) -> str:
     """A failed look's kind: its state, outcome and the first clause of its detail, without the
     pixel's coordinates and the figures."""
+    if row["state"] == "refused" and "beyond the joint limits" in row["detail"]:
+        return f"refused ({row['outcome']}): beyond the joint limits from the pose now"
     if row["state"] == "refused":  # why the look's patch cannot find it (after why d was not measured)
         detail = re.sub(r"^the target's patch at \([^)]*\) ", "", row["detail"].split("cannot be looked at: ")[-1])
         return f"refused ({row['outcome']}): " + re.split(r"[;:(]", detail)[0].strip()
@@ -80,9 +84,12 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     times = [r["duration_s"] for r in run if r.get("duration_s") is not None]
     truth = [r["true_error_px"] for r in on]
     failed = collections.Counter(failure_kind(r) for r in rows if not r["on_target"])
-    reachable = [r for r in rows if not r["outcome"].startswith("target beyond the joint limits")]
+    reachable = [r for r in rows if not r["outcome"].startswith("target beyond the joint limits")
+                 and "beyond the joint limits" not in r["detail"]]
     return {"looks": len(rows), "on_target": len(on), "on_target_fraction": len(on) / len(rows),
             "on_target_fraction_of_reachable": len(on) / len(reachable) if reachable else None,
+            # of the looks the daemon took on: not refused before the head moved (422)
+            "on_target_fraction_of_accepted": len(on) / len(run) if run else None,
             "refused_422": len(rows) - len(run),
             "final_error_px": {"p50": q(final, 50), "p90": q(final, 90), "max": q(final, 100)},
             "duration_s": {"p50": q(times, 50), "p90": q(times, 90)},

@@ -103,6 +103,20 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
     return TargetDisparity(d, ncc)
 
 
+# A saccade's pan or tilt goal this far beyond the joint limits leaves its target farther from
+# the fovea than any look's tolerance (about 4 px a degree at the fovea): no look ends on it.
+REACH_MARGIN_DEG = 1.0
+
+
+def beyond_limits(goal: np.ndarray, low: np.ndarray, high: np.ndarray, margin_deg: float) -> str:
+    """Which of a saccade's pan and tilt goals (`goal`, a pose) lie more than `margin_deg`
+    beyond the limits `low`, `high`, said ('' if none)."""
+    beyond = [f"{name} {goal[i]:.1f} outside [{low[i]:g}, {high[i]:g}] deg"
+              for i, name in enumerate(("pan", "tilt"))
+              if not low[i] - margin_deg <= goal[i] <= high[i] + margin_deg]
+    return "; ".join(beyond)
+
+
 def left_landing_error_px(fixation: FixationRecord, params: CorrespondenceParams,
                           confidence_floor: float) -> float | None:
     """Where the left fovea landed, in the image before `fixation`, from its aim: the left
@@ -320,11 +334,7 @@ class LookController:
         if fixation.pose_before is None or fixation.planned is None:
             return ""
         head = self.fixation.head
-        goal = fixation.pose_before + fixation.planned
-        beyond = [f"{name} {goal[i]:.1f} outside [{head.pose_low[i]:g}, {head.pose_high[i]:g}] deg"
-                  for i, name in enumerate(("pan", "tilt"))
-                  if not head.pose_low[i] - 0.05 <= goal[i] <= head.pose_high[i] + 0.05]
-        return "; ".join(beyond)
+        return beyond_limits(fixation.pose_before + fixation.planned, head.pose_low, head.pose_high, 0.05)
 
     def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
         """d at the target's new position, measured between the final left and right images as

@@ -23,10 +23,10 @@ import numpy as np
 from calib_free.map.gaze_map import GazeMap
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX
 from calib_free.correspondence.disparity import disparity_at as measured_disparity_at
-from calib_free.errors import DisparityError, MapFileError, TargetPatchError
+from calib_free.errors import DisparityError, MapFileError, OutOfRangeError, TargetPatchError
 from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
-from calib_free.gaze.look import TargetDisparity
+from calib_free.gaze.look import REACH_MARGIN_DEG, TargetDisparity, beyond_limits
 from calib_free.gaze.look import target_disparity as look_disparity
 from drivers.servo.bus import BusState
 from drivers.servo.joints import JOINTS
@@ -242,7 +242,9 @@ class ServiceControl:
                 raise InvalidRequestError(f"d = {d:g} is outside the map's disparity range "
                                           f"(gaze_map.disparity_range), [{d_low:g}, {d_high:g}]", "d")
             # The target is in the view of the pose now; the head may move before the look runs.
-            request = dataclasses.replace(request, reference_pose=tuple(self._pose_now(running).tolist()))
+            pose = self._pose_now(running)
+            request = dataclasses.replace(request, reference_pose=tuple(pose.tolist()))
+            self._check_reach(running, (x, y, d), pose)
         else:
             pose = self._pose_now(running) if request.relative else np.zeros(3)
             goal = pose + np.asarray(request.values, dtype=float)
@@ -256,6 +258,23 @@ class ServiceControl:
         job = self.parts.looks.submit(request, replace=replace)
         log.info("look %d queued: %s", job.id, request.as_dict())
         return job
+
+    @staticmethod
+    def _check_reach(running: RunningParts, target: tuple[float, float, float], pose: np.ndarray) -> None:
+        """Refuse, before the head moves, a target whose saccade the map sends clearly beyond the
+        pan or tilt limits (`REACH_MARGIN_DEG`): from this pose no look can end on it."""
+        head = running.head
+        try:
+            goal = pose + running.adapter.command(target, pose=pose)
+        except OutOfRangeError:
+            return  # outside the map: the look says so
+        beyond = beyond_limits(goal, head.pose_low, head.pose_high, REACH_MARGIN_DEG)
+        if beyond:
+            x, y, _ = target
+            raise InvalidRequestError(
+                f"x, y: the target at ({x:g}, {y:g}) is beyond the joint limits from the pose now: the map's "
+                f"saccade to it ends at {beyond} (servo_bus.joints); no look can end on it from here: turn the "
+                "head towards it first (an angles look)", "x")
 
     def get_look(self, look_id: int) -> LookJob:
         return self.parts.looks.get(look_id)
