@@ -14,9 +14,10 @@ a k-nearest-neighbour regressor on many samples, scored the same way.
 """
 from __future__ import annotations
 
+import collections
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -111,6 +112,63 @@ class ExperimentResult:
             if smoothed[k] <= tolerance * pre:
                 return k + 1 - change_at
         return None
+
+
+@dataclass(frozen=True)
+class MeasuredRecovery:
+    """How the fixations' own measured landing came back after a change
+    (`measured_landing_recovery`): in fixations since the change, None if never within the run."""
+
+    fixations: int | None
+    before_px: float | None  # the level before: median of the last measured landings before the change
+    bar_px: float | None  # back: the running median at or below this
+    peak_after_px: float | None  # the highest running median (of full windows) after the change, until back
+
+
+# The measured landing's "back" (`measured_landing_recovery`): the bar is the level before times
+# MEASURED_TOLERANCE, and at least the level plus MEASURED_FLOOR_PX. The measure is sub-pixel
+# (values down to 0.01 px), but a median of MEASURED_WINDOW landings of one steady map strays
+# above its level by up to 0.11 px (95th percentile, ideal world, fixations 500-1,000): on the
+# ideal head's 0.2 px landing 1.25x is inside that noise, the floor is not.
+MEASURED_TOLERANCE = 1.25
+MEASURED_FLOOR_PX = 0.1
+MEASURED_BEFORE = 200
+MEASURED_WINDOW = 50
+
+
+def measured_landing_recovery(landing_px: Sequence[float | None], change_at: int,
+                              tolerance: float = MEASURED_TOLERANCE, floor_px: float = MEASURED_FLOOR_PX,
+                              before: int = MEASURED_BEFORE, window: int = MEASURED_WINDOW) -> MeasuredRecovery:
+    """Fixations after `change_at` until the fixations' own measured landing is back to its level.
+
+    `landing_px`: per fixation, its measured landing error (`FixationRecord.landing_error_px`),
+    None where it has none (refused, or no image target aimed at). Level before: the median of
+    the last `before` measured landings before fixation `change_at`. After the change, the
+    median of the last `window` measured landings since the change (none from before it); back:
+    at the first fixation at which that window is full and its median at most
+    max(`tolerance` x level, level + `floor_px`). Fixations without a measure add nothing to the
+    window, so a run of refusals can neither fill it nor make it look back."""
+    measured_before = [px for px in landing_px[:change_at] if px is not None][-before:]
+    if not measured_before:
+        return MeasuredRecovery(None, None, None, None)
+    level = float(np.median(measured_before))
+    bar = max(tolerance * level, level + floor_px)
+    recent: collections.deque[float] = collections.deque(maxlen=window)
+    recovered: int | None = None
+    peak: float | None = None
+    for n in range(change_at, len(landing_px)):
+        px = landing_px[n]
+        if px is None:
+            continue
+        recent.append(px)
+        if len(recent) < window:
+            continue
+        median = float(np.median(recent))
+        peak = median if peak is None else max(peak, median)
+        if median <= bar:
+            recovered = n + 1 - change_at
+            break
+    return MeasuredRecovery(recovered, level, bar, peak)
 
 
 def running_mean(values: np.ndarray, window: int) -> np.ndarray:
@@ -229,5 +287,7 @@ def final_head(spec: ExperimentSpec, head: HeadModel) -> HeadModel:
     return head
 
 
-__all__ = ["Change", "EXPERIMENTS", "ExperimentResult", "ExperimentSpec", "final_head", "landing_errors_px",
-           "landing_targets", "map_predictor", "Predictor", "representation_floor", "run_experiment", "running_mean"]
+__all__ = ["Change", "EXPERIMENTS", "ExperimentResult", "ExperimentSpec", "MEASURED_BEFORE", "MEASURED_FLOOR_PX",
+           "MEASURED_TOLERANCE", "MEASURED_WINDOW", "MeasuredRecovery", "final_head", "landing_errors_px",
+           "landing_targets", "map_predictor", "measured_landing_recovery", "Predictor", "representation_floor",
+           "run_experiment", "running_mean"]

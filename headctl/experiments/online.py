@@ -28,8 +28,8 @@ import numpy as np
 
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter, Sample
-from calib_free.sim.experiments import (Change, ExperimentResult, ExperimentSpec, landing_errors_px, landing_targets,
-                                    map_predictor)
+from calib_free.sim.experiments import (Change, ExperimentResult, ExperimentSpec, MeasuredRecovery, landing_errors_px,
+                                        landing_targets, map_predictor, measured_landing_recovery)
 from calib_free.gaze.exploration import ExplorationKind, TeachingExplorer
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, FixationRecord
 from calib_free.map.gaze_map import AdaptResult, Vector
@@ -117,11 +117,20 @@ class OnlineResult:
         """Where the last `over` taught fixations that aimed at an image target ended, as their
         own correspondence measured it (`FixationRecord.landing_error_px`): the landing error a
         real head can know, in whatever world, beside the geometric model's (`landing`)."""
-        errors = [e for e in (r.landing_error_px for r in self.records) if e is not None][-over:]
+        errors = [e for e in self.measured_landing_px() if e is not None][-over:]
         if not errors:
             return {"fixations": 0, "median_px": None, "p90_px": None}
         return {"fixations": len(errors), "median_px": float(np.median(errors)),
                 "p90_px": float(np.percentile(errors, 90))}
+
+    def measured_landing_px(self) -> list[float | None]:
+        """Per fixation, the landing error it measured itself (None: refused, or no image target)."""
+        return [r.landing_error_px for r in self.records]
+
+    def measured_landing_recovery(self, change: Change) -> MeasuredRecovery:
+        """How the fixations' measured landing came back after `change` (`change.at` in
+        fixations), counted in fixations since it (`calib_free.sim.experiments.measured_landing_recovery`)."""
+        return measured_landing_recovery(self.measured_landing_px(), change.at)
 
     def vergence_convergence(self) -> dict[str, float]:
         """Of the fixations whose foveae matched, how many converged, and in how many steps."""

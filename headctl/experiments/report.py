@@ -15,7 +15,7 @@ from typing import NotRequired, TypedDict, cast
 
 import numpy as np
 
-from calib_free.sim.experiments import ExperimentResult
+from calib_free.sim.experiments import MEASURED_WINDOW, ExperimentResult, MeasuredRecovery
 from headctl.experiments.online import OnlineResult
 from headctl.experiments.paper import ExperimentReport, ExperimentRequest
 from headctl.experiments.paper_figures import reference_for
@@ -28,7 +28,10 @@ STEADY_OVER = 200  # fixations in the steadier "mean of the last 200" figure
 
 
 class ChangeSummary(TypedDict):
-    """One change of the experiment (prism, defect, swap) and how the run recovered from it."""
+    """One change of the experiment (prism, defect, swap) and how the run recovered from it.
+
+    `at` and `recovery_fixations` count the curves' steps (online: adaptations); `at_fixation`
+    and the measured landing's figures (online runs only, None otherwise) count fixations."""
     at: int
     recovery_fixations: int | None
     goal_fixations: int | None
@@ -36,6 +39,11 @@ class ChangeSummary(TypedDict):
     landing_before_px: float | None
     landing_worst_after_px: float | None
     landing_700_after_px: float | None
+    at_fixation: int
+    measured_landing_recovery_fixations: int | None
+    measured_landing_before_px: float | None
+    measured_landing_bar_px: float | None
+    measured_landing_peak_after_px: float | None
 
 
 class OnlineFigures(TypedDict):
@@ -47,6 +55,7 @@ class OnlineFigures(TypedDict):
     median_confidence_taught: float | None
     vergence: dict[str, float]
     measured_landing: dict[str, float | int | None]
+    measured_landing_per_fixation_px: list[float | None]  # None: refused, or no image target
     landing_at_fixations: list[int]
     landing_start_px: float | None
     exploration: str
@@ -112,6 +121,8 @@ def online_summary(result: OnlineResult) -> OnlineSummary:
             "median_confidence_taught": float(np.median(confidences)) if confidences else None,
             "vergence": result.vergence_convergence(),
             "measured_landing": result.measured_landing(),
+            "measured_landing_per_fixation_px": [None if px is None else round(px, 4)
+                                                 for px in result.measured_landing_px()],
             "landing_at_fixations": result.landing_fixations,
             "landing_start_px": result.landing_start_px,
             "exploration": result.exploration,
@@ -137,22 +148,33 @@ def write_csv(result: ExperimentResult, path: Path) -> None:
                         f"{landing[n + 1]:.3f}" if n + 1 in landing else ""])
 
 
-def change_summaries(result: ExperimentResult) -> list[ChangeSummary]:
-    """Per change of the run's experiment: when the retinal error recovered, and the landing error around it."""
+def change_summaries(result: ExperimentResult, online: OnlineResult | None = None) -> list[ChangeSummary]:
+    """Per change of the run's experiment: when the retinal error recovered, the landing error
+    around it, and (online) when the fixations' own measured landing was back."""
     spec = result.spec
+    # Online, `result` counts adaptations; the run's own spec has the changes at their fixations.
+    at_fixations = online.spec.changes if online is not None else spec.changes
     changes: list[ChangeSummary] = []
-    for change in spec.changes:
+    for change, at_fixation in zip(spec.changes, at_fixations):
         before = [px for at, px in result.landing if at <= change.at]
         after = [px for at, px in result.landing if change.at < at <= change.at + 700]
+        measured = (online.measured_landing_recovery(at_fixation) if online is not None
+                    else MeasuredRecovery(None, None, None, None))
         changes.append({"at": change.at, "recovery_fixations": result.recovery_fixations(change.at),
                         "goal_fixations": RECOVERY_GOAL.get(spec.name), "before": result.final(change.at),
                         "landing_before_px": before[-1] if before else None,
                         "landing_worst_after_px": max(after) if after else None,
-                        "landing_700_after_px": after[-1] if after else None})
+                        "landing_700_after_px": after[-1] if after else None,
+                        "at_fixation": at_fixation.at,
+                        "measured_landing_recovery_fixations": measured.fixations,
+                        "measured_landing_before_px": measured.before_px,
+                        "measured_landing_bar_px": measured.bar_px,
+                        "measured_landing_peak_after_px": measured.peak_after_px})
     return changes
 
 
-def summarise(result: ExperimentResult, floor_px: float | None, profile: str, learn_s: float) -> RunFigures:
+def summarise(result: ExperimentResult, floor_px: float | None, profile: str, learn_s: float,
+              online: OnlineResult | None = None) -> RunFigures:
     spec = result.spec
     landing_px = result.landing[-1][1] if result.landing else None
     # A run without landing checks has no landing error to divide by the floor (a TypeError).
@@ -160,12 +182,12 @@ def summarise(result: ExperimentResult, floor_px: float | None, profile: str, le
     return {"experiment": spec.name, "profile": profile, "fixations": spec.fixations,
             "seconds": round(learn_s, 2), "final": result.final(), "steady": result.final(over=STEADY_OVER),
             "landing_error_px": landing_px, "floor_px": floor_px, "refused": result.refused, **over_floor,
-            "changes": change_summaries(result), "landing_curve_px": result.landing}
+            "changes": change_summaries(result, online), "landing_curve_px": result.landing}
 
 
 def summary_of(report: ExperimentReport) -> RunSummary:
     """The run's summary JSON: the figures, online the fixations' outcomes, and the pose flag."""
-    figures = summarise(report.result, report.floor_px, report.request.profile, report.seconds)
+    figures = summarise(report.result, report.floor_px, report.request.profile, report.seconds, report.online)
     online: _OnlinePart = {}
     if report.online is not None:
         extra = online_summary(report.online)
@@ -197,6 +219,15 @@ def format_summary(s: RunSummary) -> str:
         rec_text = "not within the run" if rec is None else f"{rec} fixations"
         lines.append(f"  change at {c['at']}: retinal error back to its pre-change level after {rec_text}"
                      + (f" (goal <= {goal})" if goal else ""))
+        if c["measured_landing_before_px"] is not None:
+            back = c["measured_landing_recovery_fixations"]
+            back_text = "not within the run" if back is None else f"{back} fixations"
+            peak = c["measured_landing_peak_after_px"]
+            lines.append(f"    measured landing (median of {MEASURED_WINDOW}) back to its level before "
+                         f"({c['measured_landing_before_px']:.2f} px: back at <= {c['measured_landing_bar_px']:.2f} px) "
+                         f"after {back_text} from fixation {c['at_fixation']}"
+                         + ("" if peak is None else f", at worst {peak:.2f} px")
+                         + (f" (goal <= {goal})" if goal else ""))
         if c["landing_worst_after_px"] is not None:
             lines.append(f"    landing error {c['landing_before_px']:.1f} px before, {c['landing_worst_after_px']:.1f} px "
                          f"at worst after, {c['landing_700_after_px']:.1f} px 700 fixations after")

@@ -4,7 +4,8 @@ and extremes; the landing-error curves' median and interquartile band.
 Figures are read from each run's own summary JSON (`headctl experiment`'s): the landing error
 at the end and at each check, the paper's errors (last 10, mean of the last 200), the
 representation's floor, for the re-adaptation experiments each change's recovery and the
-landing error before it, at worst within 700 fixations after it and 700 after, and for the
+landing error before it, at worst within 700 fixations after it and 700 after (online also
+the fixations until their own measured landing was back, and its level before), and for the
 online experiments the share of fixations that taught, the exploration's choices, and the
 fixations until the landing error had made 90 % of its improvement (from the random map's
 to the last).
@@ -29,6 +30,8 @@ log = logging.getLogger(__name__)
 IMPROVEMENT_SHARE = 0.9  # "90 % of the final improvement"
 # The rows of the printed table, besides each change's recovery (all figures are in the CSV and JSON).
 TABLE_FIGURES = ("landing_error_px", "retinal_error_last200", "taught_fraction", "fixations_to_90pct")
+# Each change's recovery in the table: the retinal error's, then the measured landing's.
+RECOVERY_PREFIXES = ("recovery_at_", "measured_landing_recovery_at_")
 
 
 def fixations_to_share(curve: Sequence[tuple[float, float]], share: float = IMPROVEMENT_SHARE) -> float | None:
@@ -81,6 +84,13 @@ def run_figures(summary: JSONObject) -> tuple[dict[str, float | None], list[tupl
         figures[f"landing_before_{at}_px"] = change.get("landing_before_px")
         figures[f"landing_700_after_{at}_px"] = change.get("landing_700_after_px")
         figures[f"landing_worst_after_{at}_px"] = change.get("landing_worst_after_px")
+        if change.get("measured_landing_before_px") is not None:
+            # The fixations' own landing: keyed by the change's fixation, the same in every seed
+            # (`at` counts adaptations online, each seed its own).
+            at_fixation = change["at_fixation"]
+            figures[f"measured_landing_recovery_at_{at_fixation}"] = change["measured_landing_recovery_fixations"]
+            figures[f"measured_landing_before_{at_fixation}_px"] = change["measured_landing_before_px"]
+            figures[f"measured_landing_peak_after_{at_fixation}_px"] = change["measured_landing_peak_after_px"]
     return figures, landing
 
 
@@ -133,13 +143,14 @@ class SweepSummary:
         for name, s in self.settings.items():
             lines.append(f"  {name} (seeds {', '.join(map(str, s.seeds))})")
             spreads = s.spreads()
-            recoveries = sorted((f for f in spreads if f.startswith("recovery_at_")),
-                                key=lambda f: int(f.removeprefix("recovery_at_")))
+            recoveries = [figure for prefix in RECOVERY_PREFIXES
+                          for figure in sorted((f for f in spreads if f.startswith(prefix)),
+                                               key=lambda f: int(f.rsplit("_", 1)[1]))]
             for figure in (*TABLE_FIGURES, *recoveries):
                 sp = spreads.get(figure)
                 if sp is None or sp["median"] is None:
                     continue
-                lines.append(f"    {figure:<24} {sp['median']:10.4g} [{sp['q25']:.4g}, {sp['q75']:.4g}]  n={sp['n']}")
+                lines.append(f"    {figure:<34} {sp['median']:10.4g} [{sp['q25']:.4g}, {sp['q75']:.4g}]  n={sp['n']}")
         return "\n".join(lines)
 
 
