@@ -117,7 +117,7 @@ class Soak:
         self.rng = random.Random(args.seed)
         self.state_dir = folder / "state"
         self.state_dir.mkdir()
-        self.began_s = time.monotonic()
+        self.began_s = time.monotonic()  # again once the first daemon runs: its start-up is no part of the run
         self.generation = 0
         self.rows: list[dict[str, Any]] = []
         self.episodes: list[Episode] = []
@@ -132,6 +132,7 @@ class Soak:
         self.final_map_adaptations: int | None = None  # the file after the final SIGTERM
         self.next_row_s = args.report_every
         self.daemon = self.start_daemon()
+        self.began_s = time.monotonic()
 
     @property
     def client(self) -> ApiClient:
