@@ -22,6 +22,7 @@ need("cyclonedds")
 from headctl.api.compose import serve  # noqa: E402
 from headctl.config.head import HeadConfig  # noqa: E402
 from headctl.config.ros2 import Ros2Config, Ros2Rates  # noqa: E402
+from headctl.errors import InvalidRequestError, UnavailableError  # noqa: E402
 from headctl.ros2 import messages as m  # noqa: E402
 from headctl.ros2.commands import GAZE_STATE, LOOK_AT, LOOK_AT_ANGLES, TRACK  # noqa: E402
 from headctl.ros2.interface import Ros2Interface  # noqa: E402
@@ -51,6 +52,17 @@ def running(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[tuple[Da
             yield daemon, peer
         finally:
             peer.close()
+
+
+def has_recent_pair(daemon: Daemon) -> bool:
+    """Whether the daemon holds a pair recent enough to measure a target's disparity in."""
+    try:
+        daemon.control.measure_disparity(160.0, 120.0)
+    except UnavailableError:
+        return False
+    except InvalidRequestError:  # measured in a pair, only not a place to look at
+        pass
+    return True
 
 
 def interface(daemon: Daemon) -> Ros2Interface:
@@ -170,7 +182,7 @@ def test_look_at_a_pixel_makes_the_head_look(running: tuple[Daemon, Peer]) -> No
     peer.subscribe(GAZE_STATE)
     writer = peer.publisher(LOOK_AT)
     wait_until(lambda: writer.get_publication_matched_status().current_count == 1, 10.0, "the command matched")
-    wait_until(lambda: daemon.control.latest_frame("left") is not None, 10.0, "a frame")
+    wait_until(lambda: has_recent_pair(daemon), 10.0, "a recent stereo pair to measure d in")
     writer.write(m.PointStamped(header=m.Header(frame_id="left_camera_optical_frame"),
                                 point=m.Point(x=230.0, y=120.0, z=math.nan)))
     started = peer.wait_for("/head/gaze_state", where=lambda s: s.name == "look_started", timeout_s=15.0)[0]

@@ -17,6 +17,10 @@ from headctl.ros2.streams import JOINT_STATES, image_topics
 from tests.headctl.ros2.peer import Peer
 
 
+def stamp_s(header: m.Header) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
 def main(domain_id: int) -> None:
     config = Ros2Config(enabled=True, domain_id=domain_id, localhost_only=True, commands=True)
     domain = Domain(domain_id, LOCALHOST_XML)
@@ -35,8 +39,9 @@ def main(domain_id: int) -> None:
     writer.write(m.JointState(name=["pan", "tilt", "vergence"], position=[math.radians(a) for a in (-8.0, 4.0, 6.0)]))
     done = peer.wait_for("/head/gaze_state", where=lambda s: s.name == "look_done", timeout_s=20)[0]
     info = peer.wait_for("ros_discovery_info", timeout_s=20)[-1]
-    joints = [t for t, _ in peer.samples["/joint_states"]]
-    images = [t for t, _ in peer.samples["/head/left/image_raw"]]
+    # The rates by the messages' own stamps: arrival times bunch up on a loaded machine.
+    joints = [stamp_s(s.header) for _, s in peer.samples["/joint_states"]]
+    images = [stamp_s(s.header) for _, s in peer.samples["/head/left/image_raw"]]
     node = info.node_entities_info_seq[0]
     print(json.dumps({
         "joint_states_hz": (len(joints) - 1) / (joints[-1] - joints[0]),
