@@ -20,7 +20,6 @@ import dataclasses
 import logging
 import threading
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -28,6 +27,7 @@ import cv2
 import numpy as np
 
 from drivers.servo.joints import JOINTS
+from drivers.sim.eye_pair import EyePair
 from drivers.sim.ray_cast import atlas_maps
 from drivers.sim.room_light import CONSTANT_LIGHT, Illumination
 from drivers.sim.textures import PhotoSet, photo_set, photo_texture
@@ -434,25 +434,16 @@ class StereoRenderer:
 
     def __post_init__(self) -> None:
         self.eyes = (EyeRenderer(self.head.lens_left, self.scene), EyeRenderer(self.head.lens_right, self.scene))
-        self._pool: ThreadPoolExecutor | None = (
-            ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render") if self.parallel else None
-        )
-        self._lock = threading.Lock()
+        self._pair: EyePair[np.ndarray] = EyePair(self.parallel, "sim-render")
 
     def render(self, joints: Mapping[str, float], time_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Both eyes at `joints`, the moving boxes where they are at `time_s` (None: now)."""
         (r_left, c_left), (r_right, c_right) = self.head.eye_frames_from_joints(*joints_tuple(joints))
-        if self._pool is None:
-            return self.eyes[0].render(r_left, c_left, time_s), self.eyes[1].render(r_right, c_right, time_s)
-        with self._lock:
-            future = self._pool.submit(self.eyes[1].render, r_right, c_right, time_s)
-            left = self.eyes[0].render(r_left, c_left, time_s)
-            return left, future.result()
+        return self._pair.render(lambda: self.eyes[0].render(r_left, c_left, time_s),
+                                 lambda: self.eyes[1].render(r_right, c_right, time_s))
 
     def close(self) -> None:
-        pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=True)
+        self._pair.close()
 
     def __enter__(self) -> "StereoRenderer":
         return self

@@ -39,6 +39,7 @@ from drivers.cameras.config import SceneConfig
 from drivers.clock import ManualClock
 from drivers.config.reader import read_config
 from drivers.sim.camera import SimulatedCamera
+from drivers.sim.eye_pair import EyePair
 from drivers.sim.scene import Scene, shared_scene
 from headctl.config.head import HeadConfig, load_config
 from headctl.errors import HeadctlError
@@ -200,11 +201,14 @@ class _WithoutPose:
 
 class SimulatedHeadRig:
     """The simulated head built from its config as the service builds it (`headctl.service.build`),
-    on a `ManualClock`, with pairs rendered on demand instead of streamed; a context manager."""
+    on a `ManualClock`, with pairs rendered on demand instead of streamed; a context manager.
+
+    `parallel_eyes`: the right eye renders on a worker thread while the left renders on the
+    caller's (`drivers.sim.eye_pair`); the images are the same either way."""
 
     def __init__(self, width: int = 320, height: int = 240, seed: int = 0, lens: str = "foveated",
                  fixation: FixationParams | None = None, noise_std: float | None = None,
-                 config: HeadConfig | None = None, room: str | None = None) -> None:
+                 config: HeadConfig | None = None, room: str | None = None, parallel_eyes: bool = False) -> None:
         self.clock = ManualClock()
         self.config = sim_config(width, height, seed, lens, config, room)
         self.devices = HeadDevices.build(self.config, self.clock)
@@ -217,8 +221,10 @@ class SimulatedHeadRig:
         if not (isinstance(left, SimulatedCamera) and isinstance(right, SimulatedCamera)):
             raise HeadctlError(f"{self.config.path}: the online experiments need simulated cameras (backend: sim)")
         noise = self.config.cameras.left.noise_std if noise_std is None else noise_std
-        self.pairs = RenderedPairSource(lambda joints: (left.render(joints), right.render(joints)),
-                                        world.true_joints, self.clock, noise_std=noise, seed=seed)
+        self.eye_pair: EyePair[np.ndarray] = EyePair(parallel_eyes)
+        self.pairs = RenderedPairSource(
+            lambda joints: self.eye_pair.render(lambda: left.render(joints), lambda: right.render(joints)),
+            world.true_joints, self.clock, noise_std=noise, seed=seed)
         self.head = build_head(self.config, self.bus, self.pairs, self.clock)
         # The cameras' exposure held over each fixation, as the service holds it (`cameras.*.exposure_control`).
         self.exposure = ExposureHold(self.devices.cameras.values())
@@ -234,6 +240,7 @@ class SimulatedHeadRig:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self.eye_pair.close()
         self.devices.close()
 
 

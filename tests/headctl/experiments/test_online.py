@@ -77,3 +77,31 @@ def test_the_realistic_world_teaches_from_a_random_map_as_the_ideal_one_does():
     floor = FixationParams().confidence_floor
     assert all(r.converged and r.confidence >= floor for r in taught)
     assert result.config_path == str(config.path)
+
+
+def test_the_eyes_rendered_on_two_threads_give_the_same_fixations_as_in_turn():
+    """`parallel_eyes` only moves the right eye's render to a thread of its own: the realistic
+    world's frames (each eye's exposure, noise and timing its own) and so the fixations are the
+    ones the eyes rendered in turn give."""
+    import threading
+
+    from calib_free.gaze.fixation import FixationController
+    from calib_free.map.adapter import MapAdapter
+    from calib_free.map.gaze_map import GazeMap
+    from headctl.config.head import load_config
+    from headctl.experiments.online import SimulatedHeadRig
+
+    def fixations(parallel_eyes: bool) -> tuple[list[tuple], set[str]]:
+        with (SimulatedHeadRig(seed=0, config=load_config(), parallel_eyes=parallel_eyes) as rig,
+              MapAdapter(GazeMap.for_image(320, 240, seed=0)) as adapter):
+            controller = FixationController(rig.head, adapter, rig.fixation, seed=1, clock=rig.clock.monotonic)
+            records = [controller.fixate() for _ in range(4)]
+            names = {t.name for t in threading.enumerate()}
+        return [(r.outcome, None if r.position is None else tuple(r.position), tuple(r.executed)) for r in records], names
+
+    in_turn, names_in_turn = fixations(False)
+    on_two, names_on_two = fixations(True)
+    assert on_two == in_turn
+    assert not any(n.startswith("sim-render-right") for n in names_in_turn)
+    assert any(n.startswith("sim-render-right") for n in names_on_two)
+    assert not any(t.name.startswith("sim-render-right") for t in threading.enumerate())  # closed with the rig
