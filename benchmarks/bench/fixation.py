@@ -20,7 +20,8 @@ simulated fixation cycle.
    sim.yaml; servo motion model on a manual clock, rendering through its cameras' sensor,
    fine vergence, correspondence, the adapter thread), from a random map: with the eyes
    rendered in turn on the caller's thread, then with the right eye on a thread of its own
-   (`SimulatedHeadRig(parallel_eyes=True)`), the same fixations.
+   (`SimulatedHeadRig(parallel_eyes=True)`), the same fixations; first, the wall time of one
+   pair of those cameras rendered both ways.
 
 `--baseline REV` also loads the correspondence (with the rest of `calib_free`) as it is at
 the git revision REV and measures it beside the working tree's in items 1 and 2, on the same
@@ -211,6 +212,21 @@ def fixations_per_s(count: int, config_path: Path | None = None, parallel_eyes: 
     return count / elapsed, taught / elapsed
 
 
+def pair_ms(count: int, config_path: Path | None = None, parallel_eyes: bool = False) -> float:
+    """Median wall time (ms) of one pair rendered by the config's simulated cameras (sensor,
+    compression, timing and room included), the head still, a frame period apart."""
+    with SimulatedHeadRig(seed=0, config=load_config(config_path), parallel_eyes=parallel_eyes) as rig:
+        joints = rig.devices.world.true_joints() if rig.devices.world is not None else {}
+        rig.pairs.render(joints)  # warm up
+        times = []
+        for _ in range(count):
+            rig.clock.sleep(1.0 / 30.0)
+            started = time.perf_counter()
+            rig.pairs.render(joints)
+            times.append(time.perf_counter() - started)
+    return 1e3 * float(np.median(times))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--pairs", type=int, default=30, help="stereo pairs timed per size (0: skip)")
@@ -249,6 +265,9 @@ def main() -> None:
         radial_bias(args.bias)
     if args.fixations > 0:
         # The eyes rendered one after the other (the baseline), then on two threads, in this run.
+        in_turn, on_two = (pair_ms(60, args.config, parallel) for parallel in (False, True))
+        print(f"one pair of {args.config.name}'s cameras, median of 60: {in_turn:.1f} ms in turn, "
+              f"{on_two:.1f} ms on 2 threads")
         for parallel_eyes in (False, True):
             rate, taught_rate = fixations_per_s(args.fixations, args.config, parallel_eyes)
             how = "eyes rendered on 2 threads" if parallel_eyes else "eyes rendered in turn"
