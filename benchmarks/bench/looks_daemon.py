@@ -10,7 +10,9 @@ pixel with 422, as it does one the map sends beyond the joint limits). Reported:
 ending on target (`done`) of all looks, of those within reach and of those the daemon took on
 (not refused), the final error's quantiles
 (the daemon's own, on target), the look's wall time (`duration_s`), and the others' outcomes
-and details; beside them the truth, the world point the pixel showed before the look (the
+and details; the looks taken on whose first saccade the map sent beyond the pan or tilt limits,
+by how far, and how many of those ended on target (what the API's reach margin,
+`calib_free.gaze.look.REACH_MARGIN_DEG`, refuses or lets through); beside them the truth, the world point the pixel showed before the look (the
 first surface along its ray through the left camera's own lens) projected at the servos' true
 final position, its distance from the fovea.
 
@@ -38,8 +40,15 @@ from headctl.api.compose import serve
 from headctl.config.head import DEFAULT_CONFIG, load_config
 
 
+def beyond_deg(goal: list[float] | None, low: np.ndarray, high: np.ndarray) -> float | None:
+    """How far (deg) the first saccade's pan or tilt goal lay beyond the joint limits (0 within)."""
+    if goal is None:
+        return None
+    return float(max(0.0, *(max(low[i] - goal[i], goal[i] - high[i]) for i in range(2))))
+
+
 def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, height: int,
-             vergence_range: tuple[float, float]) -> dict[str, Any]:
+             vergence_range: tuple[float, float], low: np.ndarray, high: np.ndarray) -> dict[str, Any]:
     pan, tilt = (float(rng.uniform(-spread, spread)) for _ in range(2))
     vergence = float(np.clip(client.state()["pose"]["vergence"], vergence_range[0] + 0.5, vergence_range[1] - 0.5))
     client.look_angles(pan, tilt, vergence, wait_s=10.0)  # the vergence as it is, inside its range
@@ -52,11 +61,14 @@ def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, hei
         return {"xy": [x, y], "state": "refused", "outcome": f"{err.status}", "detail": str(err), "on_target": False}
     result = answer.get("result") or {}
     truth, hidden = world_error_px(world.model, world.scene, lens, before, world.true_joints(), (x, y))
+    planned, pose_before = result.get("planned"), result.get("pose_before")
+    goal = None if planned is None or pose_before is None else [a + b for a, b in zip(pose_before, planned)]
     return {"xy": [x, y], "start": [pan, tilt], "state": str(answer["state"]), "outcome": answer["outcome"],
             "detail": answer["detail"], "on_target": bool(result.get("on_target")),
             "final_error_px": result.get("final_error_px"), "duration_s": result.get("duration_s"),
             "corrective_steps": result.get("corrective_steps"), "d_measured": answer["request"].get("d_measured"),
-            "true_error_px": truth, "hidden": hidden}
+            "true_error_px": truth, "hidden": hidden, "first_goal": goal,
+            "first_goal_beyond_deg": beyond_deg(goal, low, high)}
 
 
 def failure_kind(row: dict[str, Any]) -> str:
@@ -71,6 +83,17 @@ def failure_kind(row: dict[str, Any]) -> str:
         return f"{row['state']}: {row['outcome']}"
     clause = re.split(r"[;:(]", row["detail"])[0]
     return f"{row['state']}: {row['outcome']}: " + re.sub(r"-?\d+(\.\d+)?", "#", clause).strip()
+
+
+def beyond_bands(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
+    bands: dict[str, list[dict[str, Any]]] = {"0-0.25 deg": [], "0.25-0.5 deg": [], "0.5-1 deg": [], "over 1 deg": []}
+    for r in rows:
+        b = r.get("first_goal_beyond_deg")
+        if b is None or b <= 0.0:
+            continue
+        key = "0-0.25 deg" if b <= 0.25 else "0.25-0.5 deg" if b <= 0.5 else "0.5-1 deg" if b <= 1.0 else "over 1 deg"
+        bands[key].append(r)
+    return bands
 
 
 def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -96,6 +119,10 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "true_error_px_on_target": {"p50": q(truth, 50), "p90": q(truth, 90), "max": q(truth, 100),
                                         "over_3px": sum(t > 3 for t in truth)},
             "d_not_measured": sum(r.get("d_measured") is False for r in run),
+            # the looks taken on whose first saccade the map sent beyond the pan or tilt limits,
+            # by how far, and how many of them ended on target: what the API's reach margin costs
+            "first_goal_beyond": {band: {"looks": len(mine), "on_target": sum(r["on_target"] for r in mine)}
+                                  for band, mine in beyond_bands(run).items()},
             "failures": dict(failed.most_common())}
 
 
@@ -122,7 +149,11 @@ def main() -> int:
             load.append(os.getloadavg()[0])
             width, height = config.cameras.left.width, config.cameras.left.height
             verge = config.fixation.vergence_range or (-90.0, 90.0)
-            rows = [one_look(client, world, lens, rng, args.spread, width, height, verge) for _ in range(args.looks)]
+            joints = config.servo_bus.joints
+            low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle])
+            high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle])
+            rows = [one_look(client, world, lens, rng, args.spread, width, height, verge, low, high)
+                    for _ in range(args.looks)]
             load.append(os.getloadavg()[0])
     fix = explored["fixation"]
     out = {"config": args.config.name, "world": (explored.get("world") or {}).get("kind"),

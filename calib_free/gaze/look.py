@@ -103,9 +103,12 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
     return TargetDisparity(d, ncc)
 
 
-# A saccade's pan or tilt goal this far beyond the joint limits leaves its target farther from
-# the fovea than any look's tolerance (about 4 px a degree at the fovea): no look ends on it.
-REACH_MARGIN_DEG = 1.0
+# A saccade's pan or tilt goal beyond the joint limits by more than this (a servo's tick, 0.088
+# deg, rounded down) stops the head at the limit. Its target then stays off the fovea: in the
+# real-time looks benchmark every look whose first saccade the map sent 0.13-0.83 deg beyond
+# ended 3-13 px off it (5 of 5, both worlds, docs/results/realistic-world.md), farther than
+# the 4 px a degree at the fovea would say (the map is least sure at the edges of its range).
+REACH_MARGIN_DEG = 0.05
 
 
 def beyond_limits(goal: np.ndarray, low: np.ndarray, high: np.ndarray, margin_deg: float) -> str:
@@ -334,7 +337,7 @@ class LookController:
         if fixation.pose_before is None or fixation.planned is None:
             return ""
         head = self.fixation.head
-        return beyond_limits(fixation.pose_before + fixation.planned, head.pose_low, head.pose_high, 0.05)
+        return beyond_limits(fixation.pose_before + fixation.planned, head.pose_low, head.pose_high, REACH_MARGIN_DEG)
 
     def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
         """d at the target's new position, measured between the final left and right images as

@@ -43,6 +43,13 @@ def test_a_tilt_beyond_its_limit_from_below_is_refused_too():
 
 
 def test_a_target_within_the_margin_or_outside_the_map_is_left_to_the_look():
-    # 0.8 deg beyond: a look may still end on it (the map may be that far off), it is tried.
-    ServiceControl._check_reach(running((7.8, 0.0, 0.0)), (300.0, 120.0, 4.0), np.array([33.0, 0.0, 6.0]))
+    # At the limit to within less than a servo's tick: the head gets there, the look is tried.
+    ServiceControl._check_reach(running((7.03, 0.0, 0.0)), (300.0, 120.0, 4.0), np.array([33.0, 0.0, 6.0]))
+    ServiceControl._check_reach(running((0.0, -4.97, 0.0)), (160.0, 230.0, 0.0), np.array([0.0, -20.0, 6.0]))
     ServiceControl._check_reach(running(None), (300.0, 120.0, 99.0), np.array([33.0, 0.0, 6.0]))
+
+
+def test_a_goal_a_fraction_of_a_degree_beyond_is_refused():
+    # The benchmark's looks sent 0.13 deg beyond the pan limit ended 8.8 px off the fovea.
+    with pytest.raises(InvalidRequestError, match=r"pan -40\.1 outside \[-40, 40\] deg"):
+        ServiceControl._check_reach(running((-7.13, 0.0, 0.0)), (20.0, 120.0, 0.0), np.array([-33.0, 0.0, 6.0]))
