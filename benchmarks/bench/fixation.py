@@ -216,7 +216,9 @@ def pair_ms(count: int, config_path: Path | None = None, parallel_eyes: bool = F
     """Median wall time (ms) of one pair rendered by the config's simulated cameras (sensor,
     compression, timing and room included), the head still, a frame period apart."""
     with SimulatedHeadRig(seed=0, config=load_config(config_path), parallel_eyes=parallel_eyes) as rig:
-        joints = rig.devices.world.true_joints() if rig.devices.world is not None else {}
+        world = rig.devices.world
+        assert world is not None  # the rig builds only simulated heads
+        joints = world.true_joints()
         rig.pairs.render(joints)  # warm up
         times = []
         for _ in range(count):

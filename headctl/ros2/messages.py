@@ -37,6 +37,11 @@ class Time(IdlStruct):
         ns = int(round(t_s * 1e9))
         return cls(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
+    @property
+    def seconds(self) -> float:
+        """This time as a float of seconds (`of_seconds`'s inverse, to the float's precision)."""
+        return float(self.sec) + float(self.nanosec) * 1e-9
+
 
 @dataclass
 class Header(IdlStruct):
