@@ -19,6 +19,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TypedDict
 
+import numpy as np
+
 from headctl.errors import ControlError, NotFoundError, QueueFullError
 from headctl.json_types import JSONObject
 
@@ -41,6 +43,15 @@ class LookState(enum.StrEnum):
     @property
     def finished(self) -> bool:
         return self in (LookState.DONE, LookState.FAILED, LookState.CANCELLED)
+
+
+def relative_base(pose: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """The pose a relative angles look adds its values to: the pose read, clamped to the limits.
+    A reading can lie a little beyond them (the gears' play and the tilt's sag carry the shaft
+    past a goal at the limit; the encoder wobbles by a tick), and a relative look that leaves
+    an axis as it is must not be refused for where the reading, not the goal, lies."""
+    base: np.ndarray = np.clip(np.asarray(pose, dtype=float), low, high)
+    return base
 
 
 @dataclass(frozen=True)

@@ -106,3 +106,18 @@ def test_a_queued_target_is_looked_at_from_the_view_it_was_chosen_in():
     assert job.result["head_moved_deg"] == pytest.approx(10.0)
     assert job.state is LookState.DONE
     assert np.hypot(*(head.image_position(texel) - FOVEA)) <= 1.0
+
+
+def test_a_relative_angles_look_starts_from_the_reading_clamped_to_the_limits():
+    # The eyes read 0.08 deg below the vergence range [1, 20] (the play at the limit): a
+    # relative look that leaves the vergence as it is turns the head, from the limit.
+    head = ServiceHead()
+    head.pose = np.array([0.0, 0.0, 0.92])
+    job, _, _ = run_look(head, LookRequest(LookKind.ANGLES, (2.0, -1.0, 0.0), relative=True))
+    assert job.state is LookState.DONE, job.detail
+    assert head.moves[-1] == pytest.approx([2.0, -1.0, 1.0])
+    # Past the limit by the client's own values: refused, nothing sent.
+    moves = len(head.moves)
+    job, _, _ = run_look(head, LookRequest(LookKind.ANGLES, (0.0, 0.0, -0.5), relative=True))
+    assert job.state is LookState.FAILED and "vergence 0.50 outside [1, 20]" in job.detail
+    assert len(head.moves) == moves
