@@ -550,10 +550,13 @@ def test_unknown_looks_and_cancelling(head):
 
 @contextlib.contextmanager
 def idle_with_the_left_camera_stalled(client):
-    """Exploration off and the head idle, the left camera stalled: a target look then waits
-    for frames (up to the module daemon's 10 s frame timeout) and can be caught running."""
+    """Exploration off and the head idle at the centre of its range, the left camera stalled:
+    a target look then waits for frames (up to the module daemon's 10 s frame timeout) and can
+    be caught running. At the centre, whatever the module's earlier tests (or another worker's
+    share of them) left, the target is within reach and is not refused before it runs."""
     client.set_exploration(False)
     wait_state(client, lambda s: s["fixation"]["state"] == "idle (exploration off)", what="idle")
+    assert client.look_angles(0.0, 0.0, 6.0, wait_s=10)["state"] == "done"
     client.request("POST", "/api/v1/sim/faults", {"fault": "camera_stall", "camera": "left"})
     try:
         yield
