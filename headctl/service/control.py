@@ -37,7 +37,7 @@ from headctl.errors import ControlError, InvalidRequestError, NotFoundError, Una
 from headctl.json_types import JSONObject
 from headctl.service.events import EventHub
 from headctl.service.fixation_trace import TraceSubscriber
-from headctl.service.looks import LookAnswer, LookJob, LookKind, LookRequest, LookState, relative_base
+from headctl.service.looks import LookAnswer, LookJob, LookKind, LookRequest, LookState
 from headctl.service.parts import RunningParts, ServiceParts, ServicePhase
 from headctl.service.status import StatusSnapshot, status_snapshot
 from headctl.service.tracking import TrackFigures
@@ -246,14 +246,13 @@ class ServiceControl:
             request = dataclasses.replace(request, reference_pose=tuple(pose.tolist()))
             self._check_reach(running, (x, y, d), pose)
         else:
-            pose = relative_base(self._pose_now(running), head.pose_low, head.pose_high) if request.relative \
-                else np.zeros(3)
-            goal = pose + np.asarray(request.values, dtype=float)
+            goal = request.angles_goal(self._pose_now(running) if request.relative else np.zeros(3),
+                                       head.pose_low, head.pose_high)
             for i, name in enumerate(("pan", "tilt", "vergence")):
                 low, high = head.pose_low[i], head.pose_high[i]
                 if not low - 1e-9 <= goal[i] <= high + 1e-9:
-                    where = f"{pose[i]:.2f} + {request.values[i]:g} = {goal[i]:.2f}" if request.relative \
-                        else f"{goal[i]:g}"
+                    where = (f"{goal[i] - request.values[i]:.2f} + {request.values[i]:g} = {goal[i]:.2f}"
+                             if request.relative else f"{goal[i]:g}")
                     raise InvalidRequestError(f"{name}: {where} deg is outside the limits [{low:g}, {high:g}] deg "
                                               "(servo_bus.joints, fixation.vergence_range)", name)
         job = self.parts.looks.submit(request, replace=replace)

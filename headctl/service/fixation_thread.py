@@ -31,7 +31,7 @@ from drivers.errors import DriverError
 from headctl.service.head import Head
 from headctl.service.events import EventHub, plain
 from headctl.service.exposure import ExposureHold
-from headctl.service.looks import LookJob, LookKind, LookQueue, LookState, relative_base
+from headctl.service.looks import LookJob, LookKind, LookQueue, LookState
 from headctl.service.servo_io.loop import join_thread
 from headctl.service.tracking import TrackFigures, Tracking
 
@@ -300,8 +300,7 @@ class FixationThread(threading.Thread):
         self.head.set_phase("look at angles")
         try:
             before = self.head.read_pose()
-            goal = relative_base(before, self.head.pose_low, self.head.pose_high) + request.values \
-                if request.relative else np.asarray(request.values, dtype=float)
+            goal = request.angles_goal(before, self.head.pose_low, self.head.pose_high)
             outside = [f"{name} {value:.2f} outside [{lo:g}, {hi:g}]" for name, value, lo, hi in
                        zip(("pan", "tilt", "vergence"), goal, self.head.pose_low, self.head.pose_high)
                        if not lo - 1e-9 <= value <= hi + 1e-9]

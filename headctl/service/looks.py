@@ -45,15 +45,6 @@ class LookState(enum.StrEnum):
         return self in (LookState.DONE, LookState.FAILED, LookState.CANCELLED)
 
 
-def relative_base(pose: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """The pose a relative angles look adds its values to: the pose read, clamped to the limits.
-    A reading can lie a little beyond them (the gears' play and the tilt's sag carry the shaft
-    past a goal at the limit; the encoder wobbles by a tick), and a relative look that leaves
-    an axis as it is must not be refused for where the reading, not the goal, lies."""
-    base: np.ndarray = np.clip(np.asarray(pose, dtype=float), low, high)
-    return base
-
-
 @dataclass(frozen=True)
 class LookRequest:
     """Look at an image target (`kind` "target": x, y, d px in the left image) or at joint
@@ -74,6 +65,18 @@ class LookRequest:
     def depth_known(self) -> bool:
         """d is the target's: given, or measured (not the fixation's depth in its stead)."""
         return not self.d_reason
+
+    def angles_goal(self, pose: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """An angles look's goal: its values, or, `relative`, its values added to `pose` (the
+        pose read) clamped to the limits `low`, `high`. A reading can lie a little beyond them
+        (the gears' play and the tilt's sag carry the shaft past a goal at the limit; the
+        encoder wobbles by a tick), and a relative look that leaves an axis as it is must not
+        be refused for where the reading, not the goal, lies. The goal itself is not clamped."""
+        values: np.ndarray = np.asarray(self.values, dtype=float)
+        if not self.relative:
+            return values
+        goal: np.ndarray = np.clip(np.asarray(pose, dtype=float), low, high) + values
+        return goal
 
     def as_dict(self) -> dict[str, object]:
         names = ("pan", "tilt", "vergence") if self.kind is LookKind.ANGLES else ("x", "y", "d")
