@@ -45,7 +45,6 @@ from calib_free.gaze.look import LookController, LookRecord
 from calib_free.gaze.refind import MIN_PATCH_STD, patch_problem
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController
-from drivers.sim.scene import shared_scene
 from drivers.sim.truth import first_surface, hidden_from
 from headctl.errors import ControlError
 from headctl.experiments.online import SimulatedHeadRig
@@ -57,9 +56,9 @@ JOINT_ORDER = ("pan", "tilt", "left_eye", "right_eye")
 def true_error_px(rig: SimulatedHeadRig, before: dict[str, float], after: dict[str, float],
                   xy: tuple[float, float]) -> tuple[float, bool]:
     """Distance from the left fovea, at the joints `after`, of the point pixel `xy` showed at
-    the joints `before`; and whether that point is hidden from the left eye there."""
-    return world_error_px(rig.model, shared_scene(rig.config.cameras.left.seed, False), rig.model.lens_left,
-                          before, after, xy)
+    the joints `before`, through the left camera's own lens (a realistic unit's differs from the
+    model's) in the room it renders; and whether that point is hidden from the left eye there."""
+    return world_error_px(rig.model, rig.scene, rig.devices.cameras["left"].unit_lens, before, after, xy)
 
 
 def world_error_px(model, scene, lens, before: dict[str, float], after: dict[str, float],
@@ -77,13 +76,15 @@ def world_error_px(model, scene, lens, before: dict[str, float], after: dict[str
 
 
 def right_eye_truth(rig, xy: tuple[float, float]) -> tuple[bool, bool, float, float]:
-    """What the right eye sees of the point pixel `xy` of the left image shows, the head at rest:
+    """What the right eye sees of the point pixel `xy` of the left image shows, the head at rest,
+    through the cameras' own lenses:
     (hidden from it, in its image, true disparity x_r - x_l, vertical disparity y_r - y_l)."""
-    model, scene = rig.model, shared_scene(rig.config.cameras.left.seed, False)
+    model, scene = rig.model, rig.scene
+    lens_left, lens_right = (rig.devices.cameras[side].unit_lens for side in ("left", "right"))
     joints = rig.devices.world.true_joints()
     (rot_l, centre_l), (rot_r, centre_r) = model.eye_frames_from_joints(*(joints[j] for j in JOINT_ORDER))
-    point = first_surface(scene, centre_l, rot_l.T @ model.lens_left.unproject(np.array([xy]))[0])
-    uv, seen = model.lens_right.project(((point - centre_r) @ rot_r.T)[None])
+    point = first_surface(scene, centre_l, rot_l.T @ lens_left.unproject(np.array([xy]))[0])
+    uv, seen = lens_right.project(((point - centre_r) @ rot_r.T)[None])
     hidden = hidden_from(scene, centre_r, point, 1e-3)
     return hidden, bool(seen[0]), float(uv[0, 0] - xy[0]), float(uv[0, 1] - xy[1])
 
