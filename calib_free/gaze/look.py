@@ -20,8 +20,9 @@ Where the target's patch matches two places of the new image nearly alike (a tex
 repeats), the look takes the one alone near where the fixation was expected to bring the
 target, the fovea, within a reach that grows with the fixation's landing error, measured by
 its correspondence when that was accepted, else by the left eye's alone
-(`calib_free.gaze.refind.find_target`, `left_landing_error_px`); a repeat within that reach,
-or no measured landing error, leaves the patch ambiguous.
+(`calib_free.gaze.refind.find_target`, `left_landing_error_px`); a repeat within that reach
+leaves the patch ambiguous. With no measured landing error, the view before the saccade
+tells them apart where it shows the repeats around the target (`place_told_by_repeats`).
 
 The target not found again, or found where the eyes converged far from the vergence the map
 gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth; judged only

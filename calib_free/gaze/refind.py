@@ -10,7 +10,11 @@ scored again with it, and the position taken from ECC, to sub-pixel. Later steps
 the warp found before. A patch too flat or repetitive to identify the target in its own view
 is refused before it is used (`patch_problem`, `target_patch_problem`). A best match below
 `min_target_ncc` (occluded, out of view) or a second place nearly as good
-(`ambiguity_ncc_margin`: repetitive texture) is refused: the target is not found.
+(`ambiguity_ncc_margin`: repetitive texture) is refused: the target is not found, unless
+the places are told apart by where the fixation was expected to bring the target (its
+measured landing error, `expected_place`) or, where that was not measured, by the view
+before: only the true target has, in that view, repeats where the other places lie
+(`place_told_by_repeats`).
 """
 from __future__ import annotations
 
@@ -32,6 +36,15 @@ PRIOR_SIGMAS = 3.0
 MIN_EXPECTED_ERROR_PX = 1.0
 PEAK_SEPARATION_PX = 2.0  # two local maxima of the scores this near are one place (a plateau)
 REFINE_BELOW_NCC = 0.2  # a best match this far below min_target_ncc is still refined before judged
+# Telling repeats apart by the view before the saccade (`place_told_by_repeats`): a repeat is
+# looked for within this much (px, or this fraction of its distance: the lens bends the view's
+# change farther out) of where the warp carries it back; matching at most the confirm margin
+# less well than its place after the saccade it is there, more than the refute margin less it
+# is not.
+REPEAT_SLACK_PX = 2.0
+REPEAT_SLACK_FRACTION = 0.1
+REPEAT_CONFIRM_MARGIN = 0.15
+REPEAT_REFUTE_MARGIN = 0.3
 
 
 @dataclass(frozen=True)
@@ -103,7 +116,8 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
     fixation is expected to have brought the target, in `source`'s pixels (its landing error);
     where two places match the patch nearly alike, the one alone within
     `PRIOR_SIGMAS` times that (magnified as the patch is, at least `MIN_EXPECTED_ERROR_PX`) of
-    the fovea is the target (`expected_place`). None: no such prior."""
+    the fovea is the target (`expected_place`). None: no such prior; the place whose repeats
+    `source` shows around the target is it (`place_told_by_repeats`)."""
     source, image = as_grey_float(source), as_grey_float(image)
     w, h = params.target_patch_size
     height, width = image.shape
@@ -169,20 +183,30 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
         if second > peak - params.ambiguity_ncc_margin:
             ambiguous = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
                          f"(margin {params.ambiguity_ncc_margin})")
-            if expected_error_px is None:
-                why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
-                       "correspondence was not accepted)")
-                continue
-            reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
             origin = (x0 + b[0] + c[0], y0 + a[0] + c[1])  # image position of the region's (0, 0)
-            chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
-                                          (centre[0] - origin[0], centre[1] - origin[1]), reach)
-            if chosen is None:
-                where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
-                         f"({PRIOR_SIGMAS:g} x the landing error)")
-                why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer than "
-                       "the map can tell apart" if near else f"{ambiguous}, and neither lies {where}")
-                continue
+            chosen: tuple[int, int] | None
+            if expected_error_px is None:
+                # Where the saccade landed is not known: the view before it may still tell the
+                # target from its repeats, if it shows them where they lie around the target.
+                places = distinct_places(region, peak - params.ambiguity_ncc_margin, max(w, h) / 2)
+                told, undecided = place_told_by_repeats(
+                    source, source_xy, (w, h), [(origin[0] + u, origin[1] + v) for u, v in places],
+                    [float(region[v, u]) for u, v in places], warp)
+                if told is None:
+                    why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
+                           f"correspondence was not accepted; {undecided})")
+                    continue
+                chosen = places[told]
+            else:
+                reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
+                chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
+                                              (centre[0] - origin[0], centre[1] - origin[1]), reach)
+                if chosen is None:
+                    where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
+                             f"({PRIOR_SIGMAS:g} x the landing error)")
+                    why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer "
+                           "than the map can tell apart" if near else f"{ambiguous}, and neither lies {where}")
+                    continue
             if chosen != (ix, iy):
                 (ix, iy), peak, position = chosen, float(region[chosen[1], chosen[0]]), None
         if position is None:
@@ -199,15 +223,74 @@ def expected_place(scores: np.ndarray, threshold: float, expected: tuple[float, 
     and how many lie there. Places are local maxima farther than `PEAK_SEPARATION_PX` from
     every better one: a fine periodic texture's repeats lie nearer each other than half a
     patch, and the one at `expected` must not be taken for a ripple of a better one."""
-    maxima = (scores >= cv2.dilate(scores, np.ones((3, 3), np.uint8))) & (scores >= threshold)
-    ys, xs = np.nonzero(maxima)
-    order = np.argsort(-scores[ys, xs])
-    places: list[tuple[int, int]] = []
-    for k in order:
-        if all(np.hypot(xs[k] - u, ys[k] - v) > PEAK_SEPARATION_PX for u, v in places):
-            places.append((int(xs[k]), int(ys[k])))
+    places = distinct_places(scores, threshold, PEAK_SEPARATION_PX)
     near = [(u, v) for u, v in places if np.hypot(u - expected[0], v - expected[1]) <= reach_px]
     return (near[0] if len(near) == 1 else None), len(near)
+
+
+def distinct_places(scores: np.ndarray, threshold: float, min_distance_px: float) -> list[tuple[int, int]]:
+    """The local maxima of `scores` at least `threshold`, best first, each farther than
+    `min_distance_px` from every better one: the places a patch matches (a peak's own
+    ripples and shoulders, within half a patch of it, are no other places)."""
+    maxima = (scores >= cv2.dilate(scores, np.ones((3, 3), np.uint8))) & (scores >= threshold)
+    ys, xs = np.nonzero(maxima)
+    places: list[tuple[int, int]] = []
+    for k in np.argsort(-scores[ys, xs]):
+        if all(np.hypot(xs[k] - u, ys[k] - v) > min_distance_px for u, v in places):
+            places.append((int(xs[k]), int(ys[k])))
+    return places
+
+
+def place_told_by_repeats(source: np.ndarray, source_xy: tuple[float, float], size: tuple[int, int],
+                          places: list[tuple[float, float]], place_ncc: list[float],
+                          warp: np.ndarray) -> tuple[int | None, str]:
+    """Which of `places` (image positions where the target's patch matches nearly alike, NCC
+    `place_ncc`) is the target, told by the view the target was chosen in: were place i the
+    target, every other place j would be a repeat of it that `source` shows too, at `source_xy`
+    plus the offset j - i carried back through `warp` (the linear part of the view's change),
+    matching the patch about as well as j does. The one place whose repeats `source` confirms
+    (each within `REPEAT_CONFIRM_MARGIN` of its NCC), while every other place's are refuted (one
+    matching `REPEAT_REFUTE_MARGIN` or more below), is the target: (its index, ''); else (None,
+    why not). A texture that repeats evenly on both sides, or repeats `source` does not show,
+    stay undecided."""
+    template = warped_patch(source, source_xy, np.eye(2), size)
+    if template is None:
+        return None, "the target's patch reaches beyond its own view"
+    inverse = np.linalg.inv(warp)
+    confirmed: list[int] = []
+    refuted = 0
+    for i, here in enumerate(places):
+        shortfalls: list[float | None] = []  # how much less than place j the repeat matches in `source`
+        for j, there in enumerate(places):
+            if j == i:
+                continue
+            offset = inverse @ (np.asarray(there, dtype=float) - np.asarray(here, dtype=float))
+            ncc = _best_match_near(source, template, (source_xy[0] + offset[0], source_xy[1] + offset[1]),
+                                   max(REPEAT_SLACK_PX, REPEAT_SLACK_FRACTION * float(np.hypot(*offset))))
+            shortfalls.append(None if ncc is None else place_ncc[j] - ncc)
+        if any(short is not None and short > REPEAT_REFUTE_MARGIN for short in shortfalls):
+            refuted += 1
+        elif all(short is not None and short <= REPEAT_CONFIRM_MARGIN for short in shortfalls):
+            confirmed.append(i)
+    if len(confirmed) == 1 and refuted == len(places) - 1:
+        return confirmed[0], ""
+    return None, (f"its view before the saccade confirms {len(confirmed)} of the {len(places)} places as the target "
+                  f"and refutes {refuted}")
+
+
+def _best_match_near(source: np.ndarray, template: np.ndarray, xy: tuple[float, float],
+                     slack_px: float) -> float | None:
+    """The best NCC of `template` centred within `slack_px` of `xy` in `source`; None when that
+    neighbourhood reaches beyond the image (the view does not show it)."""
+    h, w = template.shape
+    r = int(np.ceil(slack_px))
+    x0, y0 = int(round(xy[0] - (w - 1) / 2.0)) - r, int(round(xy[1] - (h - 1) / 2.0)) - r
+    x1, y1 = x0 + w + 2 * r, y0 + h + 2 * r
+    if x0 < 0 or y0 < 0 or x1 > source.shape[1] or y1 > source.shape[0]:
+        return None
+    scores = np.nan_to_num(cv2.matchTemplate(source[y0:y1, x0:x1], template, cv2.TM_CCOEFF_NORMED), nan=0.0,
+                           posinf=0.0, neginf=0.0)
+    return float(scores.max())
 
 
 def _magnification(warp: np.ndarray) -> float:

@@ -321,10 +321,57 @@ def test_a_fine_periodic_texture_is_told_apart_at_its_own_period():
     shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
     after = cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     after = after + rng.normal(0, 2.0, after.shape).astype(np.float32)
-    assert find_target(source, source_xy, after, LookParams(), [np.eye(2)])[0] is None
+    # Every stripe repeats on both sides: the view before confirms more than one of them.
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)])
+    assert sighting is None and "its view before the saccade confirms" in why
     sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=0.3)
     assert sighting is not None, why
     assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.5
+
+
+# --- repeats the view before the saccade shows: it tells them apart ---------------------------
+def view_bringing(source: np.ndarray, source_xy: tuple[float, float], landed: np.ndarray, gain: float = 1.0,
+                  seed: int = 0) -> np.ndarray:
+    """The view after a saccade that brought `source_xy` to `landed`: shifted, its brightness
+    `gain` times, with sensor noise."""
+    shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
+    after = cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return gain * after + np.random.default_rng(seed).normal(0.0, 2.0, after.shape).astype(np.float32)
+
+
+@pytest.mark.parametrize("offset", [(28, 0), (-20, 18), (8, -27)])
+def test_a_repeat_the_view_before_shows_beside_the_target_tells_which_place_is_it(offset):
+    """The room holds a copy of the target's surroundings `offset` px beside it, in the view the
+    target was chosen in too. After the saccade both match alike, near the fovea, and no landing
+    is known; were the copy the target, the view before would show a repeat on the far side of
+    the target, which it does not: the place the view before confirms is the target."""
+    source_xy = (200.0, 90.0)
+    source = with_a_copy_beside(rich_texture(seed=6, size=(WIDTH, HEIGHT)), np.array(source_xy), offset, size=25)
+    landed = FOVEA + np.array([0.4, -0.3])
+    after = view_bringing(source, source_xy, landed, gain=1.3)
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)])
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
+    # The saccade brought the copy to the fovea instead: the target, beside it, is still told.
+    copy_xy = (source_xy[0] + offset[0], source_xy[1] + offset[1])
+    after = view_bringing(source, copy_xy, landed, seed=1)
+    sighting, _ = find_target(source, source_xy, after, LookParams(), [np.eye(2)])
+    assert sighting is not None
+    assert np.hypot(sighting.x - (landed[0] - offset[0]), sighting.y - (landed[1] - offset[1])) <= 0.3
+
+
+def test_a_target_between_two_copies_is_the_place_whose_repeats_the_view_before_shows():
+    """Copies 28 px either side of the target: the view after shows all three alike. Only the
+    middle one has, in the view before, repeats where the other two lie; it is the target."""
+    source_xy = (160.0, 90.0)
+    plain = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source = with_a_copy_beside(with_a_copy_beside(plain, np.array(source_xy), (28, 0), size=25),
+                                np.array(source_xy), (-28, 0), size=25)
+    landed = FOVEA + np.array([-0.2, 0.3])
+    sighting, why = find_target(source, source_xy, view_bringing(source, source_xy, landed), LookParams(),
+                                [np.eye(2)])
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
 
 
 class RightEyeDazzled(PlanarHead):
