@@ -34,7 +34,7 @@ import numpy as np
 
 from drivers.config.reader import check_settings, setting
 from drivers.errors import ServoConfigError
-from drivers.sim.servo_motion import GearedAxis, ProfileAxis, tilt_droop
+from drivers.sim.servo_motion import AxisState, GearedAxis, ProfileAxis, tilt_droop
 
 TICKS_PER_REV = 4096  # X-series resolution (e-manual): 0.088 deg a tick
 TICK_DEG = 360.0 / TICKS_PER_REV
@@ -112,13 +112,16 @@ class ServoMechanics:
         self.return_delay_us = return_delay_us
         self._rng = np.random.default_rng(config.seed)
 
-    def axis(self, position_deg: float, time_s: float, *, loaded: bool = False,
+    def axis(self, at: AxisState | float, time_s: float, *, loaded: bool = False,
              joint_angle: Callable[[float], float] = float, direction: int = 1) -> GearedAxis:
-        """A servo's axis at `position_deg` (servo frame); `loaded`: it carries the head's
-        weight (the tilt), `joint_angle` and `direction` map its frame to the joint's."""
+        """A servo's axis (servo frame) in the state `at`, or at a position alone as a fresh servo
+        is: its controller holding there, the output at the shaft (a loaded one on its flank);
+        `loaded`: it carries the head's weight (the tilt), `joint_angle` and `direction` map its
+        frame to the joint's."""
         droop = tilt_droop(self.values.sag_deg_at_horizontal) if loaded else None
         load = None if droop is None else (lambda servo_deg: direction * droop(joint_angle(servo_deg)))
-        return GearedAxis(position_deg, time_s, backlash=self.values.backlash_deg, load=load)
+        position, output = (at.position, at.output) if isinstance(at, AxisState) else (at, None)
+        return GearedAxis(position, time_s, backlash=self.values.backlash_deg, load=load, output=output)
 
     def command(self, axis: ProfileAxis, goal_deg: float) -> None:
         """A goal reaches the position controller: within the dead band of where a resting

@@ -3,15 +3,17 @@
 `ProfileAxis` is the motion model the simulated bus and the Dynamixel emulator share (an
 X-series servo in position mode with a velocity-based profile). `GearedAxis` is the same
 profile seen through a servo's mechanics (`drivers.sim.servo_mechanics`): the shaft droops under
-a load, and the output beyond it has play. `JointTrace` records the motion model's state of
-the four joints at every change of course and at reads into a short ring, and `joints_at`
-replays the model from it: where the joints were at a past time (a simulated frame's
-exposure, rendered later).
+a load, and the output beyond it has play; `AxisState` is its state at rest (a servo process
+restarted on the simulated head builds its servos from it). `JointTrace` records the motion
+model's state of the four joints at every change of course and at reads into a short ring, and
+`joints_at` replays the model from it: where the joints were at a past time (a simulated
+frame's exposure, rendered later).
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -98,6 +100,23 @@ class ProfileAxis:
         self.position = new_position
 
 
+@dataclass(frozen=True)
+class AxisState:
+    """A geared axis's mechanical state, all a servo at rest has beyond its config: where its
+    position controller holds (`position`) and where the output is (`output`); the shaft follows
+    from the position and the load, and `output` minus the shaft is where the output sits in
+    the play. Degrees, in one frame: the servo's inside `GearedAxis`, the joint's between
+    processes (`mapped` turns one into the other)."""
+
+    position: float
+    output: float
+
+    def mapped(self, angle: Callable[[float], float]) -> "AxisState":
+        """The same state in another frame: `angle` maps an angle of this one to it (an affine
+        map, `WiredServo.joint_angle` or `servo_angle`, so the play's offset maps alike)."""
+        return AxisState(angle(self.position), angle(self.output))
+
+
 class GearedAxis(ProfileAxis):
     """A `ProfileAxis` (the position the servo's controller holds) seen through the servo's
     mechanics: `shaft` is where the output shaft is (the profile's position, displaced by
@@ -121,6 +140,11 @@ class GearedAxis(ProfileAxis):
     @property
     def shaft(self) -> float:
         return self.position + self.load(self.position) if self.load is not None else self.position
+
+    @property
+    def state(self) -> AxisState:
+        """The mechanical state now (this axis's frame); `output=` and the position rebuild it."""
+        return AxisState(self.position, self.output)
 
     def _step(self, dt: float) -> None:
         super()._step(dt)

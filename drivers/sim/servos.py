@@ -41,7 +41,7 @@ from drivers.servo.config import ServoBusConfig, WiredServo
 from drivers.servo.joints import JOINTS
 from drivers.servo.probe import FoundServo, MotionSafety, ServoStatus
 from drivers.sim.servo_mechanics import ServoMechanics
-from drivers.sim.servo_motion import GearedAxis, JointTrace, ProfileAxis
+from drivers.sim.servo_motion import AxisState, GearedAxis, JointTrace, ProfileAxis
 
 log = logging.getLogger(__name__)
 
@@ -78,13 +78,21 @@ def mechanics_of(config: ServoBusConfig) -> ServoMechanics:
 
 
 def physical_servos(wiring: Mapping[int, WiredServo], initial_positions: Mapping[str, float] | None,
-                    now: float, mechanics: ServoMechanics) -> dict[int, _SimServo]:
-    """The servos by id, each held where its joint's `initial_positions` (joint frame) puts it;
-    without one a servo rests at its centre, like a fresh servo (and the emulator) does. The
-    tilt's servo carries the head's weight."""
-    initial = dict(initial_positions or {})
-    return {servo_id: _SimServo(mechanics.axis(wired.servo_angle(initial[wired.joint]) if wired.joint in initial
-                                               else 0.0, now, loaded=wired.joint == "tilt",
+                    now: float, mechanics: ServoMechanics,
+                    initial_axes: Mapping[str, AxisState] | None = None) -> dict[int, _SimServo]:
+    """The servos by id, at rest. Each is in its joint's state of `initial_axes` (joint frame,
+    as `SimulatedServoBus.true_axis` gives it: the servos of a dead servo process's bus); else
+    held where its joint's `initial_positions` (joint frame) puts its controller, the output at
+    the shaft (`ServoMechanics.axis`); else at its centre, like a fresh servo (and the emulator).
+    The tilt's servo carries the head's weight."""
+    positions, axes = dict(initial_positions or {}), dict(initial_axes or {})
+
+    def start(wired: WiredServo) -> AxisState | float:
+        if wired.joint in axes:
+            return axes[wired.joint].mapped(wired.servo_angle)
+        return wired.servo_angle(positions[wired.joint]) if wired.joint in positions else 0.0
+
+    return {servo_id: _SimServo(mechanics.axis(start(wired), now, loaded=wired.joint == "tilt",
                                                joint_angle=wired.joint_angle, direction=wired.direction))
             for servo_id, wired in wiring.items()}
 
@@ -93,8 +101,10 @@ class SimulatedServoBus(ServoBus):
     """A `ServoBus` over simulated servos; see the module docstring.
 
     `initial_positions` (joint frame, degrees; default: each servo at its centre) is where
-    the head rests when the simulation starts. `max_velocity_dps` is the speed a profile velocity of
-    0 ("as fast as possible") stands for.
+    the servos' controllers hold when the simulation starts, each output at its shaft (the tilt's
+    drooping from it); `initial_axes` (`true_axis` of another bus) puts a joint's servo in that
+    state instead, the play's as well. `max_velocity_dps` is the speed a profile velocity of 0
+    ("as fast as possible") stands for.
     """
 
     capabilities = frozenset({"reboot", "hardware_error", "temperature", "input_voltage", "watchdog",
@@ -110,13 +120,14 @@ class SimulatedServoBus(ServoBus):
         return x_series.decode_hardware_error(bits)
 
     def __init__(self, config: ServoBusConfig, *, clock: Clock = SYSTEM_CLOCK, name: str | None = None,
-                 initial_positions: Mapping[str, float] | None = None, max_velocity_dps: float = 330.0) -> None:
+                 initial_positions: Mapping[str, float] | None = None,
+                 initial_axes: Mapping[str, AxisState] | None = None, max_velocity_dps: float = 330.0) -> None:
         super().__init__(config, clock=clock, name=name or f"sim-servo-bus({config.port})")
         self.max_velocity_dps = max_velocity_dps
         now = clock.monotonic()
         self._wiring = wiring_of(config)
         self._mechanics = mechanics_of(config)
-        by_id = physical_servos(self._wiring, initial_positions, now, self._mechanics)
+        by_id = physical_servos(self._wiring, initial_positions, now, self._mechanics, initial_axes)
         for joint in JOINTS:
             if config.joints[joint].servo_id not in by_id:
                 raise ServoConfigError(key_path=f"{config.joint_path(joint)}.id", value=config.joints[joint].servo_id,
@@ -231,10 +242,16 @@ class SimulatedServoBus(ServoBus):
 
     def true_position(self, joint: str) -> float:
         """Where the simulated joint really is now (joint frame, degrees), bus or no bus: as
-        the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes."""
+        the servo wired to it (`servo_bus.wiring`) has it, whatever `joints` believes. The
+        output, what the cameras see (`true_axis(joint).output`)."""
+        return self.true_axis(joint).output
+
+    def true_axis(self, joint: str) -> AxisState:
+        """The mechanical state of the servo wired to `joint` now (joint frame): its controller's
+        position and its output, from which `initial_axes` rebuilds it as it is."""
         with self._sim_lock:
             self._sample(self.clock.monotonic())
-            return self._wired_as[joint].joint_angle(self._wired[joint].axis.output)
+            return self._wired[joint].axis.state.mapped(self._wired_as[joint].joint_angle)
 
     def true_joints_at(self, time_s: float) -> dict[str, float]:
         """Where the simulated joints really were at `time_s` (joint frame, degrees; at most

@@ -25,6 +25,7 @@ from drivers.servo.bus import ServoBus, create_servo_bus
 from drivers.sim.camera import PoseSource
 from drivers.sim.room import room_scene
 from drivers.sim.scene import Scene
+from drivers.sim.servo_motion import AxisState
 from drivers.sim.servos import SimulatedServoBus
 from headctl.config.head import HeadConfig
 from headctl.service.head import Head, HeadObserver, JointBus, PairSource
@@ -114,12 +115,16 @@ def sim_head_model(camera: CameraConfig, vergence_range: tuple[float, float] | N
 
 
 def build_servo_bus(config: HeadConfig, clock: Clock = SYSTEM_CLOCK, *,
-                    initial_positions: Mapping[str, float] | None = None) -> ServoBus:
+                    initial_positions: Mapping[str, float] | None = None,
+                    initial_axes: Mapping[str, AxisState] | None = None) -> ServoBus:
     """The servo bus the config names (not opened); a simulated one's servos start at
-    `initial_positions` (default `SIM_START_JOINTS`)."""
+    `initial_positions` (default `SIM_START_JOINTS`), or in the states `initial_axes` gives
+    (`SimulatedServoBus.true_axis`: a restarted servo process's)."""
     resources: dict[str, object] = {}
     if config.simulated:
         resources["initial_positions"] = initial_positions or SIM_START_JOINTS
+        if initial_axes:
+            resources["initial_axes"] = initial_axes
     return create_servo_bus(config.servo_bus, clock=clock, **resources)
 
 

@@ -22,13 +22,14 @@ import numpy as np
 from drivers.servo.joints import JOINTS
 from drivers.errors import DriverError
 from drivers.servo.bus import ServoBus
+from drivers.sim.servo_motion import AxisState
 from headctl.config.head import HeadConfig
 from headctl.service.servo_io.loop import ServoLoop, _WriteRequest
 from headctl.service.servo_io.messages import (Done, Episode, Failed, FaultsChanged, InjectFault, LogRecord, Ready,
                                                RemoteError, Report, Request, ServoFault, Stop, Stopped, SwitchTorque,
                                                WriteGoals)
 from headctl.service.servo_io.shared import (COUNTERS, HISTORY, SIZE, TRACE_BASE, DoubleArray, SharedState, _H, _J,
-                                              _joint_base)
+                                              _joint_base, write_true_axis)
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +39,7 @@ MAX_BACKLOG_BYTES = 4 << 20  # past this much unread by the service, the child's
 class TrueMotion(Protocol):
     """A bus that declares `reports_true_motion`: where its simulated servos really are."""
 
-    def true_position(self, joint: str) -> float: ...
+    def true_axis(self, joint: str) -> AxisState: ...
 
     def true_trace(self) -> np.ndarray: ...
 
@@ -78,10 +79,11 @@ class _Child:
 
     def __init__(self, config: HeadConfig, inbox: multiprocessing.connection.Connection,
                  outbox: multiprocessing.connection.Connection, state_raw: DoubleArray, heartbeat_raw: DoubleArray,
-                 periods_raw: DoubleArray, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
+                 periods_raw: DoubleArray, enable: bool = True, initial_axes: Mapping[str, AxisState] | None = None,
+                 ) -> None:
         self.config = config
         self.enable = enable  # torque on at start (goal := present first); False: as the service had switched it
-        self.initial_positions = initial_positions  # a simulated bus: where its servos are
+        self.initial_axes = initial_axes  # a simulated bus: its servos as the dead child's were
         self.inbox = inbox
         self.outbox = outbox
         self.shared = SharedState(state_raw)
@@ -100,7 +102,7 @@ class _Child:
         self.bus: ServoBus | None = None
         self._fault_seq = 0  # the last fault-log record sent to the service
         self._answers: list[Done] = []  # answers of this cycle, sent once it is published
-        self._truth: TrueMotion | None = None  # a simulated bus: its servos' true positions are published too
+        self._truth: TrueMotion | None = None  # a simulated bus: its servos' true states are published too
 
     def send(self, message: Report) -> None:
         if isinstance(message, LogRecord) and len(self._out) > MAX_BACKLOG_BYTES:
@@ -133,7 +135,7 @@ class _Child:
         root.setLevel(logging.INFO)
         service = self.config.service
         try:
-            bus = self.bus = build_servo_bus(self.config, initial_positions=self.initial_positions)
+            bus = self.bus = build_servo_bus(self.config, initial_axes=self.initial_axes)
             bus.open()
             if self.enable:
                 bus.enable()
@@ -248,7 +250,7 @@ class _Child:
                                         js.temperature_c, js.input_voltage_v)
             v[base + _J["goal"]] = goals.get(joint, np.nan)
             if truth is not None:
-                v[base + _J["true_position"]] = truth.true_position(joint)
+                write_true_axis(v, j, truth.true_axis(joint))
         if truth is not None:
             v[TRACE_BASE:] = truth.true_trace().ravel()
         self.shared.write(v)
@@ -288,7 +290,8 @@ def _inject(bus: ServoBus, fault: ServoFault, joint: str | None, bits: int) -> N
 
 def servo_main(config: HeadConfig, inbox: multiprocessing.connection.Connection,
                outbox: multiprocessing.connection.Connection, state_raw: DoubleArray, heartbeat_raw: DoubleArray,
-               periods_raw: DoubleArray, enable: bool = True, initial_positions: Mapping[str, float] | None = None) -> None:
+               periods_raw: DoubleArray, enable: bool = True, initial_axes: Mapping[str, AxisState] | None = None,
+               ) -> None:
     """The child process's entry point; a restarted one gets `enable` (torque on) and, on a
-    simulated bus, the servos' `initial_positions` from the service."""
-    _Child(config, inbox, outbox, state_raw, heartbeat_raw, periods_raw, enable, initial_positions).run()
+    simulated bus, the servos' states as the dead child last published them (`initial_axes`)."""
+    _Child(config, inbox, outbox, state_raw, heartbeat_raw, periods_raw, enable, initial_axes).run()

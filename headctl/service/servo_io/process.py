@@ -7,9 +7,10 @@ tens of milliseconds, and the servo loop's period with it. So the service runs t
 
 - a shared-memory state block (`SharedState`), written by the child after every cycle under
   a sequence lock and read by the service without waiting: the latest joint states, the goals
-  in force, the loop's counters, the simulated servos' true positions and the trace of their
-  motion (what the simulated cameras render a frame's exposure from); and a ring of the last
-  periods, from which the service computes the quantiles;
+  in force, the loop's counters, the simulated servos' true states (each output, what the
+  simulated cameras see, and each controller's position: what a restarted child starts its
+  servos from) and the trace of their motion (what the simulated cameras render a frame's
+  exposure from); and a ring of the last periods, from which the service computes the quantiles;
 - a heartbeat block written by the service whenever it reads or commands: the child's loop
   holds the present position when it goes stale for `service.input_timeout_s` (the loop's
   stale-input rule, as for a silent controller in one process);
@@ -46,7 +47,7 @@ from drivers.clock import SYSTEM_CLOCK, Clock
 from drivers.errors import BusDownError, DriverError
 from drivers.servo.bus import BusState, JointState
 from drivers.servo.faults import HardwareErrorEpisode
-from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, joints_at
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, AxisState, joints_at
 from headctl.config.head import HeadConfig
 from headctl.errors import HeadctlError, ServoLoopStoppedError, StaleStateError
 from headctl.service.servo_io.child import servo_main
@@ -55,7 +56,8 @@ from headctl.service.servo_io.messages import (Done, Episode, ErrorKind, Failed,
                                                LogRecord, Ready, RemoteError, Request, ServoFault, Stop, Stopped,
                                                SwitchTorque, WriteGoals)
 from headctl.json_types import JSONObject
-from headctl.service.servo_io.shared import COUNTERS, HISTORY, TRACE_BASE, SharedState, _H, _J, _joint_base
+from headctl.service.servo_io.shared import (COUNTERS, HISTORY, TRACE_BASE, SharedState, _H, _J, _joint_base,
+                                              read_true_axes)
 
 log = logging.getLogger(__name__)
 
@@ -140,14 +142,15 @@ class ServoLoopProcess:
         self._death_code: int | None = None  # the dead child's exit code, as the link first read it
 
     # -- lifecycle ------------------------------------------------------------------------------
-    def _spawn(self, initial_positions: Mapping[str, float] | None) -> None:
-        """A new child (not started) with its own pipes, and the thread that reads its messages."""
+    def _spawn(self, initial_axes: Mapping[str, AxisState] | None) -> None:
+        """A new child (not started) with its own pipes, and the thread that reads its messages;
+        on a simulated head its servos start in the states `initial_axes` (None: at the start pose)."""
         child_inbox, self._to_child = self._context.Pipe(duplex=False)
         self._from_child, child_outbox = self._context.Pipe(duplex=False)
         self._process = self._context.Process(
             target=servo_main, name="headctl-servo-io", daemon=True,
             args=(self.config, child_inbox, child_outbox, self._shared.raw, self._heartbeat_raw, self._periods_raw),
-            kwargs={"enable": self._torque_wanted, "initial_positions": initial_positions})
+            kwargs={"enable": self._torque_wanted, "initial_axes": initial_axes})
         self._child_ends = (child_inbox, child_outbox)
         self._reader = threading.Thread(target=self._read_forever, args=(self._from_child, self._process),
                                         name="servo-link", daemon=True)
@@ -180,7 +183,9 @@ class ServoLoopProcess:
         """Replace a child that died by a new one: the bus reopened, the servos initialised again,
         the goals set to the present positions (the bus's `enable()`), torque on unless the service
         had switched it off; returns once it is ready (its pid and the old one's exit code), or
-        raises its error. The simulated servos start where the dead child's were."""
+        raises its error. The simulated servos start at rest as the dead child last published
+        them (`shared.read_true_axes`): each controller's position and output, so where the output
+        sits in the play and the tilt's droop are as they were: killing a process moves no shaft."""
         if self._stopping:
             raise ServoLoopStoppedError(f"{self.name}: stopping; not restarted")
         old_pid = self._process.pid
@@ -195,8 +200,7 @@ class ServoLoopProcess:
         with self._records_lock:
             self._seq_offset = self._last_seq
         simulated = self._shared.values[_H["has_state"]] == 1.0 and self.config.simulated
-        positions = {j: self.true_position(j) for j in JOINTS} if simulated else None
-        self._spawn(positions if positions and all(np.isfinite(list(positions.values()))) else None)
+        self._spawn(read_true_axes(self._shared.read()) if simulated else None)
         self.down_reason, self.faults, self.missing, self.last_read_error = None, {}, {}, ""
         try:
             self.start(timeout_s)

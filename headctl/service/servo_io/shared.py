@@ -4,7 +4,10 @@ memory under a sequence lock.
 
 Layout: the head's fields (`HEAD_FIELDS`), then per joint `JOINT_FIELDS`, then, on a simulated
 bus, the trace of the servos' true motion (`drivers.sim.servos.JointTrace`'s rows), from which
-the simulated cameras render a frame's exposure.
+the simulated cameras render a frame's exposure. A simulated joint's `true_position` is its
+servo's output (what the cameras see) and `controller_position` where the servo's controller
+holds, both in the joint frame: its `AxisState`, from which a restarted child rebuilds the servo
+(`write_true_axis`, `read_true_axes`).
 """
 from __future__ import annotations
 
@@ -15,12 +18,12 @@ import time
 import numpy as np
 
 from drivers.servo.joints import JOINTS
-from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH
+from drivers.sim.servo_motion import TRACE_SAMPLES, TRACE_WIDTH, AxisState
 
 HEAD_FIELDS = ("seq", "state_seq", "time_s", "last_read_s", "last_cycle_s", "cycles", "overruns", "long_periods",
                "read_errors", "write_errors", "bus_down_count", "down", "torque_enabled", "alive", "has_state", "power_losses")
 JOINT_FIELDS = ("position", "velocity", "moving", "torque_on", "hardware_error_bits", "temperature_c",
-                "input_voltage_v", "goal", "true_position", "missing")
+                "input_voltage_v", "goal", "true_position", "controller_position", "missing")
 _H = {name: i for i, name in enumerate(HEAD_FIELDS)}
 _J = {name: i for i, name in enumerate(JOINT_FIELDS)}
 TRACE_BASE = len(HEAD_FIELDS) + len(JOINTS) * len(JOINT_FIELDS)
@@ -37,6 +40,26 @@ DoubleArray = ctypes.Array[ctypes.c_double]
 def _joint_base(j: int) -> int:
     """Where joint `j`'s fields start in the block."""
     return len(HEAD_FIELDS) + j * len(JOINT_FIELDS)
+
+
+def write_true_axis(values: np.ndarray, j: int, state: AxisState) -> None:
+    """Joint `j`'s simulated servo into the block's `values` (joint frame)."""
+    base = _joint_base(j)
+    values[base + _J["true_position"]] = state.output
+    values[base + _J["controller_position"]] = state.position
+
+
+def read_true_axes(values: np.ndarray) -> dict[str, AxisState] | None:
+    """Each joint's simulated servo as the block's `values` have it; None unless all are known
+    (a child that never published them)."""
+    axes = {}
+    for j, joint in enumerate(JOINTS):
+        base = _joint_base(j)
+        output, position = values[base + _J["true_position"]], values[base + _J["controller_position"]]
+        if not (np.isfinite(output) and np.isfinite(position)):
+            return None
+        axes[joint] = AxisState(float(position), float(output))
+    return axes
 
 
 class SharedState:

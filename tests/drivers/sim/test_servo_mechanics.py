@@ -177,6 +177,50 @@ def test_a_loaded_tilt_rests_on_its_downhill_flank_whichever_way_it_came():
     sim.close()
 
 
+# --- a bus rebuilt from its servos' states (a restarted servo process) --------------------------
+def test_a_bus_built_from_the_servos_states_has_the_same_output_and_play():
+    """`true_axis` of every joint, given to a new bus as `initial_axes`: each output, shaft and
+    offset in the play as they were, and the next moves alike; frames mounted reversed and
+    offset too."""
+    play, sag = 0.5, 0.35
+    clock = ManualClock()
+    reversed_and_offset = {"pan": {"direction": -1, "zero_offset": -3.0}, "tilt": {"direction": -1, "zero_offset": 7.5}}
+    config = ServoBusConfig.from_mapping(config_mapping(mechanics=only(backlash_deg=play, sag_deg_at_horizontal=sag),
+                                                        joints=reversed_and_offset))
+    old = SimulatedServoBus(config, clock=clock)
+    old.open()
+    old.enable()
+    settle(old, clock, {"pan": 6.0, "tilt": 8.0, "left_eye": 7.0, "right_eye": -7.0})
+    settle(old, clock, {"pan": 5.8, "tilt": 4.0, "left_eye": 3.0, "right_eye": -3.0})  # reversed: the output trails
+    states = {joint: old.true_axis(joint) for joint in JOINTS}
+    assert states["pan"].output == pytest.approx(6.0 - play / 2)  # back by less than the play: inside it
+    assert states["left_eye"].output == pytest.approx(3.0 + play / 2)  # back by more: at its other end
+    clock.advance(3.0)
+    new = SimulatedServoBus(config, clock=clock, initial_axes=states)
+    new.open()
+    old_state, new_state = old.read_state(), new.read_state()
+    for joint in JOINTS:
+        assert new.true_axis(joint) == pytest.approx(states[joint], abs=1e-12)
+        assert new.true_position(joint) == pytest.approx(old.true_position(joint), abs=1e-12)
+        # Where the output sits in the play: the output against the shaft the encoder reads.
+        assert (new.true_position(joint) - new_state[joint].position ==
+                pytest.approx(old.true_position(joint) - old_state[joint].position, abs=1e-12))
+    old.disable()
+    for sim in (old, new):  # goal := present, torque on; then a step each way
+        sim.enable()
+        clock.advance(1.0)
+    for goals in ({"pan": 5.6, "tilt": 3.8, "left_eye": 2.8, "right_eye": -2.8},
+                  {"pan": 5.9, "tilt": 4.1, "left_eye": 3.1, "right_eye": -3.1}):
+        for sim in (old, new):
+            sim.write_goals(goals)
+        clock.advance(1.0)
+        for joint in JOINTS:
+            assert new.true_position(joint) == pytest.approx(old.true_position(joint), abs=1e-12)
+            assert new.read_state()[joint].position == pytest.approx(old.read_state()[joint].position, abs=1e-12)
+    old.close()
+    new.close()
+
+
 # --- dead band -----------------------------------------------------------------------------
 def test_the_controller_does_not_correct_an_error_within_its_dead_band():
     clock = ManualClock()

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import signal
 import subprocess
 import sys
 import multiprocessing
@@ -12,6 +13,8 @@ import numpy as np
 import pytest
 
 from drivers.errors import DriverError, JointLimitError, ServoHardwareError
+from drivers.servo.bus import BusState
+from drivers.sim.servo_mechanics import ServoMechanicsConfig
 from headctl.config.head import load_config
 from headctl.service.servo_io.process import ServoLoopProcess
 from headctl.service.servo_io.shared import SIZE, SharedState
@@ -152,8 +155,6 @@ def test_the_shared_block_is_never_read_torn():
 
 
 def test_a_killed_child_is_replaced_where_the_servos_are_with_torque_as_switched():
-    import signal
-
     from headctl.errors import ServoLoopStoppedError
 
     process = ServoLoopProcess(load_config(SIM_IDEAL)).start()
@@ -180,3 +181,69 @@ def test_a_killed_child_is_replaced_where_the_servos_are_with_torque_as_switched
         assert process.fresh_state()["pan"].position == pytest.approx(20.0, abs=0.1)
     finally:
         process.stop()
+
+
+PLAY_DEG, SAG_DEG = 0.5, 0.35
+# Up, then back down: each output ends at the upper end of its play (the tilt's on its downhill
+# flank, as a loaded joint always is).
+UP = {"pan": 10.0, "tilt": 8.0, "left_eye": 10.0, "right_eye": 0.0}
+DOWN = {"pan": 6.0, "tilt": 4.0, "left_eye": 6.0, "right_eye": -4.0}
+
+
+def _geared_head():
+    """The simulated head with play and the tilt's droop alone: readings exact, no dead band."""
+    config = load_config(SIM_IDEAL)
+    mechanics = ServoMechanicsConfig(backlash_deg=PLAY_DEG, sag_deg_at_horizontal=SAG_DEG)
+    return dataclasses.replace(config, servo_bus=dataclasses.replace(config.servo_bus, mechanics=mechanics))
+
+
+def _resting(process: ServoLoopProcess) -> dict[str, tuple[float, float]]:
+    """Once the head rests: each joint's (true output, reading)."""
+    def at_rest() -> BusState | None:
+        state = process.fresh_state()
+        return None if any(j.moving for j in state.joints.values()) else state
+
+    state = wait_until(at_rest, 10.0, "the head at rest")
+    return {joint: (process.true_position(joint), state[joint].position) for joint in state.joints}
+
+
+def _lags(process: ServoLoopProcess, step_deg: float) -> dict[str, float]:
+    """Each joint moved `step_deg` from where it reads: how far its output fell short."""
+    start = _resting(process)
+    process.request_goals({joint: reading + step_deg for joint, (_, reading) in start.items()})
+    end = _resting(process)
+    return {joint: step_deg - (end[joint][0] - start[joint][0]) for joint in start}
+
+
+def _reverse_then_step(kill: bool) -> tuple[dict, dict, dict, dict]:
+    """The head moved up and back, torque off (as a restart leaves it), the child killed and
+    restarted if `kill`, torque on again, then a small step on down and one back up: the head at
+    rest before and after, and each step's lags."""
+    process = ServoLoopProcess(_geared_head()).start()
+    try:
+        for goals in (UP, DOWN):
+            process.request_goals(goals)
+            _resting(process)
+        process.set_torque(False)
+        before = _resting(process)
+        if kill:
+            os.kill(process.pid, signal.SIGKILL)
+            wait_until(lambda: process.failure(), 5.0, "the death noticed")
+            process.restart()
+        after = _resting(process)
+        process.set_torque(True)  # goal := present: the tilt sinks by its droop, with or without a restart
+        return before, after, _lags(process, -0.2), _lags(process, 0.2)
+    finally:
+        process.stop()
+
+
+def test_a_killed_child_leaves_the_simulated_servos_play_and_droop_as_they_were():
+    before, after, on, back = _reverse_then_step(kill=True)
+    for joint in before:
+        assert after[joint] == pytest.approx(before[joint], abs=1e-6)  # the output and the shaft not moved
+    for joint in ("pan", "left_eye", "right_eye"):
+        assert before[joint][0] - before[joint][1] == pytest.approx(PLAY_DEG / 2)  # at the upper end of the play
+        assert on[joint] == pytest.approx(0.0, abs=1e-6)  # on down: the shaft pushes the output at once
+        assert back[joint] == pytest.approx(0.2, abs=1e-6)  # back up by less than the play: the output stays
+    _, _, unbroken_on, unbroken_back = _reverse_then_step(kill=False)
+    assert on == pytest.approx(unbroken_on, abs=1e-6) and back == pytest.approx(unbroken_back, abs=1e-6)
