@@ -12,9 +12,9 @@ is refused before it is used (`patch_problem`, `target_patch_problem`). A best m
 `min_target_ncc` (occluded, out of view) or a second place nearly as good
 (`ambiguity_ncc_margin`: repetitive texture) is refused: the target is not found, unless
 the places are told apart by where the fixation was expected to bring the target (its
-measured landing error, `expected_place`) or, where that was not measured, by the view
-before: only the true target has, in that view, repeats where the other places lie
-(`place_told_by_repeats`).
+measured landing error, `expected_place`) or, where that was not measured or reaches more
+than one of them, by the view before: only the true target has, in that view, repeats where
+the other places lie (`place_told_by_repeats`).
 """
 from __future__ import annotations
 
@@ -184,29 +184,33 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
             ambiguous = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
                          f"(margin {params.ambiguity_ncc_margin})")
             origin = (x0 + b[0] + c[0], y0 + a[0] + c[1])  # image position of the region's (0, 0)
-            chosen: tuple[int, int] | None
-            if expected_error_px is None:
-                # Where the saccade landed is not known: the view before it may still tell the
-                # target from its repeats, if it shows them where they lie around the target.
+            chosen: tuple[int, int] | None = None
+            near, reach = 0, np.inf
+            if expected_error_px is not None:
+                reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
+                chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
+                                              (centre[0] - origin[0], centre[1] - origin[1]), reach)
+            undecided = ""
+            if chosen is None and (expected_error_px is None or near > 1):
+                # No landing measured, or one too far off to tell the repeats apart: the view
+                # before may still, if it shows the repeats where they lie around the target.
                 places = distinct_places(region, peak - params.ambiguity_ncc_margin, max(w, h) / 2)
                 told, undecided = place_told_by_repeats(
                     source, source_xy, (w, h), [(origin[0] + u, origin[1] + v) for u, v in places],
                     [float(region[v, u]) for u, v in places], warp)
-                if told is None:
+                if told is not None and np.hypot(places[told][0] - (centre[0] - origin[0]),
+                                                 places[told][1] - (centre[1] - origin[1])) <= reach:
+                    chosen = places[told]
+            if chosen is None:
+                if expected_error_px is None:
                     why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
                            f"correspondence was not accepted; {undecided})")
                     continue
-                chosen = places[told]
-            else:
-                reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
-                chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
-                                              (centre[0] - origin[0], centre[1] - origin[1]), reach)
-                if chosen is None:
-                    where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
-                             f"({PRIOR_SIGMAS:g} x the landing error)")
-                    why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer "
-                           "than the map can tell apart" if near else f"{ambiguous}, and neither lies {where}")
-                    continue
+                where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
+                         f"({PRIOR_SIGMAS:g} x the landing error)")
+                why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer "
+                       f"than the map can tell apart ({undecided})" if near else f"{ambiguous}, and neither lies {where}")
+                continue
             if chosen != (ix, iy):
                 (ix, iy), peak, position = chosen, float(region[chosen[1], chosen[0]]), None
         if position is None:

@@ -352,6 +352,11 @@ def test_a_repeat_the_view_before_shows_beside_the_target_tells_which_place_is_i
     sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)])
     assert why == "" and sighting is not None
     assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
+    # A landing error measured but too large to tell them apart (both within 3 x 12 px): the
+    # view before still does.
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=12.0)
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3
     # The saccade brought the copy to the fovea instead: the target, beside it, is still told.
     copy_xy = (source_xy[0] + offset[0], source_xy[1] + offset[1])
     after = view_bringing(source, copy_xy, landed, seed=1)
