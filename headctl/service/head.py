@@ -5,7 +5,12 @@ angles (`JointBus`: a `drivers.servo.bus.ServoBus`, or the service's servo loop)
 of stereo pairs (`PairSource`). It works in poses (pan, tilt, vergence) with symmetric eyes
 (`calib_free.kinematics`; `joints_of` and `pose_of` name the joints), clamps absolute moves to the joint and vergence limits, judges
 "at rest" from the servos' own moving flags and positions, and delivers pairs exposed after
-a given time.
+a given time. A pose asked for is where the encoders are to read at rest: a loaded servo's
+proportional control rests short of its goal (the tilt droops under the head's weight), so the
+goal sent is the pose less the offset at which the joints came to rest from their goals over
+the last rests (`rest_offset`, learned as the head runs; no calibration). Without it every
+move relative to a reading would lose the droop: a look's corrective steps of a pixel or two
+would leave the target where it was.
 
 What differs between the service and the experiments is given, not subclassed:
 - `interrupt`: called before every bus access and every slice of waiting for frames; it
@@ -211,24 +216,30 @@ class Head:
         return pose_of(positions)
 
     def move_to(self, pose: np.ndarray) -> np.ndarray:
-        """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits."""
+        """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits; the goals
+        sent are the pose less `rest_offset` (clamped again), so that the joints come to rest
+        at the pose. Returns where they are to rest."""
         self.set_phase("saccade")
         before = self.read_pose() if self.observer is not None else None
-        goal: np.ndarray = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
+        wanted = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
         # (a bus whose readings are off may be sent a goal beyond them).
-        sent = self._write_goals(joints_of(goal))
+        aimed = np.clip(wanted - self.rest_offset, self.pose_low, self.pose_high)
+        sent = self._write_goals(joints_of(aimed))
         self._goal = pose_of(sent)
+        goal: np.ndarray = aimed + self.rest_offset
         self._saccade = (self.clock.monotonic(), goal)
         if self.observer is not None and before is not None:
             self.observer.saccade_onset(before, goal)
         return goal
 
     def verge_to(self, vergence: float) -> float:
-        """Move the eyes alone (symmetrically) to `vergence`, clamped; pan and tilt get no goal."""
+        """Move the eyes alone (symmetrically) to `vergence`, clamped, their goals less the
+        vergence's `rest_offset` as `move_to`'s; pan and tilt get no goal."""
         self.set_phase("fine vergence")
         v = float(np.clip(vergence, self.pose_low[2], self.pose_high[2]))
-        left_eye, right_eye = eye_angles(v)
+        aimed = float(np.clip(v - self.rest_offset[2], self.pose_low[2], self.pose_high[2]))
+        left_eye, right_eye = eye_angles(aimed)
         sent = self._write_goals({"left_eye": left_eye, "right_eye": right_eye})
         exposed_s = self.pairs.last_exposure_s
         if self.observer is not None and exposed_s is not None:
@@ -236,7 +247,7 @@ class Head:
             self.observer.vergence_commanded(self.clock.monotonic() - exposed_s)
         goal = self._goal if self._goal is not None else pose_of(self._read_state().positions)
         self._goal = np.array([goal[0], goal[1], vergence_of(sent["left_eye"], sent["right_eye"])])
-        return v
+        return aimed + float(self.rest_offset[2])
 
     def wait_settled(self, timeout_s: float) -> float:
         """Block until the servos report no motion and hold still near their goal for `settle_s`."""

@@ -66,3 +66,23 @@ def test_the_droop_learned_at_one_rest_lets_the_next_come_to_rest_at_once():
         assert _rest_time_s(rig, head) < head.short_settle_s
         head.move_to(np.array([3.0, 1.5, 6.0]))
         assert _rest_time_s(rig, head) < head.short_settle_s + 0.1  # the move itself, then settle_s
+
+
+def test_a_drooping_tilt_comes_to_rest_where_it_was_asked_once_the_droop_is_learned():
+    """The head sends the goal above the pose asked by the droop it saw at the last rests, so a
+    step relative to the reading moves the reading by the step, not by the step less the droop
+    (a look's corrective step of a pixel or two is smaller than the droop)."""
+    with _rig({"model": "xm430_head", "sag_deg_at_horizontal": 0.6, "backlash_deg": 0.0,
+               "read_wobble_ticks": 0}) as rig:
+        head = rig.head
+        for tilt in (0.0, 1.0, 0.5, 1.5, 1.0):  # a few rests: the droop learned
+            head.move_to(np.array([0.0, tilt, 6.0]))
+            head.wait_settled(5.0)
+        assert head.read_pose()[1] == pytest.approx(1.0, abs=0.1)
+        for step in (0.3, -0.2, 0.25):
+            before = head.read_pose()
+            aimed = head.move_to(before + np.array([0.0, step, 0.0]))
+            head.wait_settled(5.0)
+            moved = head.read_pose()[1] - before[1]
+            assert moved == pytest.approx(step, abs=0.1)  # 1 tick: 0.09 deg
+            assert aimed[1] == pytest.approx(before[1] + step, abs=0.01)
