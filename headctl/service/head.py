@@ -154,6 +154,9 @@ class Head:
         self._goal: np.ndarray | None = None
         # (when, the mean pose) of the last rest, until a goal is sent or REST_POSE_KEPT_S pass
         self._rest_pose: tuple[float, np.ndarray] | None = None
+        # The last rest as the bus reads it: (its mean pose, the goals it rested at), until a goal
+        # is sent; a head still resting there need not wait for rest again.
+        self._last_rest: tuple[np.ndarray, np.ndarray | None] | None = None
         # Where the joints come to rest relative to their goals (pan, tilt, vergence), averaged
         # over the last rests: a loaded servo's proportional control rests short of its goal by
         # a load-dependent offset (the tilt droops under the head's weight) that the encoder
@@ -174,6 +177,7 @@ class Head:
         self._bus = bus
         self._goal = None
         self._rest_pose = None
+        self._last_rest = None
         self.rest_offset = np.zeros(3)
 
     # -- the bus, interruptible ------------------------------------------------------------
@@ -190,7 +194,7 @@ class Head:
 
     def _write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
         self._check()
-        self._rest_pose = None  # the head may move
+        self._rest_pose = self._last_rest = None  # the head may move
         try:
             return self.bus.write_goals(goals)
         except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
@@ -250,7 +254,12 @@ class Head:
         return aimed + float(self.rest_offset[2])
 
     def wait_settled(self, timeout_s: float) -> float:
-        """Block until the servos report no motion and hold still near their goal for `settle_s`."""
+        """Block until the servos report no motion and hold still near their goal for `settle_s`.
+        A head that has been sent no goal since its last rest, still resting there (one reading:
+        no servo moving, the pose within `steady_deg` of that rest's, the same goals in force),
+        is still at rest: the next fixation need not wait `settle_s` again. It returns the time
+        now, not the old rest's, so that a pair waited for after it is exposed after whatever
+        changed since (an exposure locked for the fixation)."""
         if self.phase in ("idle", "choosing target"):
             self.set_phase("at rest")
         if self.goals_in_force is not None:
@@ -259,6 +268,16 @@ class Head:
             goals = self.goals_in_force()
             self._goal = pose_of(goals) if all(j in goals for j in JOINTS) \
                 else None
+        last = self._last_rest
+        if last is not None:
+            rest_pose_raw, rest_goal = last
+            state = self._read_state()
+            same_goal = (rest_goal is None) == (self._goal is None) and (
+                rest_goal is None or self._goal is None or bool(np.array_equal(rest_goal, self._goal)))
+            if same_goal and not state.moving and np.all(np.abs(pose_of(state.positions) - rest_pose_raw)
+                                                         <= self.steady_deg):
+                return self.clock.monotonic()
+            self._last_rest = None
         deadline = self.clock.monotonic() + timeout_s
         rest_since: float | None = None
         rest_pose = np.zeros(3)
@@ -285,6 +304,7 @@ class Head:
             self._check()
             self.clock.sleep(self.poll_s)
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
+        self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy())
         if self._goal is not None:
             limit = self.short_tolerance_deg - self.tolerance_deg
             self.rest_offset = np.clip(0.5 * (self.rest_offset + np.mean(raw, axis=0) - self._goal), -limit, limit)

@@ -86,3 +86,15 @@ def test_a_drooping_tilt_comes_to_rest_where_it_was_asked_once_the_droop_is_lear
             moved = head.read_pose()[1] - before[1]
             assert moved == pytest.approx(step, abs=0.1)  # 1 tick: 0.09 deg
             assert aimed[1] == pytest.approx(before[1] + step, abs=0.01)
+
+
+def test_a_head_still_at_its_last_rest_is_at_rest_at_once_and_one_sent_a_goal_waits_again():
+    with _rig({"model": "xm430_head"}) as rig:
+        head = rig.head
+        head.move_to(np.array([4.0, 2.0, 6.0]))
+        head.wait_settled(5.0)
+        rested = _rest_time_s(rig, head)  # no goal sent since: one reading says it still rests
+        assert rested < head.settle_s
+        assert head.wait_settled(5.0) == pytest.approx(rig.clock.monotonic())  # pairs after now
+        head.verge_to(6.5)
+        assert _rest_time_s(rig, head) >= head.settle_s  # a goal sent: rest is waited for again
