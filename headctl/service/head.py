@@ -272,8 +272,8 @@ class Head:
         if last is not None:
             rest_pose_raw, rest_goal = last
             state = self._read_state()
-            same_goal = (rest_goal is None) == (self._goal is None) and (
-                rest_goal is None or self._goal is None or bool(np.array_equal(rest_goal, self._goal)))
+            same_goal = (rest_goal is None and self._goal is None) or (
+                rest_goal is not None and self._goal is not None and np.array_equal(rest_goal, self._goal))
             if same_goal and not state.moving and np.all(np.abs(pose_of(state.positions) - rest_pose_raw)
                                                          <= self.steady_deg):
                 return self.clock.monotonic()

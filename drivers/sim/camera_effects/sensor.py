@@ -16,7 +16,7 @@ sensor's order:
 
 Random numbers are deterministic per (seed, eye, frame index); a unit's response is drawn
 per (seed, eye) within the configured spreads. A frame's unit-normal noise is drawn as 16-bit
-random numbers looked up in the normal distribution's quantiles (`_NORMAL_QUANTILES`), half
+random numbers looked up in the normal distribution's quantiles (`_normal_quantiles`), half
 the cost of drawing normals; its tails end at 4.3 sigma, which 8-bit grey levels of a few
 sigma's noise never show. The ideal camera passes the image through
 untouched.
@@ -149,7 +149,6 @@ class SensorPipeline:
         electrons += sigma * self._unit_normals(signal.shape, index)
         electrons *= np.float32(1.0 / full_well)
         return electrons
-
 
     def _unit_normals(self, shape: tuple[int, ...], index: int) -> np.ndarray:
         """Frame `index`'s standard normal field of `shape` (see the module docstring)."""
