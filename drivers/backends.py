@@ -60,7 +60,8 @@ _MODULE_CLASS = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
 # The keys every backend uses: the device-kind base classes implement what they say.
 SERVO_BUS_COMMON_KEYS = frozenset({"backend", "port", "joints", "limit_policy", "reboot_on_hardware_error",
                                    "torque_on_close", "power_loss_torque"})
-SERVO_JOINT_COMMON_KEYS = frozenset({"id", "direction", "zero_offset", "min_angle", "max_angle"})
+# (`backlash_deg` is the head's, whatever drives the servos: headctl.service.play.)
+SERVO_JOINT_COMMON_KEYS = frozenset({"id", "direction", "zero_offset", "min_angle", "max_angle", "backlash_deg"})
 CAMERA_COMMON_KEYS = frozenset({"backend", "image", "history", "grab_timeout_s", "exposure_control"})
 
 

@@ -52,6 +52,10 @@ class JointConfig:
     max_angle: float = setting(90.0, lo=-360.0, hi=360.0)
     profile_velocity: float = setting(120.0, lo=0.0, hi=10_000.0)
     profile_acceleration: float = setting(600.0, lo=0.0, hi=1e6)
+    # The play between the servo's shaft (what its encoder reads) and the joint, degrees, the
+    # whole width: the head sends goals beyond their targets by half of it in the direction of
+    # approach (headctl.service.play). 0 for a joint a load keeps on one flank (the tilt).
+    backlash_deg: float = setting(0.0, lo=0.0, hi=5.0)
     # The keys a mapping gave (set by the reader): a key given at its default value is still
     # refused by a backend that does not use it.
     given_keys: frozenset[str] = setting(frozenset(), source="given_keys", init=False, compare=False, repr=False)

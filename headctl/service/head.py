@@ -45,6 +45,7 @@ from drivers.servo.config import JointConfig
 from drivers.servo.joints import JOINTS
 from drivers.cameras.stereo import StereoPair
 from headctl.errors import ServoLoopStoppedError
+from headctl.service.play import PlayCompensation
 
 log = logging.getLogger(__name__)
 
@@ -165,6 +166,9 @@ class Head:
         self.rest_offset = np.zeros(3)
         self._saccade: tuple[float, np.ndarray] | None = None  # (onset, goal) until at rest
         self.phase = "idle"
+        # Goals beyond their targets by half each joint's play, readings back to the joints.
+        self.play = PlayCompensation({name: joint.backlash_deg for name, joint in joints.items()},
+                                     {name: (joint.min_angle, joint.max_angle) for name, joint in joints.items()})
 
     @property
     def bus(self) -> JointBus:
@@ -179,6 +183,7 @@ class Head:
         self._rest_pose = None
         self._last_rest = None
         self.rest_offset = np.zeros(3)
+        self.play.reset()
 
     # -- the bus, interruptible ------------------------------------------------------------
     def _check(self) -> None:
@@ -192,11 +197,13 @@ class Head:
         except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
             raise _interrupted(err) from err
 
-    def _write_goals(self, goals: Mapping[str, float]) -> dict[str, float]:
+    def _write_goals(self, targets: Mapping[str, float]) -> dict[str, float]:
+        """Send the goals that bring the joints to `targets` (beyond them by half their play);
+        returns the goals the bus sent, as the encoders are to read them."""
         self._check()
         self._rest_pose = self._last_rest = None  # the head may move
         try:
-            return self.bus.write_goals(goals)
+            return self.bus.write_goals(self.play.goals(targets, lambda: self._read_state().positions))
         except (DriverError, ServoLoopStoppedError, TimeoutError) as err:
             raise _interrupted(err) from err
 
@@ -216,8 +223,8 @@ class Head:
         return self.pose_from(self._read_state().positions)
 
     def pose_from(self, positions: Mapping[str, float]) -> np.ndarray:
-        """(pan, tilt, vergence) as this head reads joint positions."""
-        return pose_of(positions)
+        """(pan, tilt, vergence) of the joints at the encoders' `positions` (less the play)."""
+        return pose_of(self.play.joints(positions))
 
     def move_to(self, pose: np.ndarray) -> np.ndarray:
         """A saccade: pan, tilt and vergence together to `pose`, clamped to the limits; the goals

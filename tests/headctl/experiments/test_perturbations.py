@@ -1,6 +1,7 @@
 """The re-adaptation experiments' perturbations: wrappers of the head's bus and pairs."""
 from __future__ import annotations
 
+import dataclasses
 from typing import Mapping
 
 import numpy as np
@@ -59,7 +60,9 @@ def test_pairs_are_transformed_and_their_exposure_passed_on():
 def test_perturb_wraps_the_heads_parts_and_the_head_settles_on_the_wrapped_bus():
     clock = ManualClock()
     bus, pairs = StillBus(clock), CountingPairs()
-    head = Head(bus, pairs, sim_config().servo_bus.joints, clock=clock)
+    joints = {name: dataclasses.replace(joint, backlash_deg=0.0)  # goals as asked: no play to take up
+              for name, joint in sim_config().servo_bus.joints.items()}
+    head = Head(bus, pairs, joints, clock=clock)
     head.move_to(np.array([1.0, 2.0, 6.0]))
     head.wait_settled(1.0)
     perturb(head, Change(10, vertical_prism=True))
