@@ -90,7 +90,7 @@ def right_eye_truth(rig, xy: tuple[float, float]) -> tuple[bool, bool, float, fl
 
 
 def unmeasured_cause(rig, left: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
-                     disparity_range: tuple[float, float], band_px: int) -> str:
+                     disparity_range: tuple[float, float], band_px: int, row_offset_px: float = 0.0) -> str:
     """Why the truth says the disparity at pixel `xy` of the left image at rest could not be
     measured: the measuring patch beyond the image, flat, the point hidden from the right eye or
     outside its image, its disparity beyond the range searched, its vertical disparity a row
@@ -109,7 +109,7 @@ def unmeasured_cause(rig, left: np.ndarray, xy: tuple[float, float], patch_size:
         return "outside the right image"
     if not disparity_range[0] < d < disparity_range[1]:
         return "disparity beyond the map's range"
-    if abs(dy) > band_px + 1.0:  # a match survives about a row of vertical disparity
+    if abs(dy - row_offset_px) > band_px + 1.0:  # a match survives about a row of vertical disparity
         return "vertical disparity beyond the rows searched"
     return "seen by both eyes, no match (depth edge, foreshortening)"
 
@@ -131,9 +131,11 @@ def survey_disparity(rig, adapter, controller, rng, views: int, per_view: int, b
             if seen and not hidden:
                 vertical.append(abs(dy))
             try:
-                d, _ = disparity_at(left, right, *xy, params.vergence_patch_size, disparity_range, band_px)
+                d, _ = disparity_at(left, right, *xy, params.vergence_patch_size, disparity_range, band_px,
+                                    controller.row_offset_px)
             except ControlError:
-                causes[unmeasured_cause(rig, left, xy, params.vergence_patch_size, disparity_range, band_px)] += 1
+                causes[unmeasured_cause(rig, left, xy, params.vergence_patch_size, disparity_range, band_px,
+                                        controller.row_offset_px)] += 1
                 continue
             measured += 1
             close += seen and not hidden and abs(d - true_d) <= 2.0
@@ -145,10 +147,11 @@ def survey_disparity(rig, adapter, controller, rng, views: int, per_view: int, b
 
 
 def draw_target(rig, adapter, rng, textured: bool, counts: collections.Counter, band_px: int = DISPARITY_BAND_PX,
-                ) -> tuple[tuple[float, float, float], bool] | None:
+                row_offset_px: float = 0.0) -> tuple[tuple[float, float, float], bool] | None:
     """A target in the pair at rest, (x, y, d), and whether d was measured; None when the daemon
     would refuse it (random pixels only). Unreachable pixels, and for `textured` unidentifiable
-    ones, are drawn again."""
+    ones, are drawn again. d is measured about the rows `row_offset_px` below (the pair's
+    misalignment as fine vergence found it, as the daemon measures d)."""
     head = rig.head
     left, right = (as_grey_float(im) for im in head.wait_pair(head.wait_settled(3.0), 2.0))
     height, width = left.shape
@@ -160,7 +163,8 @@ def draw_target(rig, adapter, rng, textured: bool, counts: collections.Counter, 
         refused, measured = "", True
         if textured:
             try:
-                d, _ = disparity_at(left, right, x, y, params.vergence_patch_size, disparity_range, band_px)
+                d, _ = disparity_at(left, right, x, y, params.vergence_patch_size, disparity_range, band_px,
+                                    row_offset_px)
             except ControlError:
                 continue
             if patch_problem(left, (x, y), params.look):
@@ -168,7 +172,7 @@ def draw_target(rig, adapter, rng, textured: bool, counts: collections.Counter, 
         else:
             try:
                 found = target_disparity(left, right, x, y, params.vergence_patch_size, disparity_range, params.look,
-                                         band_px)
+                                         band_px, row_offset_px)
                 d, measured = found.d, found.measured
             except ControlError as err:
                 d, refused = 0.0, str(err)
@@ -177,7 +181,8 @@ def draw_target(rig, adapter, rng, textured: bool, counts: collections.Counter, 
             counts["drawn again: beyond the joint limits"] += 1
             continue
         if not measured or "could not be measured" in refused:
-            cause = unmeasured_cause(rig, left, (x, y), params.vergence_patch_size, disparity_range, band_px)
+            cause = unmeasured_cause(rig, left, (x, y), params.vergence_patch_size, disparity_range, band_px,
+                                     row_offset_px)
             counts[f"d not measured because: {cause}"] += 1
         if refused:
             why = next((w for w in ("beyond the image", "no texture", "ambiguous") if w in refused), "other")
@@ -227,7 +232,7 @@ def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
     world = rig.devices.world
     for _ in range(count):
         controller.fixate()  # an exploratory fixation: the look starts from wherever it left the head
-        drawn = draw_target(rig, adapter, rng, textured, counts, band_px)
+        drawn = draw_target(rig, adapter, rng, textured, counts, band_px, controller.row_offset_px)
         if drawn is None:
             rows.append({"outcome": None, "on_target": False})
             continue

@@ -84,13 +84,16 @@ def stereo_offset(left: np.ndarray, right: np.ndarray, centre: tuple[float, floa
 
 
 def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
-                 disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX) -> tuple[float, float]:
+                 disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX,
+                 row_offset_px: float = 0.0) -> tuple[float, float]:
     """The disparity (px) at (x, y) of the left image of a pair, and its NCC: where the patch of
     `patch_size` around it lies in the right image, within `disparity_range` along the same
-    rows and `band_px` rows either side. DisparityError, saying why it could not be measured,
-    when it matches below MIN_DISPARITY_NCC."""
+    rows and `band_px` rows either side; those rows centred `row_offset_px` lower (the pair's
+    vertical misalignment as fine vergence found it at the fovea: two real cameras' optical
+    centres differ by some rows). DisparityError, saying why it could not be measured, when it
+    matches below MIN_DISPARITY_NCC."""
     d, ncc = horizontal_offset(as_grey_float(left), as_grey_float(right), (x, y), patch_size, disparity_range,
-                               band_px)
+                               band_px, row_offset_px)
     if ncc < MIN_DISPARITY_NCC:
         raise DisparityError(
             f"the disparity at ({x:g}, {y:g}) could not be measured (the best match in the right image "

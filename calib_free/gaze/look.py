@@ -84,17 +84,18 @@ class TargetDisparity:
 
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
-                     band_px: int = DISPARITY_BAND_PX) -> TargetDisparity:
+                     band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0) -> TargetDisparity:
     """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
     be measured (seen by one eye only, a vertical disparity or depth edge the match does not
-    survive, a patch too near the border for `patch_size`), d = 0: the look starts at the depth
+    survive, a patch too near the border for `patch_size`), d = 0 (`row_offset_px`: the
+    pair's vertical misalignment, `FixationController.row_offset_px`): the look starts at the depth
     the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
     TargetPatchError when the target has no patch for the closed loop to find it again by
     (`target_patch_problem`: flat, repetitive, reaching beyond the image): no look can end on
     it, whatever its d."""
     problem = target_patch_problem(as_grey_float(left), (x, y), look)
     try:
-        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
+        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px, row_offset_px)
     except DisparityError as err:
         if problem:
             raise TargetPatchError(f"{err}, and the target cannot be looked at: {problem}") from None
@@ -342,14 +343,16 @@ class LookController:
 
     def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
         """d at the target's new position, measured between the final left and right images as
-        fine vergence measures it at the fovea; else what fine vergence left (0 once converged)."""
+        fine vergence measures it at the fovea; else what fine vergence left (0 once converged).
+        A d beyond the map's disparity range is no measurement: a target a few pixels from
+        the foveae the eyes converged on is near their depth, and such a d is a look-alike."""
         left, right = fixation.final_left_image, fixation.final_right_image
         assert left is not None and right is not None
         fp = self.fixation.params
         search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
         d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search),
                                    fp.vergence_band_px)
-        if ncc >= fp.min_vergence_ncc:
+        if ncc >= fp.min_vergence_ncc and not self.fixation.map.check_position((sighting.x, sighting.y, d)):
             return d
         if fixation.outcome is FixationOutcome.NOT_CONVERGED and fixation.vergence_disparities_px:
             return fixation.vergence_disparities_px[-1]

@@ -49,22 +49,23 @@ MAP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,100}\.npz")
 
 
 def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
-                 disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX) -> tuple[float, float]:
+                 disparity_range: tuple[float, float], band_px: int = DISPARITY_BAND_PX,
+                 row_offset_px: float = 0.0) -> tuple[float, float]:
     """`calib_free.correspondence.disparity.disparity_at`; InvalidRequestError (naming `d`) where
     it cannot be measured."""
     try:
-        return measured_disparity_at(left, right, x, y, patch_size, disparity_range, band_px)
+        return measured_disparity_at(left, right, x, y, patch_size, disparity_range, band_px, row_offset_px)
     except DisparityError as err:
         raise InvalidRequestError(f"d: {err}; send d", "d") from None
 
 
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
-                     band_px: int = DISPARITY_BAND_PX) -> TargetDisparity:
+                     band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0) -> TargetDisparity:
     """`calib_free.gaze.look.target_disparity`; InvalidRequestError (naming `d`) when the target
     cannot be looked at."""
     try:
-        return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px)
+        return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px, row_offset_px)
     except TargetPatchError as err:
         raise InvalidRequestError(f"d: {err}", "d") from None
 
@@ -285,8 +286,9 @@ class ServiceControl:
     def measure_disparity(self, x: float, y: float) -> TargetDisparity:
         """The disparity (px, x_right - x_left) to look at (x, y) of the left image with, from the
         latest stereo pair (`target_disparity`): where the patch around it lies in the right
-        image within the map's disparity range (what fine vergence measures at the fovea,
-        measured off-centre), else 0 when the look can find the target by its patch.
+        image within the map's disparity range, about the rows fine vergence last found the
+        pair's misalignment at (what fine vergence measures at the fovea, measured off-centre),
+        else 0 when the look can find the target by its patch.
         UnavailableError (naming `d`) without a recent pair; InvalidRequestError (naming `d`)
         when the target cannot be looked at."""
         running = self._running()
@@ -296,9 +298,11 @@ class ServiceControl:
         if pair is None or age_s is None or age_s > PAIR_MAX_AGE_S:
             raise UnavailableError(f"d: no stereo pair from the last {PAIR_MAX_AGE_S:g} s to measure the "
                                    f"disparity at ({x:g}, {y:g}) in; send d", "d")
-        params = running.fixation.controller.params
+        controller = running.fixation.controller
+        params = controller.params
         return target_disparity(pair.left.image, pair.right.image, x, y, params.vergence_patch_size,
-                                running.adapter.map.params.disparity_range, params.look)
+                                running.adapter.map.params.disparity_range, params.look,
+                                row_offset_px=controller.row_offset_px)
 
     # -- tracks -------------------------------------------------------------------------------
     def track(self, x: float | None, y: float | None) -> LookJob:

@@ -5,6 +5,8 @@ in its images, so a look's figures are checked against the truth, not against th
 """
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -12,8 +14,9 @@ import yaml
 
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import LookController, LookOutcome, left_landing_error_px, target_disparity
-from calib_free.gaze.refind import find_target, patch_problem
-from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams, LookParams
+from calib_free.gaze.refind import TargetSighting, find_target, patch_problem
+from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
+                                      FixationRecord, LookParams)
 from headctl.config.head import load_config
 from headctl.errors import ConfigError
 from tests.support import CONFIGS
@@ -214,6 +217,33 @@ def test_a_target_is_looked_at_with_its_measured_disparity_else_from_the_fixatio
     assert not unmeasured.measured and unmeasured.ncc is None and unmeasured.d == 0.0
     assert unmeasured.reason.startswith("the disparity at (150, 110) could not be measured")
     assert unmeasured.reason.endswith(": looked at from the depth the eyes fixate (d = 0)")
+
+
+def test_a_targets_disparity_is_measured_about_the_rows_vergence_found_the_pair_misaligned_by():
+    """Two real cameras' optical centres differ by some rows: the right image 12 rows lower
+    than the left, 8 more than the rows searched either side."""
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    right = np.roll(np.roll(left, 6, axis=1), 12, axis=0)
+    assert not target_disparity(left, right, 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams()).measured
+    found = target_disparity(left, right, 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams(), row_offset_px=12.0)
+    assert found.measured and found.d == pytest.approx(6.0, abs=0.3)
+
+
+def test_a_corrective_step_takes_no_disparity_beyond_the_maps_range():
+    """Where a target a few pixels from the converged foveae matches the right image 90 px
+    away (a look-alike: the map's range ends at 60 px), the step aims at the eyes' depth."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(162.0, 121.0, 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([162.0, 121.0, 0.0]), converged=True,
+                              outcome=FixationOutcome.TAUGHT)
+    fixation.final_left_image = left
+    fixation.final_right_image = np.roll(left, 12, axis=1)
+    assert controller._disparity_at(fixation, sighting) == pytest.approx(12.0, abs=0.3)
+    fixation.final_right_image = np.roll(left, 90, axis=1)
+    controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=120)
+    assert controller._disparity_at(fixation, sighting) == 0.0
 
 
 def test_a_target_without_a_patch_to_find_it_by_is_refused_whatever_its_disparity():
