@@ -75,12 +75,17 @@ class Peer:
                 self._cond.wait(left)
 
     def rate_hz(self, name: str, n: int) -> float:
-        """The rate of the next `n` samples on `name`, by their arrivals (after 2 to settle)."""
+        """The rate of the next `n` samples on `name` (after 2 to settle), by the median interval
+        of their header stamps: the instants of the reads and exposures they carry. Arrival times
+        would measure this machine's load as well; a median still reads one period when a busy
+        machine lets the publisher miss a read now and then, and two when it publishes every
+        other one."""
         self.wait_for(name, 2)
         start = len(self.samples[name])
         self.wait_for(name, start + n)
-        arrivals = [t for t, _ in self.samples[name][start - 1:start + n]]
-        return n / (arrivals[-1] - arrivals[0])
+        stamps = [s.header.stamp.seconds for _, s in self.samples[name][start - 1:start + n]]
+        intervals_s = sorted(b - a for a, b in zip(stamps, stamps[1:]))
+        return 1.0 / intervals_s[len(intervals_s) // 2]
 
     def matched(self, name: str) -> int:
         return int(self.readers[name].get_subscription_matched_status().current_count)
