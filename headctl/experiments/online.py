@@ -227,7 +227,7 @@ class SimulatedHeadRig:
             world.true_joints, self.clock, noise_std=noise, seed=seed)
         self.head = build_head(self.config, self.bus, self.pairs, self.clock)
         # The cameras' exposure held over each fixation, as the service holds it (`cameras.*.exposure_control`).
-        self.exposure = ExposureHold(self.devices.cameras.values(), self.head.exposure_changed)
+        self.exposure = ExposureHold(self.devices.cameras.values())
         self.fixation = fixation or FixationParams()
         # The room the cameras render (the shared generated one unless the config names another).
         self.scene = world.scene if world.scene is not None else shared_scene(left.config.seed,

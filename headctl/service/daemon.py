@@ -292,7 +292,7 @@ class Daemon:
         make_fixation = functools.partial(FixationThread, controller, head, interrupt, parts.looks, parts.hub,
                                           self._paused_reason, explore=cfg.fixation.explore,
                                           rate_hz=cfg.fixation.rate_hz, clock=clock, tracking=tracking,
-                                          exposure=ExposureHold(devices.cameras.values(), head.exposure_changed))
+                                          exposure=ExposureHold(devices.cameras.values()))
         fixation = make_fixation()
         parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
         fixation.start()

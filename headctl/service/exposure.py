@@ -16,10 +16,6 @@ change of brightness) and takes its template again as the target changes, it tea
 sample, and a track lasts as long as a client wants, longer than one exposure can suit
 the light the target moves through.
 
-The head is told of each lock and unlock (`on_change`: `Head.exposure_changed`), so that a
-fixation starting on a head still at rest waits for a pair exposed after them, and within a
-look, whose one lock holds for all its fixations, starts from the pair already taken at rest.
-
 A camera that cannot be locked (lost, reconnecting) is logged and the fixation goes on: one
 without frames ends refused on its own, one with them only teaches less.
 """
@@ -27,7 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 
 from drivers.cameras.camera import Camera
 from drivers.errors import CameraError, DeviceStateError
@@ -38,10 +34,8 @@ log = logging.getLogger(__name__)
 class ExposureHold:
     """Locks the exposure of the cameras configured `lock_per_fixation`, for a block."""
 
-    def __init__(self, cameras: Iterable[Camera] = (), on_change: Callable[[], None] | None = None) -> None:
+    def __init__(self, cameras: Iterable[Camera] = ()) -> None:
         self.cameras = tuple(c for c in cameras if c.config.exposure_control == "lock_per_fixation")
-        # told after the exposure was locked or let run again (`Head.exposure_changed`)
-        self.on_change = on_change
         self.holds = 0  # blocks run with every such camera locked
         self.failures = 0  # locks and unlocks that failed
 
@@ -60,8 +54,6 @@ class ExposureHold:
                     locked.append(camera)
             if locked and len(locked) == len(self.cameras):
                 self.holds += 1
-            if locked and self.on_change is not None:
-                self.on_change()
             yield
         finally:
             for camera in locked:
@@ -70,5 +62,3 @@ class ExposureHold:
                 except (CameraError, DeviceStateError) as err:  # tried again after the next fixation
                     self.failures += 1
                     log.warning("%s: exposure still held after the fixation: %s", camera.name, err)
-            if locked and self.on_change is not None:
-                self.on_change()

@@ -155,11 +155,9 @@ class Head:
         self._goal: np.ndarray | None = None
         # (when, the mean pose) of the last rest, until a goal is sent or REST_POSE_KEPT_S pass
         self._rest_pose: tuple[float, np.ndarray] | None = None
-        # The last rest as the bus reads it: (its mean pose, the goals it rested at, the time
-        # from which it was at rest), until a goal is sent; a head still resting there need not
-        # wait for rest again.
-        self._last_rest: tuple[np.ndarray, np.ndarray | None, float] | None = None
-        self._exposure_changed_s = -np.inf  # the cameras' exposure last locked, unlocked or set
+        # The last rest as the bus reads it: (its mean pose, the goals it rested at), until a goal
+        # is sent; a head still resting there need not wait for rest again.
+        self._last_rest: tuple[np.ndarray, np.ndarray | None] | None = None
         # Where the joints come to rest relative to their goals (pan, tilt, vergence), averaged
         # over the last rests: a loaded servo's proportional control rests short of its goal by
         # a load-dependent offset (the tilt droops under the head's weight) that the encoder
@@ -262,21 +260,13 @@ class Head:
         self._goal = np.array([goal[0], goal[1], vergence_of(sent["left_eye"], sent["right_eye"])])
         return aimed + float(self.rest_offset[2])
 
-    def exposure_changed(self) -> None:
-        """The cameras' exposure was locked, unlocked or set: a pair exposed before now does not
-        stand for the view a fixation starting now is to be judged in (`wait_settled`)."""
-        self._exposure_changed_s = self.clock.monotonic()
-
     def wait_settled(self, timeout_s: float) -> float:
-        """Block until the servos report no motion and hold still near their goal for `settle_s`;
-        the monotonic time from which they did.
-
+        """Block until the servos report no motion and hold still near their goal for `settle_s`.
         A head that has been sent no goal since its last rest, still resting there (one reading:
         no servo moving, the pose within `steady_deg` of that rest's, the same goals in force),
-        is still at rest: the next fixation need not wait `settle_s` again, nor for a new pair.
-        It returns that rest's time, or the last `exposure_changed` if later, so that a pair
-        waited for after it is one already taken at rest under the exposure in force: a look's
-        corrective fixation starts from the pair its aim was found in."""
+        is still at rest: the next fixation need not wait `settle_s` again. It returns the time
+        now, not the old rest's, so that a pair waited for after it is exposed after whatever
+        changed since (an exposure locked for the fixation)."""
         if self.phase in ("idle", "choosing target"):
             self.set_phase("at rest")
         if self.goals_in_force is not None:
@@ -287,13 +277,13 @@ class Head:
                 else None
         last = self._last_rest
         if last is not None:
-            rest_pose_raw, rest_goal, rested_s = last
+            rest_pose_raw, rest_goal = last
             state = self._read_state()
             same_goal = (rest_goal is None and self._goal is None) or (
                 rest_goal is not None and self._goal is not None and np.array_equal(rest_goal, self._goal))
             if same_goal and not state.moving and np.all(np.abs(pose_of(state.positions) - rest_pose_raw)
                                                          <= self.steady_deg):
-                return max(rested_s, self._exposure_changed_s)
+                return self.clock.monotonic()
             self._last_rest = None
         deadline = self.clock.monotonic() + timeout_s
         rest_since: float | None = None
@@ -324,9 +314,8 @@ class Head:
             # (the service's) is read again at once, so that no state is missed.
             next_poll_s = max(next_poll_s + self.poll_s, self.clock.monotonic())
             self.clock.sleep(next_poll_s - self.clock.monotonic())
-        assert rest_since is not None  # the loop ends only at a rest
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
-        self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy(), rest_since)
+        self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy())
         if self._goal is not None:
             limit = self.short_tolerance_deg - self.tolerance_deg
             self.rest_offset = np.clip(0.5 * (self.rest_offset + np.mean(raw, axis=0) - self._goal), -limit, limit)

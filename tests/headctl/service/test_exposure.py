@@ -156,20 +156,6 @@ def test_only_cameras_configured_lock_per_fixation_are_held(cameras):
     assert "lock auto" not in log and hold.holds == 1
 
 
-def test_the_head_is_told_after_each_lock_and_unlock_and_not_when_nothing_was_held(cameras):
-    pair, log = cameras
-    hold = ExposureHold(pair, on_change=lambda: log.append("changed"))
-    with hold.held():
-        log.append("fixation")
-    assert log == ["lock left", "lock right", "changed", "fixation", "unlock left", "unlock right", "changed"]
-    log.clear()
-    for camera in pair:
-        camera.close()  # lost: nothing locked, the exposure as it was
-    with hold.held():
-        pass
-    assert "changed" not in log
-
-
 def test_a_camera_that_cannot_be_held_is_logged_and_the_fixation_goes_on(cameras, caplog):
     pair, log = cameras
     pair[1].close()  # lost meanwhile
@@ -198,7 +184,7 @@ def test_an_unlock_that_failed_is_tried_again_after_the_next_fixation(cameras):
 
 def test_the_online_experiment_holds_the_exposure_over_each_fixation(cameras, monkeypatch):
     pair, log = cameras
-    monkeypatch.setattr(online, "ExposureHold", lambda rig_cameras, on_change: ExposureHold(pair, on_change))
+    monkeypatch.setattr(online, "ExposureHold", lambda rig_cameras: ExposureHold(pair))
     result = run_online(OnlineSpec("short", 3), seed=0, landing_every=0)
     assert len(result.records) == 3
     assert log == ["lock left", "lock right", "unlock left", "unlock right"] * 3

@@ -94,14 +94,9 @@ def test_a_head_still_at_its_last_rest_is_at_rest_at_once_and_one_sent_a_goal_wa
     with _rig({"model": "xm430_head"}) as rig:
         head = rig.head
         head.move_to(np.array([4.0, 2.0, 6.0]))
-        rest_s = head.wait_settled(5.0)
-        rig.clock.advance(0.2)
+        head.wait_settled(5.0)
         rested = _rest_time_s(rig, head)  # no goal sent since: one reading says it still rests
         assert rested < head.settle_s
-        assert head.wait_settled(5.0) == rest_s  # a pair taken since that rest began is at rest
-        rig.clock.advance(0.1)
-        changed_s = rig.clock.monotonic()
-        head.exposure_changed()  # an exposure locked: only a pair exposed from now on stands
-        assert head.wait_settled(5.0) == changed_s
+        assert head.wait_settled(5.0) == pytest.approx(rig.clock.monotonic())  # pairs after now
         head.verge_to(6.5)
         assert _rest_time_s(rig, head) >= head.settle_s  # a goal sent: rest is waited for again
