@@ -312,8 +312,9 @@ class Head:
             self._check()
             # Polls `poll_s` apart: a bus whose read waits for the servo loop's next state
             # (the service's) is read again at once, so that no state is missed.
-            next_poll_s = max(next_poll_s + self.poll_s, self.clock.monotonic())
-            self.clock.sleep(next_poll_s - self.clock.monotonic())
+            now_s = self.clock.monotonic()
+            next_poll_s = max(next_poll_s + self.poll_s, now_s)
+            self.clock.sleep(next_poll_s - now_s)
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
         self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy())
         if self._goal is not None:
