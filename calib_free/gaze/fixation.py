@@ -60,8 +60,11 @@ class GazeHead(Protocol):
     def verge_to(self, vergence: float) -> float:
         """Command the eyes alone to an absolute vergence (clamped); returns the vergence commanded."""
 
-    def wait_settled(self, timeout_s: float) -> float:
-        """Block until the head is at rest; the monotonic time from which it was."""
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
+        """Block until the head is at rest; the monotonic time from which it was. A head found
+        still at the rest of the last call may answer the time now instead (a pair waited for
+        after it then shows the view as it is now), unless `same_rest`: the caller knows
+        nothing changed since that rest and will take a pair exposed during it."""
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The first (left, right) pair exposed entirely after `after_s`; PairTimeoutError if none."""
@@ -327,19 +330,23 @@ class FixationController:
         return random_motor_command(self.rng, pose, self.head.pose_low, self.head.pose_high,
                                     self.params.exploration_step_deg)
 
-    def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None) -> FixationRecord:
+    def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None,
+               continues: bool = False) -> FixationRecord:
         """One fixation: to a client's image target (x, y, d), or exploratory when None.
 
         `reference_pose`: the pose whose view the target was chosen in, when the head may have
         moved since (a queued look); the saccade then goes to that pose plus the map's command
-        for the target, which is where the client meant, from wherever the head is now."""
+        for the target, which is where the client meant, from wherever the head is now.
+        `continues`: the fixation follows one that ended at rest, with nothing changed since
+        but the target found in its last pair (a look's corrective step): a head still at that
+        rest starts from a pair of it instead of waiting for a new one."""
         started = self.clock()
         record = FixationRecord(index=self.count, kind=FixationKind.EXPLORE if target is None else FixationKind.TARGET)
         self.count += 1
         if target is not None:
             record.target = np.asarray(target, dtype=float)
         try:
-            self._run(record, target, reference_pose)
+            self._run(record, target, reference_pose, continues)
         except HeadTimeoutError as err:
             record.outcome = FixationOutcome.NO_FRAMES if isinstance(err, PairTimeoutError) \
                 else FixationOutcome.NOT_SETTLED
@@ -355,14 +362,16 @@ class FixationController:
         self.exploration.observe(record)
         return record
 
-    def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None) -> None:
+    def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None,
+             continues: bool = False) -> None:
         p = self.params
         head = self.head
         # The pre-fixation pair, at rest. Every pair of a fixation is taken with the head at
         # rest, so unsynchronised cameras need no correction here: a still head sees a still
         # scene, and its two images show the same whatever time apart they were exposed
         # (pursuit, where the head moves during a pair, corrects its disparity for that).
-        rest_s = head.wait_settled(p.settle_timeout_s)
+        rest_s = head.wait_settled(p.settle_timeout_s, same_rest=True) if continues \
+            else head.wait_settled(p.settle_timeout_s)
         pre_left, pre_right = (as_grey_float(im) for im in head.wait_pair(rest_s, p.frame_timeout_s))
         if target is not None:
             record.pre_left_image = pre_left

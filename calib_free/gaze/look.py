@@ -291,7 +291,7 @@ class LookController:
             cx, cy = fovea(final_left)
             aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
             d = self._disparity_at(fixation, sighting)
-            fixation = self._fixate(record, (aim_x, aim_y, d))
+            fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
 
     def _expected_error_px(self, fixation: FixationRecord) -> float | None:
         """How far from the fovea `fixation` is expected to have left the target (px, in the
@@ -307,8 +307,9 @@ class LookController:
         return left_landing_error_px(fixation, self.fixation.params.correspondence,
                                      self.fixation.params.confidence_floor)
 
-    def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None) -> FixationRecord:
-        fixation = self.fixation.fixate(target, reference_pose)
+    def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None,
+                continues: bool = False) -> FixationRecord:
+        fixation = self.fixation.fixate(target, reference_pose, continues)
         record.fixations.append(fixation)
         if self.on_fixation is not None:
             self.on_fixation(fixation)

@@ -170,7 +170,7 @@ class ReplayHead:
     def verge_to(self, vergence: float) -> float:
         return float(self._next(Call.VERGE))
 
-    def wait_settled(self, timeout_s: float) -> float:
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
         return float(self._next(Call.SETTLED))
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -162,8 +162,8 @@ class TracingHead:
         self._note(Call.VERGE, v)
         return v
 
-    def wait_settled(self, timeout_s: float) -> float:
-        rest_s = float(self._traced(Call.SETTLED, lambda: self.head.wait_settled(timeout_s)))
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
+        rest_s = float(self._traced(Call.SETTLED, lambda: self.head.wait_settled(timeout_s, same_rest)))
         self._note(Call.SETTLED, rest_s)
         return rest_s
 
@@ -189,12 +189,13 @@ class TracingController(FixationController):
                          exploration=exploration)
         self.taps = taps
 
-    def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None) -> FixationRecord:
+    def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None,
+               continues: bool = False) -> FixationRecord:
         tracing = self.taps.active
         if tracing:
             self.head.begin()
         try:
-            record = super().fixate(target, reference_pose)
+            record = super().fixate(target, reference_pose, continues)
         finally:
             traced = self.head.end()
         if tracing and traced is not None:

@@ -155,9 +155,10 @@ class Head:
         self._goal: np.ndarray | None = None
         # (when, the mean pose) of the last rest, until a goal is sent or REST_POSE_KEPT_S pass
         self._rest_pose: tuple[float, np.ndarray] | None = None
-        # The last rest as the bus reads it: (its mean pose, the goals it rested at), until a goal
-        # is sent; a head still resting there need not wait for rest again.
-        self._last_rest: tuple[np.ndarray, np.ndarray | None] | None = None
+        # The last rest as the bus reads it: (its mean pose, the goals it rested at, the time from
+        # which it was at rest), until a goal is sent; a head still resting there need not wait
+        # for rest again.
+        self._last_rest: tuple[np.ndarray, np.ndarray | None, float] | None = None
         # Where the joints come to rest relative to their goals (pan, tilt, vergence), averaged
         # over the last rests: a loaded servo's proportional control rests short of its goal by
         # a load-dependent offset (the tilt droops under the head's weight) that the encoder
@@ -260,13 +261,15 @@ class Head:
         self._goal = np.array([goal[0], goal[1], vergence_of(sent["left_eye"], sent["right_eye"])])
         return aimed + float(self.rest_offset[2])
 
-    def wait_settled(self, timeout_s: float) -> float:
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
         """Block until the servos report no motion and hold still near their goal for `settle_s`.
         A head that has been sent no goal since its last rest, still resting there (one reading:
         no servo moving, the pose within `steady_deg` of that rest's, the same goals in force),
         is still at rest: the next fixation need not wait `settle_s` again. It returns the time
         now, not the old rest's, so that a pair waited for after it is exposed after whatever
-        changed since (an exposure locked for the fixation)."""
+        changed since (an exposure locked for the fixation, a camera stalled); with `same_rest`,
+        from a caller that knows nothing changed (a look's corrective fixation, under the look's
+        one exposure lock), that rest's own time, so that the pair it was judged in will do."""
         if self.phase in ("idle", "choosing target"):
             self.set_phase("at rest")
         if self.goals_in_force is not None:
@@ -277,15 +280,16 @@ class Head:
                 else None
         last = self._last_rest
         if last is not None:
-            rest_pose_raw, rest_goal = last
+            rest_pose_raw, rest_goal, rested_s = last
             state = self._read_state()
             same_goal = (rest_goal is None and self._goal is None) or (
                 rest_goal is not None and self._goal is not None and np.array_equal(rest_goal, self._goal))
             if same_goal and not state.moving and np.all(np.abs(pose_of(state.positions) - rest_pose_raw)
                                                          <= self.steady_deg):
-                return self.clock.monotonic()
+                return rested_s if same_rest else self.clock.monotonic()
             self._last_rest = None
-        deadline = self.clock.monotonic() + timeout_s
+        started_s = self.clock.monotonic()
+        deadline = started_s + timeout_s
         rest_since: float | None = None
         rest_pose = np.zeros(3)
         held: list[np.ndarray] = []  # the poses read since the head held still
@@ -316,7 +320,10 @@ class Head:
             next_poll_s = max(next_poll_s + self.poll_s, now_s)
             self.clock.sleep(next_poll_s - now_s)
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
-        self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy())
+        assert rest_since is not None  # the loop ends only at a rest
+        log.debug("at rest after %.3f s (still from %.3f s), %s (off %s deg)", self.clock.monotonic() - started_s,
+                  rest_since - started_s, "at goal" if at_goal else "short of goal", np.round(off, 2).tolist())
+        self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy(), rest_since)
         if self._goal is not None:
             limit = self.short_tolerance_deg - self.tolerance_deg
             self.rest_offset = np.clip(0.5 * (self.rest_offset + np.mean(raw, axis=0) - self._goal), -limit, limit)

@@ -78,7 +78,7 @@ class PlanarHead:
     def verge_to(self, vergence: float) -> float:
         return float(self.move_to(np.array([self.pose[0], self.pose[1], vergence]))[2])
 
-    def wait_settled(self, timeout_s: float) -> float:
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
         return 0.0
 
     def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -248,7 +248,7 @@ def test_the_controller_saccades_to_the_chosen_target_within_the_limits():
         def verge_to(self, vergence):
             return float(self.move_to(np.array([self.pose[0], self.pose[1], vergence]))[2])
 
-        def wait_settled(self, timeout_s):
+        def wait_settled(self, timeout_s, same_rest=False):
             return 0.0
 
         def wait_pair(self, after_s, timeout_s):

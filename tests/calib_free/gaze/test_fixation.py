@@ -40,7 +40,7 @@ class FrozenEyesHead:
     def verge_to(self, vergence):
         return float(self.move_to(np.array([self.pose[0], self.pose[1], vergence]))[2])
 
-    def wait_settled(self, timeout_s):
+    def wait_settled(self, timeout_s, same_rest=False):
         return 0.0
 
     def wait_pair(self, after_s, timeout_s):
@@ -70,7 +70,7 @@ def test_a_target_outside_the_map_is_refused_before_moving():
 
 def test_timeouts_become_refusals():
     class StuckHead(FrozenEyesHead):
-        def wait_settled(self, timeout_s):
+        def wait_settled(self, timeout_s, same_rest=False):
             raise HeadTimeoutError("the head did not come to rest within 3.0 s")
 
     record = FixationController(StuckHead(), GazeMap.for_image(320, 240, seed=0)).fixate()

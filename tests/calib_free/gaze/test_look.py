@@ -60,6 +60,46 @@ def test_a_look_corrects_until_the_target_is_on_the_fovea_and_every_step_teaches
     assert record.landing_error_px == pytest.approx(0.2 * np.hypot(*(np.array(target) - FOVEA)), rel=0.15)
 
 
+class FramedHead(PlanarHead):
+    """A plane head whose camera exposes a new pair every 1/30 s of its own clock: a pair asked
+    for after a time no held pair was exposed after costs a frame. At rest since its last move,
+    it answers `wait_settled` with the time now, or with `same_rest` that rest's time."""
+
+    FRAME_S = 1.0 / 30.0
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.now_s = 0.0
+        self.rest_s = 0.0
+        self.exposed_s = -1.0  # the pair held
+        self.exposures = 0
+
+    def move_to(self, pose: np.ndarray) -> np.ndarray:
+        self.now_s += 0.1
+        self.rest_s = self.now_s
+        return super().move_to(pose)
+
+    def wait_settled(self, timeout_s: float, same_rest: bool = False) -> float:
+        self.now_s += 0.01  # the time the fixation before took to judge its last pair
+        return self.rest_s if same_rest else self.now_s
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        if self.exposed_s < after_s:
+            self.now_s = self.exposed_s = max(after_s, self.exposed_s) + self.FRAME_S
+            self.exposures += 1
+        return super().wait_pair(after_s, timeout_s)
+
+
+def test_a_corrective_step_starts_from_the_pair_its_target_was_found_in():
+    """Every pair but the look's first is one exposed after a move: a corrective fixation, aimed
+    from the pair its target was just found in, waits for no new one before it moves."""
+    head = FramedHead()
+    controller, _ = looker(head, gain=0.8)
+    record = controller.look((262.0, 58.0, 0.0))
+    assert record.on_target and record.corrective_steps >= 1
+    assert head.exposures == len(head.moves) + 1
+
+
 def test_a_look_whose_map_is_right_needs_no_corrective_step():
     head = PlanarHead()
     controller, _ = looker(head, gain=1.0)

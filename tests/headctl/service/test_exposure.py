@@ -115,7 +115,7 @@ def test_a_fixation_that_fails_unlocks_all_the_same(cameras):
         params = FixationParams()
         clock = staticmethod(SYSTEM_CLOCK.monotonic)
 
-        def fixate(self, target=None, reference_pose=None):
+        def fixate(self, target=None, reference_pose=None, continues=False):
             assert all(c.exposure_mode is ExposureMode.LOCKED for c in pair)
             raise RuntimeError("the controller failed")
 

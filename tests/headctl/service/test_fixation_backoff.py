@@ -34,7 +34,7 @@ class FlakyController:
         self.taught_enough = threading.Event()
         self.failures_wanted = failures_wanted
 
-    def fixate(self, target=None, reference_pose=None) -> FixationRecord:
+    def fixate(self, target=None, reference_pose=None, continues=False) -> FixationRecord:
         answered = self.answer.is_set()
         self.attempts.append((time.monotonic(), answered))
         outcome = FixationOutcome.TAUGHT if answered else FixationOutcome.BUS_DOWN

@@ -100,3 +100,17 @@ def test_a_head_still_at_its_last_rest_is_at_rest_at_once_and_one_sent_a_goal_wa
         assert head.wait_settled(5.0) == pytest.approx(rig.clock.monotonic())  # pairs after now
         head.verge_to(6.5)
         assert _rest_time_s(rig, head) >= head.settle_s  # a goal sent: rest is waited for again
+
+
+def test_a_head_still_at_its_last_rest_gives_that_rest_to_a_caller_that_knows_nothing_changed():
+    """`same_rest` (a look's corrective fixation): the old rest's own time, so that the pair its
+    target was found in will do; without it, the time now. A goal sent: waited for again."""
+    with _rig({"model": "xm430_head"}) as rig:
+        head = rig.head
+        head.move_to(np.array([4.0, 2.0, 6.0]))
+        rested_s = head.wait_settled(5.0)
+        rig.clock.advance(0.2)
+        assert head.wait_settled(5.0, same_rest=True) == rested_s
+        assert head.wait_settled(5.0) == pytest.approx(rig.clock.monotonic())
+        head.verge_to(6.5)
+        assert head.wait_settled(5.0, same_rest=True) > rested_s + 0.2  # moved: a rest of its own
