@@ -87,6 +87,9 @@ class LookParams:
     target_patch_size: tuple[int, int] = (21, 21)  # (w, h) of the target's patch, px
     min_target_ncc: float = 0.7  # the target's patch matched less well than this: not found
     ambiguity_ncc_margin: float = 0.1  # a second place matching within this of the best: ambiguous
+    # The larger patch, where the smaller repeats in its own view, must match its own view's
+    # second place worse than the best by this much to be used (`calib_free.gaze.refind`)
+    context_ncc_margin: float = 0.25
     search_radius_px: int | None = None  # how far from the fovea to search the target (None: width/3)
     max_target_scale: float = 4.0  # the most the view may magnify the target's patch between views
     # converged this far (deg) from the vergence the map gives the target's d: another depth, not the target
@@ -103,6 +106,8 @@ class LookParams:
             raise ValueError(f"min_target_ncc must be in (-1, 1), got {self.min_target_ncc}")
         if not 0.0 <= self.ambiguity_ncc_margin < 1.0:
             raise ValueError(f"ambiguity_ncc_margin must be in [0, 1), got {self.ambiguity_ncc_margin}")
+        if not self.ambiguity_ncc_margin <= self.context_ncc_margin < 1.0:
+            raise ValueError(f"context_ncc_margin must be in [ambiguity_ncc_margin, 1), got {self.context_ncc_margin}")
         if self.search_radius_px is not None and self.search_radius_px < 1:
             raise ValueError(f"search_radius_px must be at least 1 px, got {self.search_radius_px}")
         if not 1.0 <= self.max_target_scale <= 16.0:

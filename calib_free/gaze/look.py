@@ -44,7 +44,7 @@ from calib_free.correspondence.search import CorrespondenceParams, match_eye
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
-from calib_free.gaze.refind import (TargetSighting, find_target, fovea, patch_problem, patch_variants,
+from calib_free.gaze.refind import (TargetSighting, find_target, fovea, identifying_patches, patch_variants,
                                     target_patch_problem)
 from calib_free.map.gaze_map import Vector
 
@@ -230,14 +230,13 @@ class LookController:
         source = fixation.pre_left_image
         source_xy = (float(record.target[0]), float(record.target[1]))
         warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
-        # The target's patch: whichever of `patch_variants` identify the target in its own view;
-        # the larger is tried where the smaller is not found again.
+        # The target's patch: whichever of `patch_variants` identify the target in its own view
+        # (`identifying_patches`); the larger is tried where the smaller is not found again.
         variants = patch_variants(p)
         if source is not None and fixation.final_left_image is not None:
-            problems = [patch_problem(source, source_xy, variant) for variant in variants]
-            variants = [variant for variant, why in zip(variants, problems) if not why]
+            variants, why = identifying_patches(source, source_xy, p)
             if not variants:
-                record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, problems[0]
+                record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, why
                 return
         last_error: float | None = None  # the target's distance from the fovea before the last step
         boost = 1.0

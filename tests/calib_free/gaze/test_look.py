@@ -14,7 +14,8 @@ import yaml
 
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import LookController, LookOutcome, left_landing_error_px, target_disparity
-from calib_free.gaze.refind import TargetSighting, find_target, patch_problem
+from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, patch_problem,
+                                    target_patch_problem)
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
                                       FixationRecord, LookParams)
 from headctl.config.head import load_config
@@ -483,3 +484,38 @@ def test_the_left_eyes_landing_is_not_measured_where_its_view_is_flat():
     fixation = controller.fixation.fixate((200.0, 100.0, 0.0))
     assert fixation.pre_left_image is not None and fixation.final_left_image is not None
     assert left_landing_error_px(fixation, FixationParams().correspondence, 0.3) is None
+
+
+def repeated_texture_with_rims(rims: int, blend: float) -> np.ndarray:
+    """A 16 px tile repeated over the image, and about (160, 120), in the rows the 41 x 41 patch
+    holds above (and with `rims` 2 below) the 21 x 21 one, other texture blended in by `blend`."""
+    tile = cv2.resize(np.random.default_rng(3).uniform(0, 255, (4, 4)).astype(np.float32), (16, 16),
+                      interpolation=cv2.INTER_CUBIC)
+    image = np.tile(tile, (15, 20))[:HEIGHT, :WIDTH].copy()
+    for seed, rows in zip((4, 5), (slice(100, 109), slice(132, 141))[:rims]):
+        other = cv2.resize(np.random.default_rng(seed).uniform(0, 255, (4, 10)).astype(np.float32), (41, 9),
+                           interpolation=cv2.INTER_CUBIC)
+        image[rows, 140:181] = (1 - blend) * image[rows, 140:181] + blend * other
+    return image
+
+
+def test_a_larger_patch_set_apart_from_its_repeats_only_by_a_faint_rim_is_not_used():
+    """The 21 px patch repeats every 16 px; the 41 px one differs from its repeats by one rim,
+    its own view's second place within 0.25 of NCC of it: refused (a client is told the patch
+    repeats), though it passes the 0.1 that tells repeats apart after a saccade. With two rims
+    it is set apart by more than 0.25 and used."""
+    xy = (160.0, 120.0)
+    faint = repeated_texture_with_rims(1, 0.8)
+    small, large = (LookParams(target_patch_size=size) for size in ((21, 21), (41, 41)))
+    assert "ambiguous in its own view" in patch_problem(faint, xy, small)
+    assert patch_problem(faint, xy, large) == ""  # within 0.1 it is told apart
+    assert identifying_patches(faint, xy, LookParams()) == ([], patch_problem(faint, xy, small))
+    assert "ambiguous in its own view" in target_patch_problem(faint, xy, LookParams())
+    usable, _ = identifying_patches(faint, xy, LookParams(context_ncc_margin=0.1))
+    assert [v.target_patch_size for v in usable] == [(41, 41)]
+    clear = repeated_texture_with_rims(2, 0.8)
+    usable, why = identifying_patches(clear, xy, LookParams())
+    assert "ambiguous" in why and [v.target_patch_size for v in usable] == [(41, 41)]
+    assert target_patch_problem(clear, xy, LookParams()) == ""
+    with pytest.raises(ValueError, match="context_ncc_margin"):
+        LookParams(context_ncc_margin=0.05)
