@@ -233,16 +233,28 @@ class Head:
         at the pose. Returns where they are to rest."""
         self.set_phase("saccade")
         before = self.read_pose() if self.observer is not None else None
+        goal = self._send_pose(pose)
+        self._saccade = (self.clock.monotonic(), goal)
+        if self.observer is not None and before is not None:
+            self.observer.saccade_onset(before, goal)
+        return goal
+
+    def follow_to(self, pose: np.ndarray) -> np.ndarray:
+        """A pursuit's goal, sent at once: pan, tilt and vergence toward `pose`, clamped to the
+        limits, the goals less `rest_offset` and with the play taken up, as `move_to`'s, so that
+        a track's head is where its goals say (no droop below them, no play behind them). No
+        saccade is timed and the phase stays. Returns where the joints are to come to."""
+        return self._send_pose(pose)
+
+    def _send_pose(self, pose: np.ndarray) -> np.ndarray:
+        """The goals for `pose`, clamped, less `rest_offset` (clamped again), on the bus; where
+        the joints are to come to."""
         wanted = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
         # (a bus whose readings are off may be sent a goal beyond them).
         aimed = np.clip(wanted - self.rest_offset, self.pose_low, self.pose_high)
-        sent = self._write_goals(joints_of(aimed))
-        self._goal = pose_of(sent)
+        self._goal = pose_of(self._write_goals(joints_of(aimed)))
         goal: np.ndarray = aimed + self.rest_offset
-        self._saccade = (self.clock.monotonic(), goal)
-        if self.observer is not None and before is not None:
-            self.observer.saccade_onset(before, goal)
         return goal
 
     def verge_to(self, vergence: float) -> float:

@@ -24,7 +24,6 @@ from typing import Callable, Mapping, Protocol, TypedDict
 import numpy as np
 
 from calib_free.gaze.fixation import FixationInterrupted, FixationOutcome, HeadTimeoutError
-from headctl.service.head import joints_of
 from calib_free.gaze.pursuit import MapReader, PoseHistory, Pursuit, PursuitParams, PursuitStep, TrackOutcome
 from drivers.clock import SYSTEM_CLOCK, Backoff, Clock
 from drivers.errors import DriverError
@@ -196,11 +195,9 @@ class Tracking:
             self.publish(type_, **fields)
 
     def _command(self, goal: np.ndarray) -> None:
-        """The goal within the joint and vergence limits, on the bus (interruptible)."""
-        clamped = np.clip(goal, self.head.pose_low, self.head.pose_high)
-        if self.head.interrupt is not None:
-            self.head.interrupt()
-        self.head.bus.write_goals(joints_of(clamped))
+        """The goal within the joint and vergence limits, on the bus (interruptible), less the
+        droop and with the play taken up (`Head.follow_to`)."""
+        self.head.follow_to(goal)
 
     def _pair(self, after_s: float) -> tuple[np.ndarray, np.ndarray, float, float]:
         """The first pair exposed after `after_s`: its images, the left image's exposure time,

@@ -8,12 +8,17 @@ import pytest
 
 from headctl.config.head import parse_config, read_yaml
 from headctl.experiments.online import SimulatedHeadRig
+from headctl.service.head import joints_of
 from tests.support import SIM_IDEAL
 
 
-def _rig(mechanics: dict) -> SimulatedHeadRig:
+def _rig(mechanics: dict, play_deg: dict[str, float] | None = None) -> SimulatedHeadRig:
+    """The ideal config's head on servos with `mechanics`; `play_deg`: the joints' play the
+    config states (`servo_bus.joints.<joint>.backlash_deg`), which the head takes up."""
     data = copy.deepcopy(read_yaml(SIM_IDEAL))
     data["servo_bus"]["mechanics"] = mechanics
+    for joint, play in (play_deg or {}).items():
+        data["servo_bus"]["joints"][joint]["backlash_deg"] = play
     return SimulatedHeadRig(seed=0, config=parse_config(data, SIM_IDEAL))
 
 
@@ -114,3 +119,25 @@ def test_a_head_still_at_its_last_rest_gives_that_rest_to_a_caller_that_knows_no
         assert head.wait_settled(5.0) == pytest.approx(rig.clock.monotonic())
         head.verge_to(6.5)
         assert head.wait_settled(5.0, same_rest=True) > rested_s + 0.2  # moved: a rest of its own
+
+
+def test_a_pursuit_goal_is_sent_less_the_droop_and_with_the_play_taken_up():
+    """`follow_to` (a track's goal each frame) as `move_to`: a drooping tilt and a pan with
+    play come to where the goal says, each way the pan comes from; the goal written as it is,
+    the tilt rests short of it by the droop."""
+    with _rig({"model": "xm430_head", "sag_deg_at_horizontal": 0.6, "backlash_deg": 0.25,
+               "read_wobble_ticks": 0}, {"pan": 0.25}) as rig:
+        head = rig.head
+        for tilt in (0.0, 1.0, 0.5, 1.5, 1.0):  # a few rests: the droop learned
+            head.move_to(np.array([0.0, tilt, 6.0]))
+            head.wait_settled(5.0)
+        for pan in (3.0, 1.0, 4.0):  # the pan reverses between goals
+            goal = np.array([pan, 2.0, 6.0])
+            assert head.follow_to(goal) == pytest.approx(goal, abs=0.01)
+            head.wait_settled(5.0)
+            true = rig.devices.world.true_joints()
+            assert true["pan"] == pytest.approx(pan, abs=0.1) and true["tilt"] == pytest.approx(2.0, abs=0.15)
+            assert head.read_pose()[:2] == pytest.approx(goal[:2], abs=0.1)
+        head.bus.write_goals(joints_of(np.array([4.0, 2.0, 6.0])))
+        head.wait_settled(5.0)
+        assert rig.devices.world.true_joints()["tilt"] < 2.0 - 0.3  # the droop, not taken off the goal
