@@ -375,8 +375,7 @@ class FixationController:
         # rest, so unsynchronised cameras need no correction here: a still head sees a still
         # scene, and its two images show the same whatever time apart they were exposed
         # (pursuit, where the head moves during a pair, corrects its disparity for that).
-        rest_s = head.wait_settled(p.settle_timeout_s, same_rest=True) if continues \
-            else head.wait_settled(p.settle_timeout_s)
+        rest_s = head.wait_settled(p.settle_timeout_s, same_rest=continues)
         pre_left, pre_right = (as_grey_float(im) for im in head.wait_pair(rest_s, p.frame_timeout_s))
         if target is not None:
             record.pre_left_image = pre_left

@@ -233,7 +233,7 @@ class Head:
         at the pose. Returns where they are to rest."""
         self.set_phase("saccade")
         before = self.read_pose() if self.observer is not None else None
-        goal = self._send_pose(pose)
+        goal = self.follow_to(pose)
         self._saccade = (self.clock.monotonic(), goal)
         if self.observer is not None and before is not None:
             self.observer.saccade_onset(before, goal)
@@ -244,11 +244,6 @@ class Head:
         limits, the goals less `rest_offset` and with the play taken up, as `move_to`'s, so that
         a track's head is where its goals say (no droop below them, no play behind them). No
         saccade is timed and the phase stays. Returns where the joints are to come to."""
-        return self._send_pose(pose)
-
-    def _send_pose(self, pose: np.ndarray) -> np.ndarray:
-        """The goals for `pose`, clamped, less `rest_offset` (clamped again), on the bus; where
-        the joints are to come to."""
         wanted = np.clip(np.asarray(pose, dtype=float), self.pose_low, self.pose_high)
         # The servo bus checks each joint's limits again: no goal outside them is ever sent
         # (a bus whose readings are off may be sent a goal beyond them).
@@ -333,8 +328,9 @@ class Head:
             self.clock.sleep(next_poll_s - now_s)
         self._rest_pose = (self.clock.monotonic(), np.mean(held, axis=0))
         assert rest_since is not None  # the loop ends only at a rest
-        log.debug("at rest after %.3f s (still from %.3f s), %s (off %s deg)", self.clock.monotonic() - started_s,
-                  rest_since - started_s, "at goal" if at_goal else "short of goal", np.round(off, 2).tolist())
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("at rest after %.3f s (still from %.3f s), %s (off %s deg)", self.clock.monotonic() - started_s,
+                      rest_since - started_s, "at goal" if at_goal else "short of goal", np.round(off, 2).tolist())
         self._last_rest = (np.mean(raw, axis=0), None if self._goal is None else self._goal.copy(), rest_since)
         if self._goal is not None:
             limit = self.short_tolerance_deg - self.tolerance_deg
