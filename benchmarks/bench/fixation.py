@@ -35,13 +35,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import io
 import os
-import re
-import subprocess
 import sys
-import tarfile
-import tempfile
 import time
 import types
 from collections.abc import Callable, Iterator
@@ -50,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.support.baseline import baseline_package
 from benchmarks.support.image_error import radial_tangential_error
 from calib_free.map.gaze_map import GazeMap
 from calib_free.correspondence import search as correspondence
@@ -63,23 +59,11 @@ from headctl.experiments.online import SimulatedHeadRig
 from headctl.experiments.saccades import SaccadeCase, Scored, saccade_cases
 from headctl.experiments.saccades import accuracy as accuracy_of
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
 def load_baseline(rev: str) -> types.ModuleType:
-    """`calib_free.correspondence.search` as it is at git revision `rev`: the revision's whole
-    `calib_free` package, extracted to a temporary folder and imported as
-    `calib_free_baseline` (its own imports renamed to match), so that the baseline runs with
-    its own alignment, kernels and helpers beside the working tree's."""
-    archive = subprocess.run(["git", "archive", rev, "calib_free"], cwd=ROOT, check=True, capture_output=True).stdout
-    folder = Path(tempfile.mkdtemp(prefix="bench-fixation-baseline-"))
-    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-        tar.extractall(folder, filter="data")
-    package = folder / "calib_free_baseline"
-    (folder / "calib_free").rename(package)
-    for source in package.rglob("*.py"):
-        source.write_text(re.sub(r"\bcalib_free\b", "calib_free_baseline", source.read_text()))
-    sys.path.insert(0, str(folder))  # the other revision's tree: importable only from where it was extracted
+    """`calib_free.correspondence.search` as it is at git revision `rev`
+    (`benchmarks.support.baseline`): the baseline runs with its own alignment, kernels and
+    helpers beside the working tree's."""
+    package = baseline_package(rev)
     # a revision with the package `calib_free/correspondence/` has the search in its `search.py`; others in
     # the module `calib_free/correspondence.py`
     nested = (package / "correspondence" / "search.py").exists()

@@ -142,31 +142,38 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
     window = image[y0:y1, x0:x1]
     if window.shape[0] < h + 2 or window.shape[1] < w + 2:
         return None, f"the search window {window.shape[1]} x {window.shape[0]} px is smaller than the patch"
-    tried: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (scores, template, warp)
+    # The patch as each candidate warp shows it, if it shows enough to find the target by.
+    templates: list[tuple[np.ndarray, np.ndarray]] = []  # (template, warp)
     for warp in warps:
         template = warped_patch(source, source_xy, warp, (w, h))
-        if template is None:
-            continue
-        if float(template.std()) < MIN_PATCH_STD:
-            continue  # magnified this much, the patch shows too little to find it by
-        scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED), nan=0.0,
-                               posinf=0.0, neginf=0.0)
-        tried.append((scores, template, warp))
-    if not tried:
+        if template is not None and float(template.std()) >= MIN_PATCH_STD:
+            templates.append((template, warp))
+    if not templates:
         return None, (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image "
                       "or is too flat to find it by")
+    placements = (window.shape[0] - h + 1, window.shape[1] - w + 1)  # of the patch in the window (rows, columns)
+
+    def scored(template: np.ndarray, rows: tuple[int, int], columns: tuple[int, int]) -> np.ndarray:
+        """The NCC of `template` at the window's placements `rows` x `columns` (top-left
+        corners, end exclusive): each placement's score is its own, so only the region
+        judged is computed."""
+        part = window[rows[0]:rows[1] + h - 1, columns[0]:columns[1] + w - 1]
+        return np.nan_to_num(cv2.matchTemplate(part, template, cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0,
+                             neginf=0.0)
+
     c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     # Near the fovea first, where the saccade meant to bring the target: a repeat of its texture
     # farther away does not make it ambiguous there. Else the whole search window.
     near = max(radius // 3, 4)
     u0 = int(max(0, np.floor(centre[0] - near - x0 - c[0])))
     v0 = int(max(0, np.floor(centre[1] - near - y0 - c[1])))
+    u1 = min(placements[1], int(np.ceil(centre[0] + near - x0 - c[0])) + 1)
+    v1 = min(placements[0], int(np.ceil(centre[1] + near - y0 - c[1])) + 1)
     why = ""
-    for (a, b) in (((v0, int(np.ceil(centre[1] + near - y0 - c[1])) + 1), (u0, int(np.ceil(centre[0] + near - x0 - c[0])) + 1)),
-                   ((0, tried[0][0].shape[0]), (0, tried[0][0].shape[1]))):
-        peak, index = max((float(t[0][a[0]:a[1], b[0]:b[1]].max()), i) for i, t in enumerate(tried))
-        scores, template, warp = tried[index]
-        region = scores[a[0]:a[1], b[0]:b[1]]
+    for (a, b) in (((v0, v1), (u0, u1)), ((0, placements[0]), (0, placements[1]))):
+        regions = [scored(template, a, b) for template, _ in templates]
+        peak, index = max((float(scores.max()), i) for i, scores in enumerate(regions))
+        region, (template, warp) = regions[index], templates[index]
         _, _, _, (ix, iy) = cv2.minMaxLoc(region)
         position: tuple[float, float] | None = None
         if peak >= params.min_target_ncc - REFINE_BELOW_NCC:
@@ -180,8 +187,7 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
                 refined = None  # ECC wandered off to something else
             better = None if refined is None else warped_patch(source, source_xy, refined[1] @ warp, (w, h))
             if refined is not None and better is not None and float(better.std()) >= MIN_PATCH_STD:
-                rescored = np.nan_to_num(cv2.matchTemplate(window, better, cv2.TM_CCOEFF_NORMED), nan=0.0,
-                                         posinf=0.0, neginf=0.0)[a[0]:a[1], b[0]:b[1]]
+                rescored = scored(better, a, b)
                 _, repeak, _, (jx, jy) = cv2.minMaxLoc(rescored)
                 if np.hypot(jx - ix, jy - iy) <= 2.0:
                     region, peak, (ix, iy) = rescored, float(repeak), (jx, jy)
@@ -381,17 +387,23 @@ def target_patch_problem(source: np.ndarray, source_xy: tuple[float, float], par
 def _refine(template: np.ndarray, image: np.ndarray, u: float, v: float,
             ) -> tuple[tuple[float, float], np.ndarray, float] | None:
     """ECC's affine fit of `template` placed with its top-left at (u, v) in `image`: the
-    template centre's position, the linear part, the correlation; None if it did not converge."""
+    template centre's position, the linear part, the correlation; None if it did not converge.
+    ECC sees only the image within one patch of the placement: what a fit near it samples
+    (one that wanders farther is refused by the caller), without the gradients of the whole
+    image."""
     h, w = template.shape
-    matrix = np.array([[1.0, 0.0, u], [0.0, 1.0, v]], dtype=np.float32)
+    x0, y0 = max(0, int(np.floor(u)) - w), max(0, int(np.floor(v)) - h)
+    near = image[y0:min(image.shape[0], int(np.ceil(v)) + 2 * h + 1),
+                 x0:min(image.shape[1], int(np.ceil(u)) + 2 * w + 1)]
+    matrix = np.array([[1.0, 0.0, u - x0], [0.0, 1.0, v - y0]], dtype=np.float32)
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 50, 1e-4)
     try:
         # gaussFiltSize 1: no blur, the patch and the image are sharp; typeshed lacks this overload.
-        ncc, fitted = cv2.findTransformECC(template.astype(np.float32), image.astype(np.float32), matrix,  # type: ignore[call-overload]
+        ncc, fitted = cv2.findTransformECC(template.astype(np.float32), near.astype(np.float32), matrix,  # type: ignore[call-overload]
                                            cv2.MOTION_AFFINE, criteria, None, 1)
     except cv2.error:
         return None
     c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     fitted = np.asarray(fitted, dtype=float)
-    position = fitted[:, :2] @ c + fitted[:, 2]
+    position = fitted[:, :2] @ c + fitted[:, 2] + (x0, y0)
     return (float(position[0]), float(position[1])), fitted[:, :2], float(ncc)
