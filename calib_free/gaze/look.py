@@ -129,11 +129,12 @@ def left_landing_error_px(fixation: FixationRecord, params: CorrespondenceParams
     did not converge, or the right eye's match was refused) but whose left eye's match is
     confident (at least `confidence_floor`). A look finds its target in the left image, so
     this is the landing that tells the target from a repeat of its texture. None when not
-    measured."""
+    measured. A fixation that converged but was refused matched its left eye so already: that
+    match is taken, not made again."""
     pre, post, aim = fixation.pre_left_image, fixation.final_left_image, fixation.target
     if pre is None or post is None or aim is None:
         return None
-    match = match_eye(pre, post, params)
+    match = fixation.match.left if fixation.match is not None else match_eye(pre, post, params)
     if not match.confidence >= confidence_floor:  # NaN: not measured
         return None
     return float(np.hypot(match.x - aim[0], match.y - aim[1]))

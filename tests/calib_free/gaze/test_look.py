@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
+from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import LookController, LookOutcome, left_landing_error_px, target_disparity
 from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, patch_problem,
@@ -484,6 +485,22 @@ def test_the_left_eyes_landing_is_not_measured_where_its_view_is_flat():
     fixation = controller.fixation.fixate((200.0, 100.0, 0.0))
     assert fixation.pre_left_image is not None and fixation.final_left_image is not None
     assert left_landing_error_px(fixation, FixationParams().correspondence, 0.3) is None
+
+
+def test_a_refused_fixations_left_match_is_its_landing_not_matched_again():
+    """A fixation that converged but was refused (here: the stereo check) has its left eye's
+    match: that match is the left landing. Its images are noise, which a new match would
+    find nothing in."""
+    noise = np.random.default_rng(3).uniform(0, 255, (HEIGHT, WIDTH)).astype(np.float32)
+    left = EyeMatch(x=103.0, y=104.0, c_max=0.95, c1=0.9, c2=1.0, competitors=0.0, confidence=0.8)
+    right = EyeMatch(x=90.0, y=104.0, c_max=0.95, c1=0.9, c2=1.0, competitors=0.0, confidence=0.8)
+    fixation = FixationRecord(index=0, kind=FixationKind.TARGET, target=np.array([100.0, 100.0, 0.0]),
+                              converged=True, match=FixationMatch(left, right),
+                              outcome=FixationOutcome.INCONSISTENT, pre_left_image=noise, final_left_image=noise)
+    params = FixationParams().correspondence
+    assert left_landing_error_px(fixation, params, 0.3) == pytest.approx(5.0)
+    unsure = dataclasses.replace(fixation, match=FixationMatch(dataclasses.replace(left, confidence=0.2), right))
+    assert left_landing_error_px(unsure, params, 0.3) is None
 
 
 def repeated_texture_with_rims(rims: int, blend: float) -> np.ndarray:
