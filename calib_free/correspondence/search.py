@@ -545,8 +545,8 @@ def match_fixation(pre_left: np.ndarray, pre_right: np.ndarray, post_left: np.nd
     """r* = (x*, y*, d*) of a fixation and its confidence, from the pre- and post-fixation pairs."""
     params = params or CorrespondenceParams()
     # The two eyes are independent, and OpenCV and the compiled kernels release the GIL: the
-    # right eye is matched on a second thread while this one does the left (at 640 x 480 on
-    # this 2-core machine, quiet: 1.3 ms of CPU an eye, 1.9 ms a pair this way).
+    # right eye is matched on a second thread while this one does the left (a pair then takes
+    # little more than one eye's CPU time: `benchmarks.bench.fixation`).
     right = _eye_pool().submit(match_eye, pre_right, post_right, params)
     left = match_eye(pre_left, post_left, params)
     return FixationMatch(left, right.result())
