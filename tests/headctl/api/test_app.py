@@ -802,8 +802,10 @@ def test_eye_images_have_the_fovea_marked(head):
         arms = [image[119:122, 150:156], image[119:122, 164:170], image[110:116, 159:162], image[124:130, 159:162]]
         green = [(lambda b, g, r: g > 150 and g > max(r, b) + 50)(*arm.astype(int).mean(axis=(0, 1))) for arm in arms]
         assert sum(green) >= 3, green
-        b, g, r = image[100:110, 20:30].astype(int).mean(axis=(0, 1))  # the scene elsewhere: grey
-        assert abs(g - r) < 20 and abs(g - b) < 20
+        # The scene elsewhere: grey. The overlays are thin lines, which may cross any one spot
+        # (the last match's circle lies wherever the match was): most pixels are grey.
+        b, g, r = (image[..., k].astype(int) for k in range(3))
+        assert np.median(np.abs(g - r)) < 20 and np.median(np.abs(g - b)) < 20
     status, answer, _ = raw(client, "GET", "/api/v1/eyes/middle.jpg")
     assert status == 422 and answer["field"] == "side"
 
