@@ -34,7 +34,7 @@ from headctl.api.client import ApiClient, ApiError
 from headctl.config.head import load_config
 from headctl.api.compose import serve
 from tests.conftest import sim_head_config, wait_until
-from headctl.errors import HeadctlError
+from headctl.errors import HeadctlError, UnavailableError
 from tests.support import SIM_IDEAL, TLS
 
 pytestmark = pytest.mark.timeout(120)
@@ -609,6 +609,14 @@ def look_without_d(client, x, y, **kw):
     return wait_until(post, timeout_s=10.0, what=f"a stereo pair recent enough to look at ({x}, {y}) in")
 
 
+def measured_or_none(control, x, y):
+    """The service's disparity at (x, y) of the latest pair; None while it has no recent pair."""
+    try:
+        return control.measure_disparity(x, y)
+    except UnavailableError:
+        return None
+
+
 def test_a_target_without_d_has_its_disparity_measured_there(head):
     daemon, client = head
     client.set_exploration(False)
@@ -629,15 +637,23 @@ def test_a_target_without_d_has_its_disparity_measured_there(head):
             assert request["d_ncc"] >= 0.6 and "d_reason" not in request, request
             low, high = daemon.parts.running.adapter.map.params.disparity_range
             assert low <= request["d"] <= high
-            # Fine vergence converged where the look ended, on something a look can find again.
+            # Fine vergence converged where the look ended, on something a look can find again, and
+            # the fixation taught: its stereo match passed the correspondence's checks. (Where the
+            # foveae's match is ambiguous along the rows, another pair's noise can flip it to
+            # another peak: 2 of 938 converged fixations in the ideal world, both refused.)
             fovea = as_grey_float(daemon.parts.devices.cameras["left"].latest().image)
-            if job["result"]["converged"] and not target_patch_problem(fovea, ((w - 1) / 2, (h - 1) / 2), look_params):
+            last = job["result"]["fixations"][-1] if job["result"]["fixations"] else {}
+            if (job["result"]["converged"] and last.get("taught")
+                    and not target_patch_problem(fovea, ((w - 1) / 2, (h - 1) / 2), look_params)):
                 converged = job
                 break
-        assert converged is not None, "no look converged in eight"
-        # Fine vergence left the fixated point at zero disparity: measured at the fovea now, d ~ 0.
-        at_fovea = look_without_d(client, (w - 1) / 2, (h - 1) / 2)["request"]
-        assert at_fovea["d_measured"] and abs(at_fovea["d"]) <= 1.5, at_fovea
+        assert converged is not None, "no look converged and taught in eight"
+        # Fine vergence left the fixated point at zero disparity: measured at the fovea now, d ~ 0
+        # (the measurement a look without d makes; a look there may be beyond the reach of a map
+        # that has learned little).
+        at_fovea = wait_until(lambda: measured_or_none(daemon.control, (w - 1) / 2, (h - 1) / 2), timeout_s=10.0,
+                              what="a stereo pair recent enough to measure the fovea's disparity in")
+        assert at_fovea.ncc is not None and abs(at_fovea.d) <= 1.5, at_fovea
         # Where no patch fits, there is nothing to look at: refused, naming d.
         with pytest.raises(ApiError) as err:
             client.look_target(2.0, 2.0)

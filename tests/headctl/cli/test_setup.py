@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import yaml
 from dynamixel_sdk import PacketHandler, PortHandler
@@ -14,6 +13,7 @@ from dynamixel_sdk import PacketHandler, PortHandler
 from drivers.dynamixel.tables.x_series import XAddr
 from drivers.dynamixel.emulator.server import DxlEmulator
 from headctl.config.head import load_config
+from tests.conftest import wait_until
 
 EYE = {"backend": "sim", "width": 160, "height": 120, "fps": 30, "lens": "foveated", "seed": 0, "noise_std": 2.0}
 CAMERAS = {"left": {**EYE, "eye": "left"}, "right": {**EYE, "eye": "right"}}
@@ -71,7 +71,11 @@ def test_ctrl_c_leaves_every_servo_holding_where_it_is_torque_as_it_was(tmp_path
         else:
             proc.kill()
             raise AssertionError("".join(lines) + proc.stderr.read())
-        time.sleep(0.3)  # a 20 deg move at 30 deg/s takes 0.7 s: this is mid-move
+        # Mid-move: servo 2 has left its start (a 20 deg move at 30 deg/s takes 0.7 s each way).
+        # Its goal is written after the line is printed, later still on a loaded machine.
+        servo_2 = emulator.servo(2)
+        wait_until(lambda: abs(servo_2.get(XAddr.PRESENT_POSITION, 4, signed=True) - 2048) * 360 / 4096 >= 1.0,
+                   timeout_s=10.0, what="servo 2 to start its move")
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 130, "".join(lines) + out + err
@@ -79,7 +83,8 @@ def test_ctrl_c_leaves_every_servo_holding_where_it_is_torque_as_it_was(tmp_path
         port, packet = PortHandler(emulator.pty_path), PacketHandler(2.0)
         assert port.openPort()
         try:
-            time.sleep(0.2)
+            # Held where it was: it comes to rest (decelerating) and stays there.
+            wait_until(lambda: _read(port, packet, 2, XAddr.MOVING, 1) == 0, timeout_s=5.0, what="servo 2 at rest")
             for servo_id, torque in ((1, 0), (2, 1), (3, 0)):
                 present = _read(port, packet, servo_id, XAddr.PRESENT_POSITION, 4)
                 goal = _read(port, packet, servo_id, XAddr.GOAL_POSITION, 4)
