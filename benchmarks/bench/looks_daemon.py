@@ -30,7 +30,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -48,13 +48,18 @@ def beyond_deg(goal: list[float] | None, low: np.ndarray, high: np.ndarray) -> f
 
 
 def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, height: int,
-             vergence_range: tuple[float, float], low: np.ndarray, high: np.ndarray) -> dict[str, Any]:
+             vergence_range: tuple[float, float], low: np.ndarray, high: np.ndarray,
+             before_post: Callable[[dict[str, float], tuple[float, float]], None] | None = None) -> dict[str, Any]:
+    """One look from a head near the centre at a random pixel, with its truth; `before_post`
+    is told the servos' true joints and the pixel just before the look is sent."""
     pan, tilt = (float(rng.uniform(-spread, spread)) for _ in range(2))
     vergence = float(np.clip(client.state()["pose"]["vergence"], vergence_range[0] + 0.5, vergence_range[1] - 0.5))
     client.look_angles(pan, tilt, vergence, wait_s=10.0)  # the vergence as it is, inside its range
     time.sleep(0.1)  # a pair exposed at rest
     x, y = float(rng.uniform(0, width - 1)), float(rng.uniform(0, height - 1))
     before = world.true_joints()
+    if before_post is not None:
+        before_post(before, (x, y))
     try:
         answer = client.look_target(x, y, wait_s=20.0)
     except ApiError as err:
@@ -126,15 +131,37 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "failures": dict(failed.most_common())}
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def look_arguments(description: str | None) -> argparse.ArgumentParser:
+    """The options of a run of looks on the daemon (this benchmark's, and the diagnostics')."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="the head's config (default: sim.yaml)")
     parser.add_argument("--explore-s", type=float, default=300.0, help="seconds of exploring first (default 300)")
     parser.add_argument("--looks", type=int, default=60)
     parser.add_argument("--spread", type=float, default=5.0, help="start pan and tilt within ±this (deg, default 5)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="write every look and the summary here")
-    args = parser.parse_args()
+    return parser
+
+
+def run_looks(client: ApiClient, config, world, lens, rng, spread: float, looks: int,
+              before_post: Callable[[dict[str, float], tuple[float, float]], None] | None = None,
+              after_look: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """`looks` looks (`one_look`) within the config's image and limits; `after_look` may add
+    to each row."""
+    width, height = config.cameras.left.width, config.cameras.left.height
+    verge = config.fixation.vergence_range or (-90.0, 90.0)
+    joints = config.servo_bus.joints
+    low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle])
+    high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle])
+    rows = []
+    for _ in range(looks):
+        row = one_look(client, world, lens, rng, spread, width, height, verge, low, high, before_post)
+        rows.append(after_look(row) if after_look is not None else row)
+    return rows
+
+
+def main() -> int:
+    args = look_arguments(__doc__).parse_args()
     rng = np.random.default_rng(args.seed)
     with tempfile.TemporaryDirectory(prefix="bench-looks-") as state:
         config = load_config(args.config).with_state_dir(Path(state)).with_api(port=0)
@@ -147,22 +174,21 @@ def main() -> int:
             explored = client.state()
             client.set_exploration(False)
             load.append(os.getloadavg()[0])
-            width, height = config.cameras.left.width, config.cameras.left.height
-            verge = config.fixation.vergence_range or (-90.0, 90.0)
-            joints = config.servo_bus.joints
-            low = np.array([joints["pan"].min_angle, joints["tilt"].min_angle])
-            high = np.array([joints["pan"].max_angle, joints["tilt"].max_angle])
-            rows = [one_look(client, world, lens, rng, args.spread, width, height, verge, low, high)
-                    for _ in range(args.looks)]
+            rows = run_looks(client, config, world, lens, rng, args.spread, args.looks)
             load.append(os.getloadavg()[0])
     fix = explored["fixation"]
     out = {"config": args.config.name, "world": (explored.get("world") or {}).get("kind"),
            "explore_s": args.explore_s, "fixations": fix.get("done"), "taught": fix.get("taught"),
            "load_average": load, **summary(rows)}
-    print(json.dumps(out, indent=2))
-    if args.json:
-        args.json.write_text(json.dumps({**out, "rows": rows}, indent=1, default=float) + "\n")
+    report(out, {"rows": rows}, args.json)
     return 0
+
+
+def report(out: dict[str, Any], detail: dict[str, Any], path: Path | None) -> None:
+    """The summary `out` printed, and written with `detail` (every look) to `path` if given."""
+    print(json.dumps(out, indent=2))
+    if path is not None:
+        path.write_text(json.dumps({**out, **detail}, indent=1, default=float) + "\n")
 
 
 if __name__ == "__main__":

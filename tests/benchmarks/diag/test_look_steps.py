@@ -1,0 +1,36 @@
+"""The look-steps diagnostic's summary, on looks made up to know its answer."""
+from __future__ import annotations
+
+from benchmarks.diag.look_steps import summary
+
+
+def fixation(truth, before_vergence, after_vergence, outcome="taught"):
+    return {"aim": [160.0, 120.0, 0.0], "outcome": outcome, "converged": True, "vergence_steps": 1,
+            "pose_before": [0.0, 0.0, before_vergence], "pose_after": [0.0, 0.0, after_vergence],
+            "true_error_px": truth}
+
+
+def look(state, on_target, *steps):
+    return {"state": state, "on_target": on_target, "steps": list(steps)}
+
+
+def test_the_summary_counts_failures_by_the_first_saccades_truth_and_the_corrective_vergence():
+    looks = [
+        look("refused", False),
+        look("done", True, fixation(0.4, 2.0, 2.1), {"search": 0.5, "why": ""}),
+        # landed on target, then the search took a repeat and the corrective step turned the eyes
+        look("failed", False, fixation(0.8, 2.0, 2.0, "left and right matches disagree"), {"search": 8.0, "why": ""},
+             fixation(8.1, 2.0, 3.5), {"search": 7.9, "why": ""}),
+        look("failed", False, fixation(1.5, 3.0, 3.0), {"search": None, "why": "ambiguous"}),
+        look("failed", False, fixation(12.0, 1.0, 1.0), {"search": 11.0, "why": ""},
+             fixation(3.0, 1.0, 1.2)),
+        look("failed", False, fixation(None, 1.0, 1.0, "vergence did not converge")),
+    ]
+    out = summary(looks)
+    assert (out["looks"], out["taken_on"], out["on_target"]) == (6, 5, 1)
+    assert out["failed_by_first_saccade_true_error"] == {"<= 1 px": 1, "1-2 px": 1, "> 2 px": 1, "unknown": 1}
+    assert out["fixation_outcomes"] == {"taught": 5, "left and right matches disagree": 1,
+                                        "vergence did not converge": 1}
+    assert out["corrective_steps"] == 2
+    assert out["corrective_vergence_change_deg"]["over_0.5"] == 1
+    assert abs(out["corrective_vergence_change_deg"]["p50"] - 0.85) < 1e-9
