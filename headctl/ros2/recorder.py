@@ -13,9 +13,12 @@ type with its fields as KeyValues; and what a replay of the fixations needs (`fi
 each fixation's stereo pairs as PNG, its record and head calls, the config it ran with). It
 needs no DDS: without `cyclonedds` the messages are `bagtypes`'. The event hub's and the
 fixation traces' subscribers only append to bounded deques, so the fixation thread never
-waits for the disk. A write that fails (ENOSPC, EDQUOT, any `OSError`) ends the recording as
-`failed` with the reason in its status, a `recording_failed` event and the service's
-`recording` fault, which the next recording that starts clears; the service runs on.
+waits for the disk; a recording that cannot write as fast as they arrive still ends on time
+(what it had queued is written for at most `FLUSH_S` more), and its status counts what it
+dropped (`events_dropped`, `fixations_dropped`). A write that fails (ENOSPC, EDQUOT, any
+`OSError`) ends the recording as `failed` with the reason in its status, a `recording_failed`
+event and the service's `recording` fault, which the next recording that starts clears; the
+service runs on.
 """
 from __future__ import annotations
 
@@ -43,6 +46,7 @@ log = logging.getLogger(__name__)
 
 POLL_S = 0.003
 EVENTS_KEPT = 10000
+FLUSH_S = 0.5  # the longest a recording writes what was still queued when it ended
 TRACES_KEPT = 32  # fixations waiting for the disk (each holds its pairs: about 0.6 MB at 320 x 240)
 FAULT = "recording"  # the service's fault while the last recording failed
 DIAGNOSTIC_STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
@@ -142,11 +146,13 @@ class Recording(threading.Thread):
         cpu0_s = time.thread_time()
         try:
             while not self._stop_flag.is_set():
-                self.step()
+                self.step(self.until_s)
                 if self.until_s is not None and self.clock.monotonic() >= self.until_s:
                     break
                 self._stop_flag.wait(POLL_S)
-            self.step()
+            self.step(self.clock.monotonic() + FLUSH_S)
+            self.events_dropped += len(self._events)
+            self.fixations_dropped += len(self._traces)
             self.bag.close()
             self.state = RecordState.STOPPED
         except OSError as err:  # ENOSPC, EDQUOT, a vanished disk: the recording ends, never the service
@@ -161,7 +167,7 @@ class Recording(threading.Thread):
             self.cpu_s = time.thread_time() - cpu0_s
         log.info("record: %s: %s, %d messages", self.bag.path, self.state, sum(self.counts.values()))
 
-    def step(self) -> None:
+    def step(self, until_s: float | None = None) -> None:
         self._joints()
         self._images()
         now = self.clock.monotonic()
@@ -171,12 +177,21 @@ class Recording(threading.Thread):
             self._write("diagnostics", convert.diagnostics(self.service.snapshot(), stamp, self.ros2.frame_prefix),
                         stamp)
             self._learning(stamp)
-        while self._events:
+        self._drain(until_s)
+
+    def _drain(self, until_s: float | None) -> None:
+        """Write what was queued when the drain began, until `until_s` at the latest: events
+        that arrive faster than they are written must not keep the recording from its end."""
+        for _ in range(len(self._events)):
+            if until_s is not None and self.clock.monotonic() >= until_s:
+                return
             stamp, event = self._events.popleft()
             gaze = str(event.get("type", "")).startswith(convert.GAZE_EVENTS)
             self._write("head/gaze_state" if gaze else "head/events",
                         convert.gaze_state(event, self.ros2.frame_prefix), stamp)
-        while self._traces:
+        for _ in range(len(self._traces)):
+            if until_s is not None and self.clock.monotonic() >= until_s:
+                return
             self.fixations.trace(self._traces.popleft())
 
     def _learning(self, stamp: Any) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import errno
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -115,6 +116,34 @@ def test_a_bag_is_split_by_duration_into_files_of_one_metadata(tmp_path: Path, d
         total = sum(c.msgcount for c in reader.connections if c.topic == "/joint_states")
         assert total == sum(1 for c, _, _ in reader.messages() if c.topic == "/joint_states") > 0
         assert sum(1 for c, _, _ in reader.messages() if c.topic == "/tf_static") == len(files)
+    assert status["state"] == "stopped", status
+
+
+def test_a_flood_of_events_does_not_keep_a_recording_from_its_end(tmp_path: Path, daemon: Daemon) -> None:
+    """Events published faster than they are written: the recording still ends at its deadline,
+    with what it could write, and says how many it dropped."""
+    config = config_for(tmp_path, max_bag_duration_s=0.2)
+    flooding = threading.Event()
+    flooding.set()
+
+    def flood() -> None:
+        while flooding.is_set():
+            daemon.control.events.publish("flood_test", n=1)
+
+    flooder = threading.Thread(target=flood, name="event-flood", daemon=True)
+    with Recordings(daemon.control, config) as recordings:
+        recordings.start(seconds=1.0)
+        recording = recordings.current
+        assert recording is not None
+        flooder.start()
+        try:
+            recording.join(30.0)
+            status = recordings.status()
+        finally:
+            flooding.clear()
+            flooder.join(5.0)
+    assert not recording.is_alive() and status["state"] == "stopped", status
+    assert status["messages"]["head/events"] > 0 and status["messages"]["joint_states"] > 0, status
 
 
 class FullDisk(Writer):
