@@ -2,14 +2,15 @@
 
 The looks of the real-time daemon benchmark (the same daemon, the same random pixels from a
 head near the centre), with each of a look's fixations recorded as it ends, on the fixation
-thread: its aim (x, y, d), outcome, whether the eyes converged and in how many vergence steps,
-the pose before and after, and the truth, the distance from the left fovea of the world point
-the pixel showed before the look, projected at the servos' true position then; and after each
-fixation the target search's answer (the patch's distance from the fovea, or why it was not
-found). Summarised: how far the first saccade truly left the target in the looks that failed,
-the outcomes of the looks' fixations, and how far the vergence moved in the corrective steps
-(each degree of vergence turns the left eye half a degree, which moves the target on the left
-fovea: about 2 px a degree of vergence at the fovea).
+thread: its aim (x, y, d), outcome and its detail, whether the eyes converged and in how
+many vergence steps, the pose before and after, and the truth, the distance from the left
+fovea of the world point the pixel showed before the look, projected at the servos' true
+position then; and after each fixation the target search's answer (the patch's distance from
+the fovea, or why it was not found). Summarised: how far the first saccade truly left the
+target in the looks that failed, the outcomes of the looks' fixations, and how far the
+vergence moved in the corrective steps (each degree of vergence turns the left eye half a
+degree, which moves the target on the left fovea: about 2 px a degree of vergence at the
+fovea).
 
 `--state-dir` keeps the daemon's map between runs (a map explored before, explored further
 for `--explore-s`); without it the daemon starts from a random map in a temporary directory.
@@ -87,6 +88,7 @@ class StepRecorder:
             with recorder._lock:
                 recorder.steps.append({
                     "aim": [round(float(v), 2) for v in target], "outcome": str(fixation.outcome),
+                    "detail": fixation.detail,
                     "converged": fixation.converged, "vergence_steps": fixation.vergence_steps,
                     "pose_before": pose(fixation.pose_before), "pose_after": pose(fixation.pose_after),
                     "true_error_px": recorder._truth_px()})
