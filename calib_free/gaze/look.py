@@ -24,6 +24,12 @@ its correspondence when that was accepted, else by the left eye's alone
 leaves the patch ambiguous. With no measured landing error, the view before the saccade
 tells them apart where it shows the repeats around the target (`place_told_by_repeats`).
 
+The first search after the saccade tries only the radial scales of the patch that the looks
+on target have found the lens to show at the target's distance from the image centre, once
+they have (`calib_free.gaze.magnification`), and every candidate scale where those find
+nothing: a look-alike that the patch resembles only when stretched beyond what the lens does
+is not taken for the target.
+
 The target not found again, or found where the eyes converged far from the vergence the map
 gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth; judged only
 where d is the target's, given or measured), fails the look saying so. A look's figures come only from accepted measurements: `final_error_px` from
@@ -44,8 +50,9 @@ from calib_free.correspondence.search import CorrespondenceParams, match_eye
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
-from calib_free.gaze.refind import (TargetSighting, find_target, fovea, identifying_patches, patch_variants,
-                                    target_patch_problem)
+from calib_free.gaze.magnification import LearnedMagnification, radial_scale
+from calib_free.gaze.refind import (TargetSighting, find_first_sighting, find_target, fovea, identifying_patches,
+                                    patch_variants, target_patch_problem)
 from calib_free.map.gaze_map import Vector
 
 log = logging.getLogger(__name__)
@@ -188,10 +195,14 @@ class LookController:
     SAME_VIEW_DEG = 0.25  # the head this near the target's reference pose on every axis: the same view
 
     def __init__(self, fixation: FixationController, params: LookParams | None = None,
-                 on_fixation: Callable[[FixationRecord], None] | None = None) -> None:
+                 on_fixation: Callable[[FixationRecord], None] | None = None,
+                 magnification: LearnedMagnification | None = None) -> None:
         self.fixation = fixation
         self.params = params if params is not None else fixation.params.look
         self.on_fixation = on_fixation  # told of each of a look's fixations as it ends
+        # The lens's magnification as the looks on target found it, which the first search of
+        # every look narrows its scales by (`calib_free.gaze.magnification`).
+        self.magnification = magnification if magnification is not None else LearnedMagnification()
         self.clock = fixation.clock
 
     def look(self, target: Vector, reference_pose: Vector | None = None, depth_known: bool = True) -> LookRecord:
@@ -248,12 +259,17 @@ class LookController:
                 return
             sighting, why = None, ""
             expected = self._expected_error_px(fixation)
-            for variant in variants:
-                sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected)
-                why = why or reason
+            if warps is None:
+                sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
+                                                             self.magnification, expected)
                 if sighting is not None:
                     variants = [variant]  # the same patch from here on, its warp carried over
-                    break
+            else:
+                for variant in variants:
+                    sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected)
+                    why = why or reason
+                    if sighting is not None:
+                        break
             if sighting is None:
                 beyond = self._beyond_limits(fixation)
                 record.outcome = LookOutcome.OUT_OF_REACH if beyond else LookOutcome.TARGET_LOST
@@ -272,6 +288,9 @@ class LookController:
                 # On target: the left fovea is the look's reference. Eyes that did not converge
                 # (the right eye sees something else there) are said, not corrected for again.
                 record.outcome = LookOutcome.ON_TARGET
+                first = record.sightings[0]
+                self.magnification.record(float(np.hypot(*(np.asarray(source_xy) - fovea(source)))),
+                                          radial_scale(first.warp, source_xy, fovea(source)))
                 record.detail = (f"{error:.2f} px from the fovea after {record.corrective_steps} corrective steps"
                                  + ("" if fixation.converged else f"; the eyes did not converge: {fixation.outcome}"))
                 return

@@ -35,6 +35,7 @@ import numpy as np
 
 from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
 from calib_free.gaze.fixation import LookParams
+from calib_free.gaze.magnification import LearnedMagnification
 
 MIN_PATCH_STD = 2.0  # grey levels: a flatter patch has nothing to be found by
 AMBIGUOUS_IN_OWN_VIEW = "is ambiguous in its own view"  # `patch_problem`'s words for repeats
@@ -77,19 +78,25 @@ def fovea(image: np.ndarray) -> tuple[float, float]:
     return (w - 1) / 2.0, (h - 1) / 2.0
 
 
-def candidate_warps(source_xy: tuple[float, float], centre: tuple[float, float], max_scale: float) -> list[np.ndarray]:
+def radial_scale_grid(max_scale: float) -> list[float]:
+    """The radial scales `candidate_warps` tries: from 0.85 to `max_scale` in steps of 1.2."""
+    scales = [0.85]
+    while scales[-1] * 1.2 <= max_scale * 1.0001:
+        scales.append(scales[-1] * 1.2)
+    return scales
+
+
+def candidate_warps(source_xy: tuple[float, float], centre: tuple[float, float], max_scale: float,
+                    radial_scales: list[float] | None = None) -> list[np.ndarray]:
     """Linear warps a patch at `source_xy` may undergo on its way to the fovea: radial scales
-    (along the line from the image centre) from 0.85 to `max_scale` in steps of 1.2, and two
+    (along the line from the image centre; `radial_scales`, default `radial_scale_grid`) and two
     tangential ones."""
     dx, dy = source_xy[0] - centre[0], source_xy[1] - centre[1]
     norm = float(np.hypot(dx, dy))
     radial = np.array([dx, dy]) / norm if norm > 1.0 else np.array([1.0, 0.0])
     rotation = np.column_stack([radial, [-radial[1], radial[0]]])
-    scales = [0.85]
-    while scales[-1] * 1.2 <= max_scale * 1.0001:
-        scales.append(scales[-1] * 1.2)
     warps = []
-    for s_radial in scales:
+    for s_radial in (radial_scales if radial_scales is not None else radial_scale_grid(max_scale)):
         for s_tangential in (1.0, 1.15):
             if s_radial < 1.0 and s_tangential > 1.0:
                 continue
@@ -115,11 +122,30 @@ def warped_patch(source: np.ndarray, source_xy: tuple[float, float], warp: np.nd
     return patch
 
 
+@dataclass(frozen=True)
+class TargetSearch:
+    """A target search's answer (`search_target`): where the target is, or why it was not found
+    (`why`), and whether any place matched its patch at `min_target_ncc` (`matched`: one did,
+    though the target was not told from a repeat, or was refused)."""
+
+    sighting: TargetSighting | None
+    why: str = ""
+    matched: bool = False
+
+
 def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
                 warps: list[np.ndarray] | None = None,
                 expected_error_px: float | None = None) -> tuple[TargetSighting | None, str]:
+    """Where the patch around `source_xy` of `source` is in `image`: (sighting, '') or (None, why
+    not); see `search_target`."""
+    found = search_target(source, source_xy, image, params, warps, expected_error_px)
+    return found.sighting, found.why
+
+
+def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
+                  warps: list[np.ndarray] | None = None, expected_error_px: float | None = None) -> TargetSearch:
     """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
-    `params.search_radius_px` of the fovea; (sighting, '') or (None, why not).
+    `params.search_radius_px` of the fovea.
 
     `warps`: the linear warps to try (default: `candidate_warps`, for a patch brought from
     wherever it was to near the fovea). `expected_error_px`: how far from the fovea the
@@ -141,7 +167,7 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
     y1 = int(min(height, np.ceil(centre[1] + radius + h / 2) + 1))
     window = image[y0:y1, x0:x1]
     if window.shape[0] < h + 2 or window.shape[1] < w + 2:
-        return None, f"the search window {window.shape[1]} x {window.shape[0]} px is smaller than the patch"
+        return TargetSearch(None, f"the search window {window.shape[1]} x {window.shape[0]} px is smaller than the patch")
     # The patch as each candidate warp shows it, if it shows enough to find the target by.
     templates: list[tuple[np.ndarray, np.ndarray]] = []  # (template, warp)
     for warp in warps:
@@ -149,8 +175,8 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
         if template is not None and float(template.std()) >= MIN_PATCH_STD:
             templates.append((template, warp))
     if not templates:
-        return None, (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image "
-                      "or is too flat to find it by")
+        return TargetSearch(None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond "
+                                  "the image or is too flat to find it by")
     placements = (window.shape[0] - h + 1, window.shape[1] - w + 1)  # of the patch in the window (rows, columns)
 
     def scored(template: np.ndarray, rows: tuple[int, int], columns: tuple[int, int]) -> np.ndarray:
@@ -169,7 +195,7 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
     v0 = int(max(0, np.floor(centre[1] - near - y0 - c[1])))
     u1 = min(placements[1], int(np.ceil(centre[0] + near - x0 - c[0])) + 1)
     v1 = min(placements[0], int(np.ceil(centre[1] + near - y0 - c[1])) + 1)
-    why = ""
+    why, matched = "", False
     for (a, b) in (((v0, v1), (u0, u1)), ((0, placements[0]), (0, placements[1]))):
         regions = [scored(template, a, b) for template, _ in templates]
         peak, index = max((float(scores.max()), i) for i, scores in enumerate(regions))
@@ -195,6 +221,7 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
         if peak < params.min_target_ncc:
             why = why or f"the best match of the target's patch scores NCC {peak:.2f} < {params.min_target_ncc}"
             continue
+        matched = True
         second = second_peak(region, ix, iy, max(w, h) / 2)
         if second > peak - params.ambiguity_ncc_margin:
             ambiguous = (f"the target's patch is ambiguous: two places match it, NCC {peak:.2f} and {second:.2f} "
@@ -232,8 +259,42 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
         if position is None:
             u, v = subpixel_peak(region, iy, ix)
             position = (x0 + b[0] + u + c[0], y0 + a[0] + v + c[1])
-        return TargetSighting(float(position[0]), float(position[1]), peak, warp), ""
-    return None, why
+        return TargetSearch(TargetSighting(float(position[0]), float(position[1]), peak, warp), "", True)
+    return TargetSearch(None, why, matched)
+
+
+def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,
+                        variants: list[LookParams], magnification: LearnedMagnification,
+                        expected_error_px: float | None = None) -> tuple[TargetSighting | None, LookParams, str]:
+    """The target after a look's first saccade: searched by each of the patches `variants` in
+    turn (`search_target`), first with only the radial scales the looks have learned the lens
+    to show at the target's distance from the centre (`LearnedMagnification.radial_scales`),
+    then with every candidate scale where those matched nothing by any patch (no place at
+    `min_target_ncc`: a lens that changed). Where a learned scale matched a place but the search
+    could not tell the target from a repeat, the lens shows the patch as learned, and no other
+    scale is tried: a stretch beyond the learned one would only find a look-alike. (sighting,
+    the patch it was found by, '') or (None, the first patch, why not)."""
+    centre = fovea(source)
+    distance = float(np.hypot(source_xy[0] - centre[0], source_xy[1] - centre[1]))
+    learned_why, matched = "", False
+    for variant in variants:
+        scales = magnification.radial_scales(distance, radial_scale_grid(variant.max_target_scale))
+        if scales is None:
+            break  # nothing learned at this distance: every scale
+        found = search_target(source, source_xy, image, variant,
+                              candidate_warps(source_xy, centre, variant.max_target_scale, scales), expected_error_px)
+        if found.sighting is not None:
+            return found.sighting, variant, ""
+        learned_why, matched = learned_why or found.why, matched or found.matched
+    if matched:
+        return None, variants[0], learned_why
+    why = ""
+    for variant in variants:
+        found = search_target(source, source_xy, image, variant, None, expected_error_px)
+        if found.sighting is not None:
+            return found.sighting, variant, ""
+        why = why or found.why
+    return None, variants[0], why
 
 
 def expected_place(scores: np.ndarray, threshold: float, expected: tuple[float, float],
@@ -335,13 +396,27 @@ def patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: Lo
     image, too flat, or matching another place of its own image within the search radius
     within `margin` (default `ambiguity_ncc_margin`) of itself (repetitive texture)."""
     margin = params.ambiguity_ncc_margin if margin is None else margin
+    peaks, why = own_view_peaks(source, source_xy, params)
+    if peaks is None:
+        return why
+    peak, second = peaks
+    if second > peak - margin:
+        return (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) {AMBIGUOUS_IN_OWN_VIEW}: "
+                f"another place matches it with NCC {second:.2f} (repetitive texture)")
+    return ""
+
+
+def own_view_peaks(source: np.ndarray, source_xy: tuple[float, float],
+                   params: LookParams) -> tuple[tuple[float, float] | None, str]:
+    """How well the patch around `source_xy` matches its own place in `source` and the best
+    other place within the search radius (`second_peak`, -1 if none), both NCC, and ''; or
+    (None, why the patch has no place: it reaches beyond the image, or is too flat)."""
     source = as_grey_float(source)
-    identity = np.eye(2)
-    template = warped_patch(source, source_xy, identity, params.target_patch_size)
+    template = warped_patch(source, source_xy, np.eye(2), params.target_patch_size)
     if template is None:
-        return f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image"
+        return None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image"
     if float(template.std()) < MIN_PATCH_STD:
-        return f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it by"
+        return None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it by"
     w, h = params.target_patch_size
     radius = params.search_radius_px if params.search_radius_px is not None else source.shape[1] // 3
     x0 = int(max(0, np.floor(source_xy[0] - radius - w / 2)))
@@ -349,11 +424,7 @@ def patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: Lo
     window = source[y0:int(np.ceil(source_xy[1] + radius + h / 2)) + 1, x0:int(np.ceil(source_xy[0] + radius + w / 2)) + 1]
     scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0, neginf=0.0)
     _, peak, _, (ix, iy) = cv2.minMaxLoc(scores)
-    second = second_peak(scores, ix, iy, max(w, h) / 2)
-    if second > peak - margin:
-        return (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) {AMBIGUOUS_IN_OWN_VIEW}: "
-                f"another place matches it with NCC {second:.2f} (repetitive texture)")
-    return ""
+    return (float(peak), second_peak(scores, ix, iy, max(w, h) / 2)), ""
 
 
 def patch_variants(params: LookParams) -> list[LookParams]:
