@@ -6,17 +6,21 @@ thread: its aim (x, y, d), outcome and its detail, whether the eyes converged an
 many vergence steps, the pose before and after, and the truth, the distance from the left
 fovea of the world point the pixel showed before the look, projected at the servos' true
 position then; and after each fixation the target search's answer (the patch's distance from
-the fovea, or why it was not found). Summarised: how far the first saccade truly left the
-target in the looks that failed, the outcomes of the looks' fixations, and how far the
-vergence moved in the corrective steps (each degree of vergence turns the left eye half a
-degree, which moves the target on the left fovea: about 2 px a degree of vergence at the
-fovea).
+the fovea, or why it was not found), with the patch's size, how much less well it matches
+the best other place of its own view than its own, and how far the target lay from the image
+centre, and the scales of the warp it was found with (its singular values). Summarised: how
+far the first saccade truly left the target in the looks that failed, the outcomes of the
+looks' fixations, and how far the vergence moved in the corrective steps (each degree of
+vergence turns the left eye half a degree, which moves the target on the left fovea: about 2
+px a degree of vergence at the fovea), and the first sightings against the truth: the lens's
+magnification by the target's distance from the image centre where they agree, and the
+sightings the truth refutes.
 
 `--state-dir` keeps the daemon's map between runs (a map explored before, explored further
 for `--explore-s`); without it the daemon starts from a random map in a temporary directory.
 
     .venv/bin/python -m benchmarks.diag.look_steps [--config configs/sim.yaml] [--state-dir DIR]
-        [--explore-s 300] [--looks 60] [--spread 5] [--seed 0] [--json FILE]
+        [--explore-s 300] [--looks 60] [--spread 5] [--seed 0] [--json FILE] [--images DIR]
 """
 from __future__ import annotations
 
@@ -34,6 +38,7 @@ import numpy as np
 import calib_free.gaze.look as look_module
 from benchmarks.bench.looks import world_error_px
 from benchmarks.bench.looks_daemon import look_arguments, report, run_looks
+from calib_free.gaze.refind import own_view_peaks
 from headctl.api.client import ApiClient
 from headctl.api.compose import serve
 from headctl.config.head import load_config
@@ -42,8 +47,9 @@ from headctl.config.head import load_config
 class StepRecorder:
     """Records the steps of the look running; `look_posted` starts a look's record."""
 
-    def __init__(self, world: Any, lens: Any) -> None:
-        self.world, self.lens = world, lens
+    def __init__(self, world: Any, lens: Any, images_dir: Path | None = None) -> None:
+        self.world, self.lens, self.images_dir = world, lens, images_dir
+        self.searches_saved = 0
         self.steps: list[dict[str, Any]] = []
         self._lock = threading.Lock()
         self._before: dict[str, float] | None = None
@@ -65,18 +71,54 @@ class StepRecorder:
                                        self.world.true_joints(), self._xy)
         return None if error is None or hidden else round(float(error), 2)
 
+    def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
+                       warps: list[np.ndarray] | None, expected: float | None, sighting: Any, why: str,
+                       every_warp: dict[str, Any] | None = None) -> None:
+        h, w = image.shape[:2]
+        peaks, _ = own_view_peaks(source, source_xy, params)
+        saved = None
+        if self.images_dir is not None:
+            self.images_dir.mkdir(parents=True, exist_ok=True)
+            np.savez_compressed(self.images_dir / f"search-{self.searches_saved:03d}.npz",
+                                source=source, source_xy=np.asarray(source_xy), image=image,
+                                patch=np.asarray(params.target_patch_size),
+                                warps=np.asarray(warps if warps is not None else []),
+                                expected=np.asarray(np.nan if expected is None else expected, dtype=float))
+            saved, self.searches_saved = self.searches_saved, self.searches_saved + 1
+        with self._lock:
+            self.steps.append({
+                "every_warp": every_warp, "saved": saved,
+                "search": None if sighting is None else round(float(np.hypot(
+                    sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
+                "patch": list(params.target_patch_size),
+                "warp_scales": None if sighting is None else [
+                    round(float(v), 3) for v in np.linalg.svd(sighting.warp, compute_uv=False)],
+                "own_view_margin": None if peaks is None else round(peaks[0] - peaks[1], 3),
+                "target_radius_px": round(float(np.hypot(source_xy[0] - (w - 1) / 2.0,
+                                                         source_xy[1] - (h - 1) / 2.0)), 1)})
+
     @contextlib.contextmanager
     def installed(self) -> Iterator["StepRecorder"]:
-        """The look module's target search and fixations wrapped to record, for the block."""
-        find_target, fixate = look_module.find_target, look_module.LookController._fixate
+        """The look module's target searches and fixations wrapped to record, for the block."""
+        find_first, find_target = look_module.find_first_sighting, look_module.find_target
+        fixate = look_module.LookController._fixate
         recorder = self
 
-        def recorded_find(source, source_xy, image, *args, **kwargs):  # type: ignore[no-untyped-def]
-            sighting, why = find_target(source, source_xy, image, *args, **kwargs)
-            h, w = image.shape[:2]
-            with recorder._lock:
-                recorder.steps.append({"search": None if sighting is None else round(float(np.hypot(
-                    sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why})
+        def recorded_first(source, source_xy, image, variants, magnification, expected=None):  # type: ignore[no-untyped-def]
+            sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected)
+            recorder._record_search(source, source_xy, image, variant, None, expected, sighting, why)
+            return sighting, variant, why
+
+        def recorded_find(source, source_xy, image, params, warps=None, expected=None):  # type: ignore[no-untyped-def]
+            sighting, why = find_target(source, source_xy, image, params, warps, expected)
+            every_warp: dict[str, Any] | None = None
+            if sighting is None and warps is not None:
+                # What the search would say trying every candidate warp, not the one carried over.
+                again, again_why = find_target(source, source_xy, image, params, None, expected)
+                h, w = image.shape[:2]
+                every_warp = {"search": None if again is None else round(float(np.hypot(
+                    again.x - (w - 1) / 2.0, again.y - (h - 1) / 2.0)), 2), "why": again_why}
+            recorder._record_search(source, source_xy, image, params, warps, expected, sighting, why, every_warp)
             return sighting, why
 
         def recorded_fixate(controller, record, target, reference_pose=None, continues=False):  # type: ignore[no-untyped-def]
@@ -94,13 +136,40 @@ class StepRecorder:
                     "true_error_px": recorder._truth_px()})
             return fixation
 
-        look_module.find_target = recorded_find
+        look_module.find_first_sighting, look_module.find_target = recorded_first, recorded_find
         look_module.LookController._fixate = recorded_fixate  # type: ignore[method-assign]
         try:
             yield self
         finally:
-            look_module.find_target = find_target
+            look_module.find_first_sighting, look_module.find_target = find_first, find_target
             look_module.LookController._fixate = fixate  # type: ignore[method-assign]
+
+
+def first_sightings(looks: list[dict[str, Any]], agree_px: float = 2.0, bin_px: float = 20.0) -> dict[str, Any]:
+    """The first sighting of each look (the target found after the first saccade) against the
+    truth: agreeing within `agree_px` of the first fixation's true error, the median largest
+    scale of their warps (the lens's magnification of a patch brought to the fovea, along the
+    radius) in bins of `bin_px` of the target's distance from the image centre; and those the
+    truth refutes, each with its distance, scale and the truth."""
+    agreed: dict[int, list[float]] = collections.defaultdict(list)
+    refuted: list[dict[str, float]] = []
+    for lk in looks:
+        steps = lk["steps"]
+        first = next((k for k, s in enumerate(steps) if "search" in s), None)
+        if first is None or steps[first]["search"] is None or not steps[first].get("warp_scales"):
+            continue
+        truths = [s["true_error_px"] for s in steps[:first] if "aim" in s]
+        truth = truths[-1] if truths else None
+        if truth is None:
+            continue
+        search, radius, scale = steps[first]["search"], steps[first]["target_radius_px"], steps[first]["warp_scales"][0]
+        if abs(search - truth) <= agree_px:
+            agreed[int(radius // bin_px)].append(scale)
+        else:
+            refuted.append({"target_radius_px": radius, "scale": scale, "search_px": search, "true_px": truth})
+    return {"agreeing_scale_by_radius_px": {f"{k * bin_px:g}-{(k + 1) * bin_px:g}": {
+                "n": len(v), "p50": float(np.median(v)), "min": min(v), "max": max(v)} for k, v in sorted(agreed.items())},
+            "refuted_by_truth": refuted}
 
 
 def summary(looks: list[dict[str, Any]]) -> dict[str, Any]:
@@ -116,6 +185,7 @@ def summary(looks: list[dict[str, Any]]) -> dict[str, Any]:
     turned = [abs(s["pose_after"][2] - s["pose_before"][2]) for lk in taken
               for s in [s for s in lk["steps"] if "aim" in s][1:] if s["pose_after"] and s["pose_before"]]
     return {"looks": len(looks), "taken_on": len(taken), "on_target": len(taken) - len(failed),
+            "first_sightings": first_sightings(taken),
             "failed_by_first_saccade_true_error": dict(first_truth),
             "fixation_outcomes": dict(outcomes.most_common()),
             "corrective_steps": len(turned),
@@ -128,6 +198,8 @@ def summary(looks: list[dict[str, Any]]) -> dict[str, Any]:
 def main() -> int:
     parser = look_arguments(__doc__)
     parser.add_argument("--state-dir", type=Path, help="the daemon's state (its map) kept here (default: temporary)")
+    parser.add_argument("--images", type=Path,
+                        help="each target search saved here (search-NNN.npz: its images and inputs)")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
     with contextlib.ExitStack() as stack:
@@ -137,7 +209,7 @@ def main() -> int:
         client = ApiClient(daemon.api_url)
         world = daemon.parts.devices.world
         lens = daemon.parts.devices.cameras["left"].unit_lens
-        recorder = stack.enter_context(StepRecorder(world, lens).installed())
+        recorder = stack.enter_context(StepRecorder(world, lens, args.images).installed())
         time.sleep(args.explore_s)
         client.set_exploration(False)
         done: list[int] = []

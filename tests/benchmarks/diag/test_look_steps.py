@@ -34,3 +34,25 @@ def test_the_summary_counts_failures_by_the_first_saccades_truth_and_the_correct
     assert out["corrective_steps"] == 2
     assert out["corrective_vergence_change_deg"]["over_0.5"] == 1
     assert abs(out["corrective_vergence_change_deg"]["p50"] - 0.85) < 1e-9
+
+
+def search(distance, radius, scale):
+    return {"search": distance, "why": "", "target_radius_px": radius, "warp_scales": [scale, 1.0]}
+
+
+def test_first_sightings_bin_the_lens_scale_of_those_the_truth_agrees_with_and_list_the_rest():
+    looks = [
+        look("done", True, fixation(0.4, 2.0, 2.0), search(0.5, 30.0, 1.02)),
+        look("done", True, fixation(1.0, 2.0, 2.0), search(2.5, 35.0, 1.04)),  # within 2 px of the truth
+        look("done", True, fixation(0.3, 2.0, 2.0), search(0.2, 130.0, 1.40)),
+        # the truth says the saccade landed; the search took a look-alike 14 px off, stretched 2.1x
+        look("failed", False, fixation(0.7, 2.0, 2.0), search(14.4, 75.0, 2.12), fixation(14.5, 2.0, 2.0)),
+        look("failed", False, fixation(None, 2.0, 2.0), search(3.0, 50.0, 1.1)),  # no truth: not judged
+        look("failed", False, fixation(2.0, 2.0, 2.0), {"search": None, "why": "ambiguous"}),
+    ]
+    out = summary(looks)["first_sightings"]
+    bins = out["agreeing_scale_by_radius_px"]
+    assert set(bins) == {"20-40", "120-140"}
+    assert bins["20-40"]["n"] == 2 and abs(bins["20-40"]["p50"] - 1.03) < 1e-9
+    assert (bins["20-40"]["min"], bins["20-40"]["max"]) == (1.02, 1.04)
+    assert out["refuted_by_truth"] == [{"target_radius_px": 75.0, "scale": 2.12, "search_px": 14.4, "true_px": 0.7}]
