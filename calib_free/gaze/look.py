@@ -21,8 +21,12 @@ repeats), the look takes the one alone near where the fixation was expected to b
 target, the fovea, within a reach that grows with the fixation's landing error, measured by
 its correspondence when that was accepted, else by the left eye's alone
 (`calib_free.gaze.refind.find_target`, `left_landing_error_px`); a repeat within that reach
-leaves the patch ambiguous. With no measured landing error, the view before the saccade
-tells them apart where it shows the repeats around the target (`place_told_by_repeats`).
+leaves the patch ambiguous. A corrective step has a reach of its own, where nothing measured
+its landing or the measure says more: a step that aimed a few pixels from the fovea, and that
+the encoders say went as planned, cannot have left the target farther than it aimed plus what
+the head did beyond the plan (`corrective_step_error_px`). With no measured landing error, the
+view before the saccade tells them apart where it shows the repeats around the target
+(`place_told_by_repeats`).
 
 The first search after the saccade tries only the radial scales of the patch that the looks
 on target have found the lens to show at the target's distance from the image centre, once
@@ -47,9 +51,9 @@ import numpy as np
 
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
 from calib_free.correspondence.search import CorrespondenceParams, match_eye
-from calib_free.errors import DisparityError, TargetPatchError
+from calib_free.errors import DisparityError, OutOfRangeError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
-                                      HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
+                                      HeadTimeoutError, LookParams, MapReader, PairTimeoutError, next_boost)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (TargetSighting, find_first_sighting, find_target, fovea, identifying_patches,
                                     patch_variants, target_patch_problem)
@@ -118,6 +122,10 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
 # ended 3-13 px off it (5 of 5, both worlds, docs/results/realistic-world.md), farther than
 # the 4 px a degree at the fovea would say (the map is least sure at the edges of its range).
 REACH_MARGIN_DEG = 0.05
+# The map's pan for targets this far either side of the fovea gives its pixels a degree there
+# (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
+FOVEAL_SPAN_PX = 10.0
+PLAUSIBLE_PX_PER_DEG = (0.5, 50.0)
 
 
 def beyond_limits(goal: np.ndarray, low: np.ndarray, high: np.ndarray, margin_deg: float) -> str:
@@ -145,6 +153,36 @@ def left_landing_error_px(fixation: FixationRecord, params: CorrespondenceParams
     if not match.confidence >= confidence_floor:  # NaN: not measured
         return None
     return float(np.hypot(match.x - aim[0], match.y - aim[1]))
+
+
+def foveal_px_per_deg(gaze_map: MapReader, pose: np.ndarray, image_size: tuple[int, int]) -> float | None:
+    """Pixels of image motion at the fovea a degree of pan turns, as the map has learned it: the
+    pan it commands for targets `FOVEAL_SPAN_PX` either side of the fovea, seen at `pose`; None
+    where the map does not cover them or learned no plausible slope (a young map)."""
+    width, height = image_size
+    if width <= 0 or height <= 0:
+        return None
+    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    try:
+        pan = [float(gaze_map.command((cx + side * FOVEAL_SPAN_PX, cy, 0.0), pose=pose)[0]) for side in (-1, 1)]
+    except OutOfRangeError:
+        return None
+    turn_deg = abs(pan[1] - pan[0])
+    px_per_deg = 2 * FOVEAL_SPAN_PX / turn_deg if turn_deg > 0 else float("inf")
+    return px_per_deg if PLAUSIBLE_PX_PER_DEG[0] <= px_per_deg <= PLAUSIBLE_PX_PER_DEG[1] else None
+
+
+def corrective_step_error_px(aim_px: float, moved: np.ndarray, planned: np.ndarray, px_per_deg: float) -> float:
+    """How far from the fovea a corrective fixation is expected to have left the target, where
+    it was not measured: as far as the step aimed (`aim_px`, from the fovea: a step that did
+    nothing leaves the target there, one the map misjudged by a fraction of itself nearer), and
+    farther by what the encoders say the head did beyond the plan (`moved` against `planned`,
+    both (pan, tilt, vergence) in deg): pan and tilt, and half the vergence, which turns the
+    left eye by half its change (fine vergence after the step), at `px_per_deg`. A repeat of
+    the target's texture several times that far from the fovea is not where a step this short
+    took it."""
+    beyond = np.asarray(moved, dtype=float) - np.asarray(planned, dtype=float)
+    return float(aim_px + px_per_deg * (np.hypot(beyond[0], beyond[1]) + abs(beyond[2]) / 2.0))
 
 
 @dataclass
@@ -251,6 +289,7 @@ class LookController:
                 record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, why
                 return
         last_error: float | None = None  # the target's distance from the fovea before the last step
+        step_aim_px: float | None = None  # how far from the fovea the last corrective step aimed
         boost = 1.0
         while True:
             final_left = fixation.final_left_image
@@ -258,7 +297,7 @@ class LookController:
                 record.outcome, record.detail = fixation.outcome, fixation.detail
                 return
             sighting, why = None, ""
-            expected = self._expected_error_px(fixation)
+            expected = self._expected_error_px(fixation, step_aim_px)
             if warps is None:
                 sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
                                                              self.magnification, expected)
@@ -309,10 +348,11 @@ class LookController:
             last_error = error
             cx, cy = fovea(final_left)
             aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
+            step_aim_px = float(np.hypot(aim_x - cx, aim_y - cy))
             d = self._disparity_at(fixation, sighting)
             fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
 
-    def _expected_error_px(self, fixation: FixationRecord) -> float | None:
+    def _expected_error_px(self, fixation: FixationRecord, step_aim_px: float | None = None) -> float | None:
         """How far from the fovea `fixation` is expected to have left the target (px, in the
         image before it): its own landing error where its correspondence was accepted (what
         landed on the fovea, and where the target was, both measured); else the left eye's
@@ -320,11 +360,32 @@ class LookController:
         landing errors are no stand-in: a fixation whose correspondence was refused went
         otherwise than the map's typical one (a depth not measured, eyes that did not
         converge), and with them a look took a nearby repeat for the target in 5 of 100
-        random pixels (`benchmarks.bench.looks`, docs/results/looks.md)."""
-        if fixation.landing_error_px is not None:
-            return fixation.landing_error_px
-        return left_landing_error_px(fixation, self.fixation.params.correspondence,
-                                     self.fixation.params.confidence_floor)
+        random pixels (`benchmarks.bench.looks`, docs/results/looks.md).
+
+        A corrective step (`step_aim_px`: how far from the fovea it aimed) has a prior of its
+        own: its `corrective_step_error_px`, the least of it and what was measured."""
+        p = self.fixation.params
+        measured = fixation.landing_error_px
+        if measured is None:
+            measured = left_landing_error_px(fixation, p.correspondence, p.confidence_floor)
+        step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
+        if step is None or measured is None:
+            return step if measured is None else measured
+        return min(step, measured)
+
+    def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
+        """`corrective_step_error_px` of a corrective fixation that aimed `step_aim_px` from the
+        fovea, with the map's pixels a degree at the fovea (`foveal_px_per_deg`); None where the
+        map cannot say or the fixation's poses were not read."""
+        if fixation.pose_before is None or fixation.pose_after is None or fixation.planned is None:
+            return None
+        height, width = (fixation.final_left_image.shape[:2] if fixation.final_left_image is not None
+                         else (0, 0))
+        px_per_deg = foveal_px_per_deg(self.fixation.map, fixation.pose_before, (width, height))
+        if px_per_deg is None:
+            return None
+        return corrective_step_error_px(step_aim_px, fixation.pose_after - fixation.pose_before, fixation.planned,
+                                        px_per_deg)
 
     def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None,
                 continues: bool = False) -> FixationRecord:

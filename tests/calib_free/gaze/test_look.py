@@ -14,7 +14,8 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import LookController, LookOutcome, left_landing_error_px, target_disparity
+from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
+                                   left_landing_error_px, target_disparity)
 from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, patch_problem,
                                     target_patch_problem)
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
@@ -536,3 +537,68 @@ def test_a_larger_patch_set_apart_from_its_repeats_only_by_a_faint_rim_is_not_us
     assert target_patch_problem(clear, xy, LookParams()) == ""
     with pytest.raises(ValueError, match="context_ncc_margin"):
         LookParams(context_ncc_margin=0.05)
+
+
+# --- a corrective step's own prior: a step this short cannot have taken the target far -------
+def copy_after_the_first_fixation(head: PlanarHead, texel: np.ndarray, offset: tuple[int, int]):
+    """A look's `on_fixation` that copies the 25 x 25 texels around `texel` `offset` px beside
+    it once the first fixation has ended: a repeat that only the corrective step's images show."""
+    ended: list[FixationRecord] = []
+
+    def copy(fixation: FixationRecord) -> None:
+        ended.append(fixation)
+        if len(ended) == 1:
+            head.plane = with_a_copy_beside(head.plane, texel, offset, size=25)
+    return copy
+
+
+def corrective_look(offset: tuple[int, int], gain: float = 0.95):
+    """A look whose saccades fall short by 1 - `gain` (the first, 84 px, by about 4 px at 0.95)
+    and whose fixations measure no landing (no correspondence reaches a confidence of 1), with
+    a copy of the target `offset` px beside it after the first fixation; the look and the truth
+    after it."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    controller = FixationController(head, LinearMap(gain), FixationParams(confidence_floor=1.0), seed=0)
+    looks = LookController(controller, LookParams(search_radius_px=150),
+                           on_fixation=copy_after_the_first_fixation(head, texel, offset))
+    record = looks.look((*target, 0.0))
+    return record, true_error_px(head, texel)
+
+
+def test_a_corrective_step_tells_the_target_from_a_repeat_beyond_its_own_reach():
+    """The corrective step aimed about 4 px from the fovea and the encoders say the head did
+    what was planned: a copy of the target 24 px away is not where it took the target, though
+    no landing was measured and the view before the look never showed the copy."""
+    record, truth = corrective_look((24, 0))
+    assert record.corrective_steps == 1
+    second = record.fixations[1]
+    assert second.landing_error_px is None
+    assert left_landing_error_px(second, FixationParams().correspondence, 1.0) is None
+    assert record.on_target, record.detail
+    assert truth <= 1.0
+
+
+def test_a_repeat_within_a_corrective_steps_reach_leaves_the_target_ambiguous():
+    """A first saccade 20 % short leaves the target 17 px from the fovea: 3 x that reaches a
+    copy 30 px beside it, which the step cannot be told not to have brought there."""
+    record, _ = corrective_look((30, 0), gain=0.8)
+    assert record.outcome is LookOutcome.TARGET_LOST
+    assert "ambiguous" in record.detail and "2 of them lie within" in record.detail
+
+
+def test_a_corrective_steps_expected_error_is_its_aim_and_what_the_head_did_beyond_the_plan():
+    planned = np.array([-0.5, 0.25, 0.0])
+    assert corrective_step_error_px(2.0, planned, planned, 4.0) == pytest.approx(2.0)
+    # Pan 0.3 and tilt 0.4 deg beyond the plan (0.5 deg), and 1 deg more vergence (the left eye turned 0.5).
+    moved = planned + np.array([0.3, 0.4, 1.0])
+    assert corrective_step_error_px(2.0, moved, planned, 4.0) == pytest.approx(2.0 + 4.0 * (0.5 + 0.5))
+
+
+def test_the_maps_pixels_a_degree_at_the_fovea():
+    pose = np.zeros(3)
+    assert foveal_px_per_deg(LinearMap(1.0), pose, (WIDTH, HEIGHT)) == pytest.approx(4.0)
+    assert foveal_px_per_deg(LinearMap(0.5), pose, (WIDTH, HEIGHT)) == pytest.approx(8.0)
+    assert foveal_px_per_deg(LinearMap(0.0), pose, (WIDTH, HEIGHT)) is None  # a map that commands nothing
+    assert foveal_px_per_deg(LinearMap(1.0), pose, (0, 0)) is None  # no image to measure in
