@@ -60,6 +60,7 @@ log = logging.getLogger(__name__)
 # Package data, so an installed wheel has it too (the checkout's configs/ links here).
 DEFAULT_CONFIG = Path(str(importlib.resources.files("headctl") / "configs" / "sim.yaml"))
 MAP_FILE = "gaze_map.npz"
+MAGNIFICATION_FILE = "lens_magnification.json"  # the lens's magnification the looks learned
 API_URL_FILE = "api.url"  # the API's URL, written once it listens (port 0: the one the kernel chose)
 LOCK_FILE = "headctl.lock"  # one daemon per state directory
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
@@ -258,6 +259,10 @@ class HeadConfig:
     @property
     def map_path(self) -> Path:
         return self.state_dir / MAP_FILE
+
+    @property
+    def magnification_path(self) -> Path:
+        return self.state_dir / MAGNIFICATION_FILE
 
     @property
     def api_url_path(self) -> Path:

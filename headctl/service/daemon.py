@@ -52,7 +52,8 @@ from headctl.service.fixation_trace import TracingController
 from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
 from headctl.service.parts import LearningLog, MapOrigin, RunningParts, ServiceParts, ServicePhase
-from headctl.service.persistence import Checkpointer, StateDirLock, restore_map, write_atomically
+from headctl.service.persistence import (Checkpointer, MagnificationFile, StateDirLock, restore_magnification,
+                                         restore_map, write_atomically)
 from headctl.service.supervision.restarts import EXIT_GAVE_UP, Restartable, RestartRecord, Restarts, RestartSettings
 from headctl.service.servo_io.loop import ServoIO, ServoLoop
 from headctl.service.servo_io.process import ServoLoopProcess
@@ -245,6 +246,8 @@ class Daemon:
         self.notifier.notify(status="starting: restoring the gaze map")
         gm, source, problems = restore_map(cfg)
         parts.map_origin = MapOrigin(source, problems, gm.adaptations, list(gm.recent_errors))
+        magnification, lens_problems = restore_magnification(cfg.magnification_path)
+        parts.map_origin.problems.extend(lens_problems)
         self.notifier.notify(status="starting: compiling the gaze map's inner loops")
         compile_s = gm.warm_up() + correspondence.warm_up()
         (log.info if compile_s > 1.0 else log.debug)("gaze map and correspondence inner loops ready in %.1f s",
@@ -292,9 +295,11 @@ class Daemon:
         make_fixation = functools.partial(FixationThread, controller, head, interrupt, parts.looks, parts.hub,
                                           self._paused_reason, explore=cfg.fixation.explore,
                                           rate_hz=cfg.fixation.rate_hz, clock=clock, tracking=tracking,
-                                          exposure=ExposureHold(devices.cameras.values()))
+                                          exposure=ExposureHold(devices.cameras.values()),
+                                          magnification=magnification)
         fixation = make_fixation()
-        parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation)
+        parts.running = RunningParts(devices, pair, loop, adapter, checkpointer, head, head_events, fixation,
+                                     MagnificationFile(cfg.magnification_path, magnification))
         fixation.start()
         stack.callback(self._stop_fixation)
         watched: list[Restartable] = [_FixationPart(parts, make_fixation), _AdapterPart(adapter)]
@@ -395,6 +400,7 @@ class Daemon:
                 running.adapter.wait_idle(timeout_s=0.5)
                 running.adapter.stop(timeout_s=0.5)
                 running.checkpointer.save()
+                running.magnification_file.save()
                 self._safe_state(running)
         finally:
             self._stack.close()

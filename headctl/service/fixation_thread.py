@@ -23,6 +23,7 @@ from typing import Callable, Iterator, TypedDict
 import numpy as np
 
 from calib_free.gaze.look import LookController
+from calib_free.gaze.magnification import LearnedMagnification
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome,
                                  FixationRecord, HeadTimeoutError)
 from calib_free.gaze.pursuit import TrackOutcome
@@ -108,7 +109,7 @@ class FixationThread(threading.Thread):
     def __init__(self, controller: FixationController, head: Head, interrupt: Interrupt, looks: LookQueue,
                  events: EventHub, paused_reason: Callable[[], str | None], *, explore: bool = True,
                  rate_hz: float = 0.0, clock: Clock = SYSTEM_CLOCK, tracking: Tracking | None = None,
-                 exposure: ExposureHold | None = None) -> None:
+                 exposure: ExposureHold | None = None, magnification: LearnedMagnification | None = None) -> None:
         super().__init__(name="fixation", daemon=True)
         self.controller = controller
         self.head = head
@@ -128,7 +129,8 @@ class FixationThread(threading.Thread):
         self.error: BaseException | None = None
         self._lock = threading.Lock()
         # Clients' target looks, closed-loop; each of their fixations counted and told as it ends.
-        self.looker = LookController(controller, on_fixation=self._count)
+        # The lens's magnification they learn outlives this thread (the daemon's, kept on disk).
+        self.looker = LookController(controller, on_fixation=self._count, magnification=magnification)
         # Smooth pursuit (`headctl.service.tracking`); without it, a track fails saying so.
         self.tracking = tracking
         self.backoff = Backoff(BACKOFF_FIRST_S, BACKOFF_MAX_S)

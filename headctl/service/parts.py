@@ -26,7 +26,7 @@ from headctl.service.fixation_thread import FixationThread, HeadEvents
 from headctl.service.fixation_trace import FixationTaps
 from headctl.service.servo_io.hardware_faults import HardwareFaults
 from headctl.service.looks import LookQueue
-from headctl.service.persistence import Checkpointer
+from headctl.service.persistence import Checkpointer, MagnificationFile
 from headctl.service.servo_io.loop import ServoIO
 from headctl.service.head import Head
 
@@ -108,6 +108,7 @@ class RunningParts:
     head: Head
     head_events: HeadEvents
     fixation: FixationThread
+    magnification_file: MagnificationFile  # the looks' lens magnification, saved when it changed
 
 
 @dataclasses.dataclass

@@ -1,5 +1,6 @@
-"""What the service keeps on disk: the gaze map (restored at start, checkpointed atomically)
-and the lock that allows one daemon per state directory.
+"""What the service keeps on disk: the gaze map (restored at start, checkpointed atomically),
+the lens's magnification the looks learned, and the lock that allows one daemon per state
+directory.
 
 No map file can keep the service from starting: `restore_map` takes the main file, else its
 `.prev`, else a fresh random map, and reports what it refused. `Checkpointer` saves a map
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import json
 import logging
 import os
 import threading
@@ -23,6 +25,7 @@ from pathlib import Path
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
 from calib_free.errors import MapFileError
+from calib_free.gaze.magnification import LearnedMagnification, MagnificationFileError
 from calib_free.map.file import read_map, temporary_files, write_map
 from drivers.clock import SYSTEM_CLOCK, Clock
 from headctl.config.head import HeadConfig
@@ -208,6 +211,61 @@ class Checkpointer:
         return (f"state directory {self.path.parent}: checkpoint of {self.path.name} failed: {code} "
                 f"({err.strerror or err}); {kept}; retried every {self.every} adaptations"
                 + (f" or {self.interval_s:g} s" if self.interval_s > 0 else ""))
+
+
+def restore_magnification(path: Path) -> tuple[LearnedMagnification, list[str]]:
+    """The lens's magnification as the looks learned it, saved in `path`; an empty profile
+    when there is none, or when the file cannot be used (moved aside to `<file>.bad` and
+    reported: the looks learn it again, searching every scale until they have). Never raises
+    for what the file holds."""
+    if not os.path.lexists(path):
+        return LearnedMagnification(), []
+    try:
+        profile = LearnedMagnification.from_dict(json.loads(path.read_text(encoding="utf-8")), str(path))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, MagnificationFileError) as err:
+        problem = str(err) if isinstance(err, MagnificationFileError) else f"{path}: not readable: {err}"
+        log.error("lens magnification: %s; the looks learn it again", problem)
+        _move_aside(path)
+        return LearnedMagnification(), [problem]
+    log.info("lens magnification restored from %s", path)
+    return profile, []
+
+
+class MagnificationFile:
+    """Saves the looks' lens magnification to `path` when it changed (`maybe_save`, from the
+    supervisor's round, about once a second: a kill loses at most that) and on request (`save`,
+    at shutdown). A save that fails is logged once until one succeeds again, and retried at the
+    next round; the file is replaced atomically, so the last good one stays."""
+
+    def __init__(self, path: Path, profile: LearnedMagnification) -> None:
+        self.path = path
+        self.profile = profile
+        self.error: str | None = None
+        self._saved_revision = profile.revision
+        self._lock = threading.Lock()
+
+    def maybe_save(self) -> bool:
+        """Save if the profile changed since the last save. True if saved."""
+        if self.profile.revision == self._saved_revision:
+            return False
+        return self.save()
+
+    def save(self) -> bool:
+        with self._lock:
+            revision = self.profile.revision
+            try:
+                write_atomically(self.path, json.dumps(self.profile.as_dict()) + "\n")
+            except OSError as err:
+                problem = f"{self.path}: cannot save the lens magnification: {err}"
+                if problem != self.error:
+                    log.error("%s", problem)
+                self.error = problem
+                return False
+            if self.error is not None:
+                log.warning("%s: the lens magnification is saved again", self.path)
+            self.error = None
+            self._saved_revision = revision
+            return True
 
 
 def write_atomically(path: Path, text: str) -> None:

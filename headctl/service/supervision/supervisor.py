@@ -91,6 +91,7 @@ class Supervisor(threading.Thread):
         running = self.parts.running
         if running is not None:  # a map changed but not adapted since (loaded, reset) is saved on time too
             running.checkpointer.maybe_on_time(now)
+            running.magnification_file.maybe_save()
         if self.notifier.watchdog_s and self.healthy():
             fields["watchdog"] = 1
         if fields:

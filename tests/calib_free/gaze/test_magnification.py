@@ -7,7 +7,8 @@ import pytest
 
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.look import LookOutcome
-from calib_free.gaze.magnification import MEMORY, MIN_SAMPLES, LearnedMagnification, radial_scale
+from calib_free.gaze.magnification import (MEMORY, MIN_SAMPLES, LearnedMagnification, MagnificationFileError,
+                                           radial_scale)
 from calib_free.gaze.refind import (find_first_sighting, find_target, radial_scale_grid, target_patch_problem,
                                     warped_patch)
 from tests.calib_free.gaze.test_look import looker
@@ -125,3 +126,31 @@ def test_a_target_the_learned_scale_cannot_tell_from_a_repeat_is_not_searched_at
         profile.record(70.0, 1.03)
     sighting, _, why = find_first_sighting(source, source_xy, after, [LookParams()], profile)
     assert sighting is None and "ambiguous" in why
+
+
+def test_a_profile_read_back_from_its_dict_expects_the_same_scales_and_keeps_each_bins_newest():
+    profile = LearnedMagnification()
+    for k in range(MIN_SAMPLES):
+        profile.record(83.0 + k, 1.10 + 0.01 * k)
+    profile.record(150.0, 1.5)
+    assert profile.revision == MIN_SAMPLES + 1
+    again = LearnedMagnification.from_dict(profile.as_dict(), "here")
+    assert again.expected(85.0) == pytest.approx(profile.expected(85.0)) == pytest.approx(1.12)
+    assert again.expected(150.0) is None  # one scale there: not yet learned, read back or not
+    data = profile.as_dict()
+    data["scales_by_distance_px"]["80"] = [1.0] * MEMORY + [2.0] * MEMORY  # twice what a bin keeps
+    assert LearnedMagnification.from_dict(data, "here").expected(85.0) == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("data, says", [
+    ([1.1, 1.2], "not a lens magnification profile of format 1"),
+    ({"format": 2, "bin_px": 10.0, "scales_by_distance_px": {}}, "format 2"),
+    ({"format": 1, "bin_px": 5.0, "scales_by_distance_px": {}}, "bin_px is 5.0, expected 10"),
+    ({"format": 1, "bin_px": 10.0, "scales_by_distance_px": {"80": [1.1, -1.0]}}, "scales_by_distance_px.80"),
+    ({"format": 1, "bin_px": 10.0, "scales_by_distance_px": {"far": [1.1]}}, "'far' is no distance"),
+    ({"format": 1, "bin_px": 10.0, "scales_by_distance_px": {"80": "1.1"}}, "a list of positive scales"),
+])
+def test_a_dict_that_is_no_profile_is_refused_naming_where_and_what(data, says):
+    with pytest.raises(MagnificationFileError) as err:
+        LearnedMagnification.from_dict(data, "/state/lens_magnification.json")
+    assert str(err.value).startswith("/state/lens_magnification.json: ") and says in str(err.value)

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
+from calib_free.gaze.magnification import MIN_SAMPLES, LearnedMagnification
 from calib_free.map.file import read_map, temporary_files, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter, Sample
@@ -25,7 +26,7 @@ from headctl.api.client import ApiClient, ApiError
 from headctl.config.head import load_config
 from headctl.errors import ConfigError, ControlError
 from headctl.service.parts import MapOrigin
-from headctl.service.persistence import Checkpointer, restore_map
+from headctl.service.persistence import Checkpointer, MagnificationFile, restore_magnification, restore_map
 from tests.conftest import sim_head_config, wait_until
 from tests.support import CONFIGS
 
@@ -410,3 +411,62 @@ def test_the_simulated_full_disk_degrades_the_service_and_writable_again_heals_i
         daemon.control.inject_fault(SimFault.STATE_DIR_WRITABLE)
         wait_until(lambda: cp.error is None and cp.last_adaptations > kept, 90, "checkpoints resumed")
         wait_until(lambda: "checkpoint" not in daemon.control.snapshot().faults, 10, "the fault cleared")
+
+
+# --- the lens's magnification the looks learned ----------------------------------------------
+def _profile(scale: float, count: int = MIN_SAMPLES) -> LearnedMagnification:
+    profile = LearnedMagnification()
+    for k in range(count):
+        profile.record(80.0 + k, scale)
+    return profile
+
+
+def test_the_lens_magnification_is_saved_when_it_changed_and_restored(tmp_path):
+    path = tmp_path / "lens_magnification.json"
+    assert restore_magnification(path)[0].expected(85.0) is None and restore_magnification(path)[1] == []
+    profile = LearnedMagnification()
+    saver = MagnificationFile(path, profile)  # the profile as restored: nothing to save yet
+    assert not saver.maybe_save() and not path.exists()
+    for k in range(MIN_SAMPLES):
+        profile.record(80.0 + k, 1.12)
+    assert saver.maybe_save() and not saver.maybe_save()  # saved once; unchanged since
+    restored, problems = restore_magnification(path)
+    assert not problems and restored.expected(85.0) == pytest.approx(1.12)
+    profile.record(150.0, 1.5)
+    assert saver.maybe_save()
+    assert json.loads(path.read_text())["scales_by_distance_px"]["150"] == [1.5]
+
+
+def test_a_lens_magnification_that_cannot_be_saved_is_reported_once_and_saved_later(tmp_path, caplog):
+    missing = tmp_path / "gone"
+    profile = LearnedMagnification()
+    saver = MagnificationFile(missing / "lens_magnification.json", profile)
+    profile.record(80.0, 1.1)
+    with caplog.at_level(logging.ERROR, logger="headctl.service.persistence"):
+        assert not saver.maybe_save() and not saver.maybe_save()  # retried: still changed, still failing
+    assert saver.error is not None and saver.error.startswith(f"{missing / 'lens_magnification.json'}: cannot save")
+    assert len([r for r in caplog.records if "cannot save the lens magnification" in r.getMessage()]) == 1
+    missing.mkdir()
+    assert saver.maybe_save() and saver.error is None
+
+
+@pytest.mark.parametrize("content", [b"{not json", b'{"format": 9}', b"\xff\xfe"])
+def test_a_lens_magnification_file_that_cannot_be_used_is_moved_aside_and_learned_again(tmp_path, content):
+    path = tmp_path / "lens_magnification.json"
+    path.write_bytes(content)
+    profile, problems = restore_magnification(path)
+    assert profile.expected(85.0) is None and len(problems) == 1 and problems[0].startswith(f"{path}: ")
+    assert not path.exists() and (tmp_path / "lens_magnification.json.bad").read_bytes() == content
+
+
+def test_the_service_looks_with_the_saved_lens_magnification_and_saves_it_at_shutdown(tmp_path, start_service):
+    config = sim_head_config(tmp_path / "state")
+    config.state_dir.mkdir()
+    MagnificationFile(config.magnification_path, _profile(1.2)).save()
+    daemon = start_service(config)
+    learned = daemon.parts.running.fixation.looker.magnification
+    assert learned.expected(85.0) == pytest.approx(1.2)
+    learned.record(200.0, 1.9)  # as a look on target records it
+    daemon.stop()
+    saved = json.loads(config.magnification_path.read_text())["scales_by_distance_px"]
+    assert saved["80"] == [1.2] * MIN_SAMPLES and saved["200"] == [1.9]
