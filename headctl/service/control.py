@@ -61,11 +61,13 @@ def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_
 
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
-                     band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0) -> TargetDisparity:
+                     band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0,
+                     rival_margin: float = 0.1) -> TargetDisparity:
     """`calib_free.gaze.look.target_disparity`; InvalidRequestError (naming `d`) when the target
     cannot be looked at."""
     try:
-        return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px, row_offset_px)
+        return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px, row_offset_px,
+                              rival_margin)
     except TargetPatchError as err:
         raise InvalidRequestError(f"d: {err}", "d") from None
 
@@ -302,7 +304,8 @@ class ServiceControl:
         params = controller.params
         return target_disparity(pair.left.image, pair.right.image, x, y, params.vergence_patch_size,
                                 running.adapter.map.params.disparity_range, params.look,
-                                row_offset_px=controller.row_offset_px)
+                                row_offset_px=controller.row_offset_px,
+                                rival_margin=params.correspondence.stereo_rival_margin)
 
     # -- tracks -------------------------------------------------------------------------------
     def track(self, x: float | None, y: float | None) -> LookJob:

@@ -602,3 +602,16 @@ def test_the_maps_pixels_a_degree_at_the_fovea():
     assert foveal_px_per_deg(LinearMap(0.5), pose, (WIDTH, HEIGHT)) == pytest.approx(8.0)
     assert foveal_px_per_deg(LinearMap(0.0), pose, (WIDTH, HEIGHT)) is None  # a map that commands nothing
     assert foveal_px_per_deg(LinearMap(1.0), pose, (0, 0)) is None  # no image to measure in
+
+
+def test_a_disparity_measured_on_a_patch_repeating_along_its_rows_says_it_may_be_a_repeats():
+    """The right image shows the target's surroundings twice along its rows, at d = 6 px and
+    30 px beyond: the d measured may be either's. Without the second copy d is the target's."""
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    right = np.roll(left, 6, axis=1)
+    found = target_disparity(left, right, 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams())
+    assert found.measured and found.reason == "" and found.d == pytest.approx(6.0, abs=0.3)
+    twice = with_a_copy_beside(right, np.array([156.0, 110.0]), (30, 0), size=29)
+    found = target_disparity(left, twice, 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams())
+    assert found.measured and "repeats along its rows" in found.reason and "may be a repeat's" in found.reason
+    assert found.d == pytest.approx(6.0, abs=0.3) or found.d == pytest.approx(36.0, abs=0.3)
