@@ -8,7 +8,8 @@ fovea of the world point the pixel showed before the look, projected at the serv
 position then; and after each fixation the target search's answer (the patch's distance from
 the fovea, or why it was not found), with the patch's size, how much less well it matches
 the best other place of its own view than its own, and how far the target lay from the image
-centre, and the scales of the warp it was found with (its singular values). Summarised: how
+centre, the scales of the warp it was found with (its singular values), and the landing error
+the search was told to expect (measured, or a corrective step's own). Summarised: how
 far the first saccade truly left the target in the looks that failed, the outcomes of the
 looks' fixations, and how far the vergence moved in the corrective steps (each degree of
 vergence turns the left eye half a degree, which moves the target on the left fovea: about 2
@@ -88,6 +89,7 @@ class StepRecorder:
         with self._lock:
             self.steps.append({
                 "every_warp": every_warp, "saved": saved,
+                "expected_error_px": None if expected is None else round(float(expected), 2),
                 "search": None if sighting is None else round(float(np.hypot(
                     sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
                 "patch": list(params.target_patch_size),
