@@ -9,6 +9,10 @@ fixation's correspondence and its stereo check, the target's patches judged in t
 view, and the target searches after each fixation. What is left of the look's own time
 (`duration_s`) is the rest: goals sent, poses read, the map's commands.
 
+Each rest the head came to is also split, as the head logs it at DEBUG, into the motion (until
+the servos held still) and the hold that says they are at rest (`settle_s` at the goal, the
+longer `short_settle_s` short of it), with how many rests were short of the goal.
+
 Summarised over the looks on target, by how many corrective steps they took: each part's
 median seconds a look, and the look time's.
 
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import logging
 import sys
 import tempfile
 import threading
@@ -49,6 +54,51 @@ PARTS: list[tuple[Any, str, str]] = [
 ]
 REST = "the rest"
 FIXATION_THREAD = "fixation"
+HEAD_LOGGER = "headctl.service.head"
+AT_REST = "at rest after"  # how `Head.wait_settled` logs a rest: (seconds waited, still from, at goal or short of it, ...)
+
+
+class RestLog(logging.Handler):
+    """The rests the head logs on the fixation thread: (waited s, still from s, short of the goal)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self._rests: list[tuple[float, float, bool]] = []
+        self._guard = threading.Lock()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if threading.current_thread().name == FIXATION_THREAD and str(record.msg).startswith(AT_REST):
+            waited, still, kind = record.args[:3]  # type: ignore[index]
+            with self._guard:
+                self._rests.append((float(waited), float(still), kind != "at goal"))
+        if record.levelno >= logging.INFO:  # what the logger would have passed on
+            for handler in logging.getLogger().handlers:
+                if record.levelno >= handler.level:
+                    handler.handle(record)
+
+    def take(self) -> dict[str, float]:
+        """The rests since the last take: how many, how many short of the goal, and the seconds
+        of motion and of hold summed."""
+        with self._guard:
+            rests, self._rests = self._rests, []
+        return {"rests": len(rests), "short of goal": sum(short for _, _, short in rests),
+                "motion_s": round(sum(still for _, still, _ in rests), 4),
+                "hold_s": round(sum(waited - still for waited, still, _ in rests), 4)}
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator["RestLog"]:
+        """Listening to the head's logger at DEBUG (passing on what it logs at INFO and above), for the block."""
+        logger = logging.getLogger(HEAD_LOGGER)
+        level, propagate = logger.level, logger.propagate
+        logger.addHandler(self)
+        logger.setLevel(logging.DEBUG)
+        logger.propagate = False
+        try:
+            yield self
+        finally:
+            logger.removeHandler(self)
+            logger.setLevel(level)
+            logger.propagate = propagate
 
 
 class PartTimer:
@@ -113,7 +163,9 @@ def summary(looks: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"corrective steps {key}"] = {
             "looks": len(rows), "duration_s": median([r["duration_s"] for r in rows]),
             **{part: median([r["parts_s"].get(part, 0.0) for r in rows]) for part in parts},
-            REST: median([r["duration_s"] - sum(r["parts_s"].values()) for r in rows])}
+            REST: median([r["duration_s"] - sum(r["parts_s"].values()) for r in rows]),
+            **{f"rests: {key}": median([r["rests"][key] for r in rows])
+               for key in ("rests", "short of goal", "motion_s", "hold_s") if all("rests" in r for r in rows)}}
     return out
 
 
@@ -126,6 +178,7 @@ def main() -> int:
         state = args.state_dir or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="diag-look-time-")))
         config = load_config(args.config).with_state_dir(state).with_api(port=0)
         timer = stack.enter_context(PartTimer().installed())
+        rests = stack.enter_context(RestLog().installed())
         daemon = stack.enter_context(serve(config))
         client = ApiClient(daemon.api_url)
         world = daemon.parts.devices.world
@@ -136,11 +189,12 @@ def main() -> int:
 
         def before_post(before: dict[str, float], xy: tuple[float, float]) -> None:
             timer.start()
+            rests.take()
 
         def with_parts(row: dict[str, Any]) -> dict[str, Any]:
             done.append(1)
             print(f"look {len(done)}/{args.looks}: {row['state']}, {row['outcome']}", file=sys.stderr, flush=True)
-            return {**row, "parts_s": {part: round(s, 4) for part, s in timer.take().items()}}
+            return {**row, "parts_s": {part: round(s, 4) for part, s in timer.take().items()}, "rests": rests.take()}
 
         looks = run_looks(client, config, world, lens, rng, args.spread, args.looks,
                           before_post=before_post, after_look=with_parts)

@@ -1,6 +1,7 @@
 """The look-time diagnostic: its timer counts the fixation thread alone, and its summary."""
 from __future__ import annotations
 
+import logging
 import threading
 
 from benchmarks.diag import look_time
@@ -42,3 +43,20 @@ def test_the_summary_groups_the_looks_on_target_by_corrective_steps():
     assert none["correspondence"] == 0.0  # a part none of them spent time in
     assert none[REST] == 0.07  # the looks' own time outside every part: 0.05, 0.07, 0.07
     assert out["corrective steps 2+"]["looks"] == 2 and out["corrective steps 2+"]["duration_s"] == 0.85
+
+
+def test_the_rest_log_splits_each_rest_the_head_logs_on_the_fixation_thread():
+    from benchmarks.diag.look_time import RestLog
+
+    log = logging.getLogger(look_time.HEAD_LOGGER)
+    with RestLog().installed() as rests:
+        def rest(waited, still, kind):  # as `Head.wait_settled` logs one
+            log.debug("at rest after %.3f s (still from %.3f s), %s (off %s deg)", waited, still, kind, [0.0, 0.1, 0.0])
+        rest(0.2, 0.15, "at goal")  # the main thread's: not counted
+        worker = threading.Thread(target=lambda: (rest(0.2, 0.15, "at goal"), rest(0.3, 0.1, "short of goal")),
+                                  name=look_time.FIXATION_THREAD)
+        worker.start()
+        worker.join()
+        taken = rests.take()
+    assert taken == {"rests": 2, "short of goal": 1, "motion_s": 0.25, "hold_s": 0.25}
+    assert logging.getLogger(look_time.HEAD_LOGGER).propagate  # as it was
