@@ -99,7 +99,7 @@ class TargetDisparity:
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
                      band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0,
-                     rival_margin: float = 0.1) -> TargetDisparity:
+                     rival_margin: float = CorrespondenceParams.stereo_rival_margin) -> TargetDisparity:
     """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
     be measured (seen by one eye only, a vertical disparity or depth edge the match does not
     survive, a patch too near the border for `patch_size`), d = 0 (`row_offset_px`: the
@@ -382,9 +382,8 @@ class LookController:
         if measured is None:
             measured = left_landing_error_px(fixation, p.correspondence, p.confidence_floor)
         step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
-        if step is None or measured is None:
-            return step if measured is None else measured
-        return min(step, measured)
+        known = [error for error in (measured, step) if error is not None]
+        return min(known) if known else None
 
     def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
         """`corrective_step_error_px` of a corrective fixation that aimed `step_aim_px` from the

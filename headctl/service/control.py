@@ -23,6 +23,7 @@ import numpy as np
 from calib_free.map.gaze_map import GazeMap
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX
 from calib_free.correspondence.disparity import disparity_at as measured_disparity_at
+from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.errors import DisparityError, MapFileError, OutOfRangeError, TargetPatchError
 from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
@@ -62,7 +63,7 @@ def disparity_at(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_
 def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
                      disparity_range: tuple[float, float], look: LookParams,
                      band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0,
-                     rival_margin: float = 0.1) -> TargetDisparity:
+                     rival_margin: float = CorrespondenceParams.stereo_rival_margin) -> TargetDisparity:
     """`calib_free.gaze.look.target_disparity`; InvalidRequestError (naming `d`) when the target
     cannot be looked at."""
     try:
