@@ -73,7 +73,8 @@ class StepRecorder:
         return None if error is None or hidden else round(float(error), 2)
 
     def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
-                       warps: list[np.ndarray] | None, expected: float | None, sighting: Any, why: str,
+                       warps: list[np.ndarray] | None, expected: float | None,
+                       offset: tuple[float, float] | None, sighting: Any, why: str,
                        every_warp: dict[str, Any] | None = None) -> None:
         h, w = image.shape[:2]
         peaks, _ = own_view_peaks(source, source_xy, params)
@@ -84,12 +85,14 @@ class StepRecorder:
                                 source=source, source_xy=np.asarray(source_xy), image=image,
                                 patch=np.asarray(params.target_patch_size),
                                 warps=np.asarray(warps if warps is not None else []),
-                                expected=np.asarray(np.nan if expected is None else expected, dtype=float))
+                                expected=np.asarray(np.nan if expected is None else expected, dtype=float),
+                                offset=np.asarray((np.nan, np.nan) if offset is None else offset, dtype=float))
             saved, self.searches_saved = self.searches_saved, self.searches_saved + 1
         with self._lock:
             self.steps.append({
                 "every_warp": every_warp, "saved": saved,
                 "expected_error_px": None if expected is None else round(float(expected), 2),
+                "expected_offset_px": None if offset is None else [round(float(v), 2) for v in offset],
                 "search": None if sighting is None else round(float(np.hypot(
                     sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
                 "patch": list(params.target_patch_size),
@@ -106,21 +109,22 @@ class StepRecorder:
         fixate = look_module.LookController._fixate
         recorder = self
 
-        def recorded_first(source, source_xy, image, variants, magnification, expected=None):  # type: ignore[no-untyped-def]
-            sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected)
-            recorder._record_search(source, source_xy, image, variant, None, expected, sighting, why)
+        def recorded_first(source, source_xy, image, variants, magnification, expected=None, offset=None):  # type: ignore[no-untyped-def]
+            sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected, offset)
+            recorder._record_search(source, source_xy, image, variant, None, expected, offset, sighting, why)
             return sighting, variant, why
 
-        def recorded_find(source, source_xy, image, params, warps=None, expected=None):  # type: ignore[no-untyped-def]
-            sighting, why = find_target(source, source_xy, image, params, warps, expected)
+        def recorded_find(source, source_xy, image, params, warps=None, expected=None, offset=None):  # type: ignore[no-untyped-def]
+            sighting, why = find_target(source, source_xy, image, params, warps, expected, offset)
             every_warp: dict[str, Any] | None = None
             if sighting is None and warps is not None:
                 # What the search would say trying every candidate warp, not the one carried over.
-                again, again_why = find_target(source, source_xy, image, params, None, expected)
+                again, again_why = find_target(source, source_xy, image, params, None, expected, offset)
                 h, w = image.shape[:2]
                 every_warp = {"search": None if again is None else round(float(np.hypot(
                     again.x - (w - 1) / 2.0, again.y - (h - 1) / 2.0)), 2), "why": again_why}
-            recorder._record_search(source, source_xy, image, params, warps, expected, sighting, why, every_warp)
+            recorder._record_search(source, source_xy, image, params, warps, expected, offset, sighting, why,
+                                    every_warp)
             return sighting, why
 
         def recorded_fixate(controller, record, target, reference_pose=None, continues=False):  # type: ignore[no-untyped-def]

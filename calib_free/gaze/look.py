@@ -17,14 +17,16 @@ sent without its disparity is looked at with the one `target_disparity` measures
 view, else from the depth the eyes fixate.
 
 Where the target's patch matches two places of the new image nearly alike (a texture that
-repeats), the look takes the one alone near where the fixation was expected to bring the
-target, the fovea, within a reach that grows with the fixation's landing error, measured by
-its correspondence when that was accepted, else by the left eye's alone
-(`calib_free.gaze.refind.find_target`, `left_landing_error_px`); a repeat within that reach
-leaves the patch ambiguous. A corrective step has a reach of its own, where nothing measured
-its landing or the measure says more: a step that aimed a few pixels from the fovea, and that
-the encoders say went as planned, cannot have left the target farther than it aimed plus what
-the head did beyond the plan (`corrective_step_error_px`). With no measured landing error, the
+repeats), the look takes the one alone near where the fixation is expected to have left the
+target. Where the fixation measured where its left fovea landed (its correspondence when that
+was accepted, else the left eye's alone: `left_landing_px`), that is the fovea plus the
+target's offset from the landing, seen through the patch's warp, within a reach that grows
+with the offset (`LANDING_OFFSET_SPREAD`; `calib_free.gaze.refind.find_target`): the landing
+says in which direction the saccade missed, not only how far. A repeat within that reach
+leaves the patch ambiguous. A corrective step whose landing nothing measured has a reach of
+its own about the fovea: a step that aimed a few pixels from the fovea, and that the encoders
+say went as planned, cannot have left the target farther than it aimed plus what the head did
+beyond the plan (`corrective_step_error_px`). With no landing measured, the
 view before the saccade tells them apart where it shows the repeats around the target
 (`place_told_by_repeats`).
 
@@ -135,6 +137,11 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
 # ended 3-13 px off it (5 of 5, both worlds, docs/results/realistic-world.md), farther than
 # the 4 px a degree at the fovea would say (the map is least sure at the edges of its range).
 REACH_MARGIN_DEG = 0.05
+# Where a fixation measured where its fovea landed, the target is expected at the fovea plus its
+# offset from that landing, seen through the patch's warp; expected to within this fraction of
+# the offset: the warp is the lens's at the target, the landing lies that far from it, and the
+# lens's magnification changes across the way (`calib_free.gaze.refind.search_target`).
+LANDING_OFFSET_SPREAD = 0.15
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0
@@ -150,22 +157,25 @@ def beyond_limits(goal: np.ndarray, low: np.ndarray, high: np.ndarray, margin_de
     return "; ".join(beyond)
 
 
-def left_landing_error_px(fixation: FixationRecord, params: CorrespondenceParams,
-                          confidence_floor: float) -> float | None:
-    """Where the left fovea landed, in the image before `fixation`, from its aim: the left
-    eye's correspondence alone (`match_eye`), for a fixation that taught nothing (its eyes
-    did not converge, or the right eye's match was refused) but whose left eye's match is
-    confident (at least `confidence_floor`). A look finds its target in the left image, so
-    this is the landing that tells the target from a repeat of its texture. None when not
-    measured. A fixation that converged but was refused matched its left eye so already: that
-    match is taken, not made again."""
-    pre, post, aim = fixation.pre_left_image, fixation.final_left_image, fixation.target
-    if pre is None or post is None or aim is None:
+def left_landing_px(fixation: FixationRecord, params: CorrespondenceParams,
+                    confidence_floor: float) -> np.ndarray | None:
+    """Where the left fovea landed, in the image before `fixation`: the position (x, y) there of
+    what its final left image shows at the fovea. From the fixation's correspondence where it
+    taught; else from the left eye's alone (`match_eye`) where that is confident (at least
+    `confidence_floor`): a fixation that taught nothing (its eyes did not converge, or the right
+    eye's match was refused) may still say where the left eye went. A look finds its target in
+    the left image, so this is the landing that tells the target from a repeat of its texture.
+    None when not measured. A fixation that converged but was refused matched its left eye so
+    already: that match is taken, not made again."""
+    pre, post = fixation.pre_left_image, fixation.final_left_image
+    if pre is None or post is None:
         return None
+    if fixation.taught and fixation.position is not None:
+        return np.asarray(fixation.position[:2], dtype=float)
     match = fixation.match.left if fixation.match is not None else match_eye(pre, post, params)
     if not match.confidence >= confidence_floor:  # NaN: not measured
         return None
-    return float(np.hypot(match.x - aim[0], match.y - aim[1]))
+    return np.array([match.x, match.y])
 
 
 def foveal_px_per_deg(gaze_map: MapReader, pose: np.ndarray, image_size: tuple[int, int]) -> float | None:
@@ -303,6 +313,8 @@ class LookController:
                 return
         last_error: float | None = None  # the target's distance from the fovea before the last step
         step_aim_px: float | None = None  # how far from the fovea the last corrective step aimed
+        target_before = np.array(source_xy)  # where the target was in the last fixation's image before it
+        to_source = np.eye(2)  # the linear warp from that image to `source` (the patch's own view)
         boost = 1.0
         while True:
             final_left = fixation.final_left_image
@@ -310,15 +322,15 @@ class LookController:
                 record.outcome, record.detail = fixation.outcome, fixation.detail
                 return
             sighting, why = None, ""
-            expected = self._expected_error_px(fixation, step_aim_px)
+            expected, offset = self._landing_prior(fixation, target_before, to_source, step_aim_px)
             if warps is None:
                 sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
-                                                             self.magnification, expected)
+                                                             self.magnification, expected, offset)
                 if sighting is not None:
                     variants = [variant]  # the same patch from here on, its warp carried over
             else:
                 for variant in variants:
-                    sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected)
+                    sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected, offset)
                     why = why or reason
                     if sighting is not None:
                         break
@@ -362,28 +374,34 @@ class LookController:
             cx, cy = fovea(final_left)
             aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
             step_aim_px = float(np.hypot(aim_x - cx, aim_y - cy))
+            target_before, to_source = np.array([sighting.x, sighting.y]), np.linalg.inv(sighting.warp)
             d = self._disparity_at(fixation, sighting)
             fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
 
-    def _expected_error_px(self, fixation: FixationRecord, step_aim_px: float | None = None) -> float | None:
-        """How far from the fovea `fixation` is expected to have left the target (px, in the
-        image before it): its own landing error where its correspondence was accepted (what
-        landed on the fovea, and where the target was, both measured); else the left eye's
-        alone (`left_landing_error_px`); None when neither was measured. The map's recent
-        landing errors are no stand-in: a fixation whose correspondence was refused went
-        otherwise than the map's typical one (a depth not measured, eyes that did not
-        converge), and with them a look took a nearby repeat for the target in 5 of 100
-        random pixels (`benchmarks.bench.looks`, docs/results/looks.md).
+    def _landing_prior(self, fixation: FixationRecord, target_before: np.ndarray, to_source: np.ndarray,
+                       step_aim_px: float | None = None) -> tuple[float | None, tuple[float, float] | None]:
+        """Where `fixation` is expected to have left the target, for the search after it: (the
+        expected error, the target's expected offset from the fovea), both in `source`'s
+        pixels, or (None, None) where nothing says.
 
-        A corrective step (`step_aim_px`: how far from the fovea it aimed) has a prior of its
-        own: its `corrective_step_error_px`, the least of it and what was measured."""
+        Where the fixation measured where its left fovea landed (`left_landing_px`), the target
+        is expected at its offset from that landing (`target_before` less the landing, carried
+        into `source`'s pixels by `to_source`), to within `LANDING_OFFSET_SPREAD` of it: the
+        measured landing says in which direction the saccade missed as well as how far. Else a
+        corrective step (`step_aim_px`: how far from the fovea it aimed) has a prior of its own,
+        about the fovea: its `corrective_step_error_px`. The map's recent landing errors are no
+        stand-in: a fixation whose correspondence was refused went otherwise than the map's
+        typical one (a depth not measured, eyes that did not converge), and with them a look
+        took a nearby repeat for the target in 5 of 100 random pixels
+        (`benchmarks.bench.looks`, docs/results/looks.md)."""
         p = self.fixation.params
-        measured = fixation.landing_error_px
-        if measured is None:
-            measured = left_landing_error_px(fixation, p.correspondence, p.confidence_floor)
-        step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
-        known = [error for error in (measured, step) if error is not None]
-        return min(known) if known else None
+        landed = left_landing_px(fixation, p.correspondence, p.confidence_floor)
+        if landed is not None:
+            offset = to_source @ (np.asarray(target_before, dtype=float) - landed)
+            return LANDING_OFFSET_SPREAD * float(np.hypot(*offset)), (float(offset[0]), float(offset[1]))
+        if step_aim_px is None:
+            return None, None
+        return self._corrective_step_error_px(fixation, step_aim_px), None
 
     def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
         """`corrective_step_error_px` of a corrective fixation that aimed `step_aim_px` from the

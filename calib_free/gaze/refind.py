@@ -40,7 +40,7 @@ from calib_free.gaze.magnification import LearnedMagnification
 MIN_PATCH_STD = 2.0  # grey levels: a flatter patch has nothing to be found by
 AMBIGUOUS_IN_OWN_VIEW = "is ambiguous in its own view"  # `patch_problem`'s words for repeats
 # Where two places match the target's patch nearly alike, the one within this many times the
-# expected landing error of the fovea is the target, if it is the only one there.
+# expected error of where the target was expected is the target, if it is the only one there.
 PRIOR_SIGMAS = 3.0
 # The least expected error (px, in the image searched): sub-pixel localisation, and fine vergence
 # moving the left eye by a fraction of a degree after the saccade.
@@ -134,26 +134,29 @@ class TargetSearch:
 
 
 def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
-                warps: list[np.ndarray] | None = None,
-                expected_error_px: float | None = None) -> tuple[TargetSighting | None, str]:
+                warps: list[np.ndarray] | None = None, expected_error_px: float | None = None,
+                expected_offset_px: tuple[float, float] | None = None) -> tuple[TargetSighting | None, str]:
     """Where the patch around `source_xy` of `source` is in `image`: (sighting, '') or (None, why
     not); see `search_target`."""
-    found = search_target(source, source_xy, image, params, warps, expected_error_px)
+    found = search_target(source, source_xy, image, params, warps, expected_error_px, expected_offset_px)
     return found.sighting, found.why
 
 
 def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
-                  warps: list[np.ndarray] | None = None, expected_error_px: float | None = None) -> TargetSearch:
+                  warps: list[np.ndarray] | None = None, expected_error_px: float | None = None,
+                  expected_offset_px: tuple[float, float] | None = None) -> TargetSearch:
     """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
     `params.search_radius_px` of the fovea.
 
     `warps`: the linear warps to try (default: `candidate_warps`, for a patch brought from
-    wherever it was to near the fovea). `expected_error_px`: how far from the fovea the
-    fixation is expected to have brought the target, in `source`'s pixels (its landing error);
-    where two places match the patch nearly alike, the one alone within
-    `PRIOR_SIGMAS` times that (magnified as the patch is, at least `MIN_EXPECTED_ERROR_PX`) of
-    the fovea is the target (`expected_place`). None: no such prior; the place whose repeats
-    `source` shows around the target is it (`place_told_by_repeats`)."""
+    wherever it was to near the fovea). Where the fixation is expected to have brought the
+    target, in `source`'s pixels: `expected_offset_px` from the fovea (default: at it; the
+    image searched sees the offset through the patch's warp) with an expected error
+    `expected_error_px` about that place. Where two places match the patch nearly alike, the
+    one alone within `PRIOR_SIGMAS` times that error (magnified as the patch is, at least
+    `MIN_EXPECTED_ERROR_PX`) of the expected place is the target (`expected_place`). None: no
+    such prior; the place whose repeats `source` shows around the target is it
+    (`place_told_by_repeats`)."""
     source, image = as_grey_float(source), as_grey_float(image)
     w, h = params.target_patch_size
     height, width = image.shape
@@ -229,10 +232,11 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
             origin = (x0 + b[0] + c[0], y0 + a[0] + c[1])  # image position of the region's (0, 0)
             chosen: tuple[int, int] | None = None
             near, reach = 0, np.inf
+            shift = warp @ np.asarray(expected_offset_px if expected_offset_px is not None else (0.0, 0.0))
+            expected_at = (centre[0] + shift[0] - origin[0], centre[1] + shift[1] - origin[1])  # in the region
             if expected_error_px is not None:
                 reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
-                chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin,
-                                              (centre[0] - origin[0], centre[1] - origin[1]), reach)
+                chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin, expected_at, reach)
             undecided = ""
             if chosen is None and (expected_error_px is None or near > 1):
                 # No landing measured, or one too far off to tell the repeats apart: the view
@@ -241,8 +245,8 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                 told, undecided = place_told_by_repeats(
                     source, source_xy, (w, h), [(origin[0] + u, origin[1] + v) for u, v in places],
                     [float(region[v, u]) for u, v in places], warp)
-                if told is not None and np.hypot(places[told][0] - (centre[0] - origin[0]),
-                                                 places[told][1] - (centre[1] - origin[1])) <= reach:
+                if told is not None and np.hypot(places[told][0] - expected_at[0],
+                                                 places[told][1] - expected_at[1]) <= reach:
                     chosen = places[told]
             if chosen is None:
                 if expected_error_px is None:
@@ -250,7 +254,10 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                            f"correspondence was not accepted; {undecided})")
                     continue
                 where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
-                         f"({PRIOR_SIGMAS:g} x the landing error)")
+                         f"({PRIOR_SIGMAS:g} x the landing error)" if expected_offset_px is None else
+                         f"within {reach:.1f} px of ({origin[0] + expected_at[0]:.1f}, "
+                         f"{origin[1] + expected_at[1]:.1f}), where the fixation's measured landing puts the "
+                         f"target ({PRIOR_SIGMAS:g} x its expected error)")
                 why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer "
                        f"than the map can tell apart ({undecided})" if near else f"{ambiguous}, and neither lies {where}")
                 continue
@@ -265,7 +272,8 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
 
 def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,
                         variants: list[LookParams], magnification: LearnedMagnification,
-                        expected_error_px: float | None = None) -> tuple[TargetSighting | None, LookParams, str]:
+                        expected_error_px: float | None = None, expected_offset_px: tuple[float, float] | None = None,
+                        ) -> tuple[TargetSighting | None, LookParams, str]:
     """The target after a look's first saccade: searched by each of the patches `variants` in
     turn (`search_target`), first with only the radial scales the looks have learned the lens
     to show at the target's distance from the centre (`LearnedMagnification.radial_scales`),
@@ -282,7 +290,8 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
         if scales is None:
             break  # nothing learned at this distance: every scale
         found = search_target(source, source_xy, image, variant,
-                              candidate_warps(source_xy, centre, variant.max_target_scale, scales), expected_error_px)
+                              candidate_warps(source_xy, centre, variant.max_target_scale, scales), expected_error_px,
+                              expected_offset_px)
         if found.sighting is not None:
             return found.sighting, variant, ""
         learned_why, matched = learned_why or found.why, matched or found.matched
@@ -290,7 +299,7 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
         return None, variants[0], learned_why
     why = ""
     for variant in variants:
-        found = search_target(source, source_xy, image, variant, None, expected_error_px)
+        found = search_target(source, source_xy, image, variant, None, expected_error_px, expected_offset_px)
         if found.sighting is not None:
             return found.sighting, variant, ""
         why = why or found.why

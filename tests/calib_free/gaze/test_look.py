@@ -15,7 +15,7 @@ import yaml
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
-                                   left_landing_error_px, target_disparity)
+                                   left_landing_px, target_disparity)
 from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, patch_problem,
                                     target_patch_problem)
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
@@ -349,6 +349,42 @@ def test_a_repeat_within_the_maps_landing_error_is_refused_saying_so():
     assert find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=2.0)[0] is not None
 
 
+def test_a_measured_landing_says_where_the_target_is_not_only_how_far():
+    """The saccade left the target (10, -6) px from the fovea, and a copy of it lies 29 px from
+    the target, 12 px from the fovea: both within 3 x 11.7 px of the fovea, so the landing's
+    length alone cannot tell them apart. Its direction can: where the fovea landed, the target
+    lies (10, -6) px from it in the view before, so the place (10, -6) px from the fovea is it."""
+    source = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source_xy = (230.4, 80.7)
+    missed = np.array([10.0, -6.0])
+    at = FOVEA + missed  # where the target is after the saccade
+    shift = np.array([[1.0, 0.0, at[0] - source_xy[0]], [0.0, 1.0, at[1] - source_xy[1]]])
+    after = with_a_copy_beside(cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR), at,
+                               (-22, 19), size=25)
+    error = float(np.hypot(*missed))
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=error)
+    assert sighting is None and "ambiguous" in why and "2 of them lie within 35.0 px of the fovea" in why
+    sighting, why = find_target(source, source_xy, after, LookParams(), [np.eye(2)], expected_error_px=0.15 * error,
+                                expected_offset_px=(10.0, -6.0))
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - at[0], sighting.y - at[1]) <= 0.3
+    # The offset is in the view before: a patch the lens shows 1.3 times as large after the
+    # saccade lies 1.3 times as far from the fovea, which the warp says.
+    magnified = np.array([[1.3, 0.0, FOVEA[0] + 1.3 * missed[0] - 1.3 * source_xy[0]],
+                          [0.0, 1.3, FOVEA[1] + 1.3 * missed[1] - 1.3 * source_xy[1]]])
+    at = FOVEA + 1.3 * missed
+    after = with_a_copy_beside(cv2.warpAffine(source, magnified, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR), at,
+                               (-24, 22), size=29)
+    sighting, why = find_target(source, source_xy, after, LookParams(), [1.3 * np.eye(2)],
+                                expected_error_px=0.15 * error, expected_offset_px=(10.0, -6.0))
+    assert why == "" and sighting is not None
+    assert np.hypot(sighting.x - at[0], sighting.y - at[1]) <= 0.5
+    # A measured landing that puts the target where neither place is says so.
+    sighting, why = find_target(source, source_xy, after, LookParams(), [1.3 * np.eye(2)],
+                                expected_error_px=1.0, expected_offset_px=(-2.0, 8.0))
+    assert sighting is None and "neither lies within" in why and "measured landing puts the target" in why
+
+
 def repeat_after_the_first_move(texel: np.ndarray):
     """A plane head's `on_move` that copies the 45 x 45 texels around `texel` 46 px beside it
     once the head has moved: a repeat the view before did not hold."""
@@ -379,6 +415,28 @@ def test_a_look_tells_the_target_from_a_repeat_that_appears_after_the_saccade():
     record = controller.look((*target, 0.0))
     assert record.outcome is LookOutcome.TARGET_LOST and "ambiguous" in record.detail
     assert "where the saccade landed is not known" in record.detail
+
+
+def test_a_look_whose_saccade_fell_short_tells_the_target_from_a_repeat_by_where_it_landed():
+    """The map's saccade falls 20 % short, leaving the target 17 px from the fovea, and once the
+    head has moved a copy of the target's surroundings (45 x 45 px, more than either patch)
+    lies 45 px beside it, 43 px from the fovea: both within 3 x 17 px of it, so the landing's
+    length alone leaves the patch ambiguous. The first fixation's correspondence measured where
+    the fovea landed, so the look knows where the target is from there and takes it."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+
+    def copy(h) -> None:
+        if len(h.moves) == 1:
+            h.plane = with_a_copy_beside(h.plane, texel, (-30, -33), size=45)
+    head.on_move = copy
+    controller, _ = looker(head, gain=0.8, search_radius_px=150)  # the copy within the near search
+    record = controller.look((*target, 0.0))
+    first = record.fixations[0]
+    assert first.taught and first.landing_error_px == pytest.approx(16.9, abs=1.0)
+    assert record.on_target, record.detail
+    assert true_error_px(head, texel) <= 1.0
 
 
 def test_a_fine_periodic_texture_is_told_apart_at_its_own_period():
@@ -477,7 +535,8 @@ def test_the_left_eyes_own_landing_tells_the_repeats_apart_when_nothing_taught()
     assert first.outcome is FixationOutcome.NO_VERGENCE_MATCH and first.landing_error_px is None
     assert not learner.samples
     assert record.on_target and true_error_px(head, texel) <= 1.0, record.detail
-    assert left_landing_error_px(first, FixationParams().correspondence, 0.3) == pytest.approx(0.0, abs=0.5)
+    landed = left_landing_px(first, FixationParams().correspondence, 0.3)
+    assert landed is not None and np.hypot(*(landed - first.target[:2])) <= 0.5
 
 
 def test_the_left_eyes_landing_is_not_measured_where_its_view_is_flat():
@@ -485,7 +544,7 @@ def test_the_left_eyes_landing_is_not_measured_where_its_view_is_flat():
     controller, _ = looker(head)
     fixation = controller.fixation.fixate((200.0, 100.0, 0.0))
     assert fixation.pre_left_image is not None and fixation.final_left_image is not None
-    assert left_landing_error_px(fixation, FixationParams().correspondence, 0.3) is None
+    assert left_landing_px(fixation, FixationParams().correspondence, 0.3) is None
 
 
 def test_a_refused_fixations_left_match_is_its_landing_not_matched_again():
@@ -499,9 +558,9 @@ def test_a_refused_fixations_left_match_is_its_landing_not_matched_again():
                               converged=True, match=FixationMatch(left, right),
                               outcome=FixationOutcome.INCONSISTENT, pre_left_image=noise, final_left_image=noise)
     params = FixationParams().correspondence
-    assert left_landing_error_px(fixation, params, 0.3) == pytest.approx(5.0)
+    assert left_landing_px(fixation, params, 0.3) == pytest.approx([103.0, 104.0])
     unsure = dataclasses.replace(fixation, match=FixationMatch(dataclasses.replace(left, confidence=0.2), right))
-    assert left_landing_error_px(unsure, params, 0.3) is None
+    assert left_landing_px(unsure, params, 0.3) is None
 
 
 def repeated_texture_with_rims(rims: int, blend: float) -> np.ndarray:
@@ -575,7 +634,7 @@ def test_a_corrective_step_tells_the_target_from_a_repeat_beyond_its_own_reach()
     assert record.corrective_steps == 1
     second = record.fixations[1]
     assert second.landing_error_px is None
-    assert left_landing_error_px(second, FixationParams().correspondence, 1.0) is None
+    assert left_landing_px(second, FixationParams().correspondence, 1.0) is None
     assert record.on_target, record.detail
     assert truth <= 1.0
 
