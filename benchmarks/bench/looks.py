@@ -42,9 +42,9 @@ from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
 from calib_free.gaze.look import LookController, LookRecord
-from calib_free.gaze.refind import MIN_PATCH_STD, patch_problem
+from calib_free.gaze.refind import patch_problem
 from calib_free.correspondence.disparity import as_grey_float
-from calib_free.gaze.fixation import FixationController
+from calib_free.gaze.fixation import FixationController, LookParams
 from drivers.sim.truth import first_surface, hidden_from
 from headctl.errors import ControlError
 from headctl.experiments.online import SimulatedHeadRig
@@ -100,7 +100,7 @@ def unmeasured_cause(rig, left: np.ndarray, xy: tuple[float, float], patch_size:
     x0, y0 = round(x - (pw - 1) / 2.0), round(y - (ph - 1) / 2.0)
     if x0 < 0 or y0 < 0 or x0 + pw > left.shape[1] or y0 + ph > left.shape[0]:
         return "its patch reaches beyond the image"
-    if float(left[y0:y0 + ph, x0:x0 + pw].std()) < MIN_PATCH_STD:
+    if float(left[y0:y0 + ph, x0:x0 + pw].std()) < LookParams().min_patch_std:
         return "flat"
     hidden, seen, d, dy = right_eye_truth(rig, xy)
     if hidden:

@@ -86,6 +86,11 @@ class LookParams:
     max_corrective_steps: int = 3  # corrective fixations after the first before giving up
     target_patch_size: tuple[int, int] = (21, 21)  # (w, h) of the target's patch, px
     min_target_ncc: float = 0.7  # the target's patch matched less well than this: not found
+    # Grey levels: a patch less textured than this has nothing to be found by. Two exposures of
+    # one patch differ by the sensor's noise n, and match at NCC 1 - n^2 / std^2; to reach
+    # min_target_ncc 0.7 the patch needs std >= 1.8 n. A webcam's noise at mid grey is about
+    # 2-3 grey levels (docs/sim-world.md), more under auto gain: 6 leaves a third to spare.
+    min_patch_std: float = 6.0
     ambiguity_ncc_margin: float = 0.1  # a second place matching within this of the best: ambiguous
     # The larger patch, where the smaller repeats in its own view, must match its own view's
     # second place worse than the best by this much to be used (`calib_free.gaze.refind`)
@@ -104,6 +109,8 @@ class LookParams:
             raise ValueError(f"target_patch_size must be at least 5 x 5 pixels, got {self.target_patch_size}")
         if not -1.0 < self.min_target_ncc < 1.0:
             raise ValueError(f"min_target_ncc must be in (-1, 1), got {self.min_target_ncc}")
+        if not self.min_patch_std > 0:
+            raise ValueError(f"min_patch_std must be positive, got {self.min_patch_std}")
         if not 0.0 <= self.ambiguity_ncc_margin < 1.0:
             raise ValueError(f"ambiguity_ncc_margin must be in [0, 1), got {self.ambiguity_ncc_margin}")
         if not self.ambiguity_ncc_margin <= self.context_ncc_margin < 1.0:

@@ -37,7 +37,6 @@ from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.magnification import LearnedMagnification
 
-MIN_PATCH_STD = 2.0  # grey levels: a flatter patch has nothing to be found by
 AMBIGUOUS_IN_OWN_VIEW = "is ambiguous in its own view"  # `patch_problem`'s words for repeats
 # Where two places match the target's patch nearly alike, the one within this many times the
 # expected error of where the target was expected is the target, if it is the only one there.
@@ -175,7 +174,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
     templates: list[tuple[np.ndarray, np.ndarray]] = []  # (template, warp)
     for warp in warps:
         template = warped_patch(source, source_xy, warp, (w, h))
-        if template is not None and float(template.std()) >= MIN_PATCH_STD:
+        if template is not None and float(template.std()) >= params.min_patch_std:
             templates.append((template, warp))
     if not templates:
         return TargetSearch(None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond "
@@ -215,7 +214,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                                                 refined[0][1] - (y0 + a[0] + v + c[1])) > 2.0:
                 refined = None  # ECC wandered off to something else
             better = None if refined is None else warped_patch(source, source_xy, refined[1] @ warp, (w, h))
-            if refined is not None and better is not None and float(better.std()) >= MIN_PATCH_STD:
+            if refined is not None and better is not None and float(better.std()) >= params.min_patch_std:
                 rescored = scored(better, a, b)
                 _, repeak, _, (jx, jy) = cv2.minMaxLoc(rescored)
                 if np.hypot(jx - ix, jy - iy) <= 2.0:
@@ -424,8 +423,10 @@ def own_view_peaks(source: np.ndarray, source_xy: tuple[float, float],
     template = warped_patch(source, source_xy, np.eye(2), params.target_patch_size)
     if template is None:
         return None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image"
-    if float(template.std()) < MIN_PATCH_STD:
-        return None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it by"
+    if float(template.std()) < params.min_patch_std:
+        return None, (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it "
+                      f"by (grey levels' std {float(template.std()):.1f} < min_patch_std {params.min_patch_std:g}: "
+                      "what it shows is mostly the camera's noise)")
     w, h = params.target_patch_size
     radius = params.search_radius_px if params.search_radius_px is not None else source.shape[1] // 3
     x0 = int(max(0, np.floor(source_xy[0] - radius - w / 2)))

@@ -563,6 +563,29 @@ def test_a_refused_fixations_left_match_is_its_landing_not_matched_again():
     assert left_landing_px(unsure, params, 0.3) is None
 
 
+def test_a_patch_whose_texture_is_the_cameras_noise_is_refused():
+    """A flat face seen through a sensor with 2.3 grey levels of noise (a webcam's at mid grey):
+    its patch is unique in its own view (noise matches nothing else), but the next exposure's
+    noise is other noise, so nothing would find it again. Refused as flat, saying the std;
+    real texture as faint as 8 grey levels is not."""
+    rng = np.random.default_rng(4)
+    flat = 120.0 + rng.normal(0.0, 2.3, (HEIGHT, WIDTH)).astype(np.float32)
+    xy = (160.0, 120.0)
+    why = target_patch_problem(flat, xy, LookParams())
+    assert "has no texture to find it by" in why and "< min_patch_std 6" in why
+    # Two exposures of the face match no better than noise does: the refusal is right.
+    again = 120.0 + rng.normal(0.0, 2.3, (HEIGHT, WIDTH)).astype(np.float32)
+    sighting, _ = find_target(flat, xy, again, LookParams(min_patch_std=1.0), [np.eye(2)])
+    assert sighting is None
+    texture = rich_texture(seed=2, size=(WIDTH, HEIGHT))
+    faint = flat + (texture - texture.mean()) * (8.0 / texture.std())
+    assert patch_problem(faint, xy, LookParams()) == ""
+    # At 2 grey levels the noise alone would pass for texture.
+    assert patch_problem(flat, xy, LookParams(min_patch_std=2.0)) == ""
+    with pytest.raises(ValueError, match="min_patch_std"):
+        LookParams(min_patch_std=0.0)
+
+
 def repeated_texture_with_rims(rims: int, blend: float) -> np.ndarray:
     """A 16 px tile repeated over the image, and about (160, 120), in the rows the 41 x 41 patch
     holds above (and with `rims` 2 below) the 21 x 21 one, other texture blended in by `blend`."""
