@@ -114,10 +114,15 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     failed = collections.Counter(failure_kind(r) for r in rows if not r["on_target"])
     reachable = [r for r in rows if not r["outcome"].startswith("target beyond the joint limits")
                  and "beyond the joint limits" not in r["detail"]]
+    run_within_reach = [r for r in run if not r["outcome"].startswith("target beyond the joint limits")]
     return {"looks": len(rows), "on_target": len(on), "on_target_fraction": len(on) / len(rows),
             "on_target_fraction_of_reachable": len(on) / len(reachable) if reachable else None,
             # of the looks the daemon took on: not refused before the head moved (422)
             "on_target_fraction_of_accepted": len(on) / len(run) if run else None,
+            # the same, leaving out the looks taken on that ended at the joint limits, the target
+            # beyond them (a reason a client can act on: the head cannot reach it)
+            "on_target_fraction_of_accepted_within_reach":
+                len(on) / len(run_within_reach) if run_within_reach else None,
             "refused_422": len(rows) - len(run),
             "final_error_px": {"p50": q(final, 50), "p90": q(final, 90), "max": q(final, 100)},
             "duration_s": {"p50": q(times, 50), "p90": q(times, 90)},
