@@ -438,8 +438,9 @@ def own_view_peaks(source: np.ndarray, source_xy: tuple[float, float],
 
 
 def patch_variants(params: LookParams) -> list[LookParams]:
-    """The target's patches a look tries: of `target_patch_size`, or twice it (more context: an
-    edge, another texture), whichever identify the target in its own view."""
+    """The target's patches a look tries: of `target_patch_size`, or twice it (more context:
+    what sets a repeating texture's places apart), whichever identify the target in its own
+    view (`identifying_patches`)."""
     w, h = params.target_patch_size
     return [dataclasses.replace(params, target_patch_size=size) for size in ((w, h), (2 * w - 1, 2 * h - 1))]
 
@@ -448,10 +449,15 @@ def identifying_patches(source: np.ndarray, source_xy: tuple[float, float],
                         params: LookParams) -> tuple[list[LookParams], str]:
     """The target's patches (`patch_variants`) that identify it in its own view
     (`patch_problem`), and why the smaller does not ('' if it does). The larger, where the
-    smaller is ambiguous there, is held to `context_ncc_margin` (see the module doc)."""
+    smaller is ambiguous there, is held to `context_ncc_margin` (see the module doc). Where the
+    smaller is flat (or reaches beyond the image) none is: what the saccade brings to the fovea
+    then has nothing for fine vergence to converge on nor for the correspondence to measure the
+    landing by, and the larger patch would find the target only by its rim, 10-20 px away."""
     small, large = patch_variants(params)
     why = patch_problem(source, source_xy, small)
     repeats = AMBIGUOUS_IN_OWN_VIEW in why
+    if why and not repeats:
+        return [], why
     usable = [small] if not why else []
     if not patch_problem(source, source_xy, large, params.context_ncc_margin if repeats else None):
         usable.append(large)

@@ -586,6 +586,27 @@ def test_a_patch_whose_texture_is_the_cameras_noise_is_refused():
         LookParams(min_patch_std=0.0)
 
 
+def test_a_target_on_a_flat_face_is_refused_though_its_larger_patch_reaches_an_edge():
+    """The target lies on a flat face 14 px from its textured edge: its own patch (21 px) is
+    flat, the larger one (41 px) holds the edge. Nothing at the fovea would be there to verge
+    on or to measure the landing by, and the larger patch would find the target by its rim
+    alone: refused, saying the own patch is flat."""
+    rng = np.random.default_rng(5)
+    image = 120.0 + rng.normal(0.0, 2.3, (HEIGHT, WIDTH)).astype(np.float32)
+    texture = rich_texture(seed=7, size=(WIDTH, HEIGHT))
+    image[:, 174:] = texture[:, 174:]
+    xy = (160.0, 120.0)
+    small, large = (LookParams(target_patch_size=size) for size in ((21, 21), (41, 41)))
+    assert "has no texture" in patch_problem(image, xy, small)
+    assert patch_problem(image, xy, large) == ""  # the larger one alone would be used
+    usable, why = identifying_patches(image, xy, LookParams())
+    assert usable == [] and "has no texture" in why
+    assert "has no texture" in target_patch_problem(image, xy, LookParams())
+    # A target 14 px inside the textured side is looked at with both patches.
+    usable, why = identifying_patches(image, (188.0, 120.0), LookParams())
+    assert why == "" and [v.target_patch_size for v in usable] == [(21, 21), (41, 41)]
+
+
 def repeated_texture_with_rims(rims: int, blend: float) -> np.ndarray:
     """A 16 px tile repeated over the image, and about (160, 120), in the rows the 41 x 41 patch
     holds above (and with `rims` 2 below) the 21 x 21 one, other texture blended in by `blend`."""
