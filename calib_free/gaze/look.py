@@ -44,6 +44,7 @@ correspondence was accepted (it taught).
 """
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 from dataclasses import dataclass, field
@@ -142,6 +143,13 @@ REACH_MARGIN_DEG = 0.05
 # the offset: the warp is the lens's at the target, the landing lies that far from it, and the
 # lens's magnification changes across the way (`calib_free.gaze.refind.search_target`).
 LANDING_OFFSET_SPREAD = 0.15
+# A target accepted with its patch's std at least min_patch_std in one exposure is judged again
+# in the look's own image before the saccade: another exposure, whose contrast may differ by the
+# auto exposure's gain between them (up to x1.4, and a lamp or the daylight changing), and
+# another draw of the noise. The look takes it as flat only below this fraction of
+# min_patch_std, 3.6 grey levels by default: flat faces seen through a webcam vary by 2-3.
+# (In the realistic world a patch the API accepted was seen at std 4.1 in the look's image.)
+LOOK_FLAT_FRACTION = 0.6
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0
@@ -305,6 +313,9 @@ class LookController:
         warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
         # The target's patch: whichever of `patch_variants` identify the target in its own view
         # (`identifying_patches`); the larger is tried where the smaller is not found again.
+        # Judged again in the look's own image before the saccade, another exposure than the
+        # one the target was accepted in: flat only below `LOOK_FLAT_FRACTION` of min_patch_std.
+        p = dataclasses.replace(p, min_patch_std=LOOK_FLAT_FRACTION * p.min_patch_std)
         variants = patch_variants(p)
         if source is not None and fixation.final_left_image is not None:
             variants, why = identifying_patches(source, source_xy, p)
