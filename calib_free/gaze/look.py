@@ -145,11 +145,12 @@ REACH_MARGIN_DEG = 0.05
 LANDING_OFFSET_SPREAD = 0.15
 # A target accepted with its patch's std at least min_patch_std in one exposure is judged again
 # in the look's own image before the saccade: another exposure, whose contrast may differ by the
-# auto exposure's gain between them (up to x1.4, and a lamp or the daylight changing), and
-# another draw of the noise. The look takes it as flat only below this fraction of
-# min_patch_std, 3.6 grey levels by default: flat faces seen through a webcam vary by 2-3.
-# (In the realistic world a patch the API accepted was seen at std 4.1 in the look's image.)
-LOOK_FLAT_FRACTION = 0.6
+# auto exposure's gain between them (up to x1.4, and a lamp or the daylight changing). The look
+# takes it as flat only below this fraction of min_patch_std, 4.2 grey levels by default: the
+# bare 1.8 n of a webcam's noise n = 2.3, without the third min_patch_std keeps to spare. Less
+# would let noise decide: a patch seen at std 4.1 in the look's image, taken, ended counted on
+# target 4.7 px truly off in the realistic world.
+LOOK_FLAT_FRACTION = 0.7
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0

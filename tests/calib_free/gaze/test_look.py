@@ -610,12 +610,12 @@ def test_a_target_on_a_flat_face_is_refused_though_its_larger_patch_reaches_an_e
 def test_a_look_takes_a_patch_it_sees_fainter_than_accepted_but_not_a_flat_one():
     """The target was accepted at std >= min_patch_std in one exposure; the look's own image,
     another exposure, may show it with less contrast. A patch varying by 5 grey levels there
-    (below 6, above 0.6 x 6) is looked at and ends on target; one varying by 2.5 (a flat face)
-    ends without a patch to find the target by."""
+    (below 6, above 0.7 x 6) is looked at and ends on target; one varying by 3.5 (below the
+    bare 1.8 x a webcam's noise of 2.3) ends without a patch to find the target by."""
     texture = rich_texture(seed=3) - 128.0
     target = (236.0, 84.0)
     own = float(PlanarHead(plane=texture).wait_pair(0.0, 1.0)[0][74:95, 226:247].std())  # the 21 px patch's
-    for std, on_target in ((5.0, True), (2.5, False)):
+    for std, on_target in ((5.0, True), (3.5, False)):
         head = PlanarHead(plane=(128.0 + texture * (std / own)).astype(np.float32))
         texel = head.texel_at(target)
         controller, _ = looker(head, gain=0.9)
