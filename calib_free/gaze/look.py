@@ -59,8 +59,8 @@ from calib_free.errors import DisparityError, OutOfRangeError, TargetPatchError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, MapReader, PairTimeoutError, next_boost)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
-from calib_free.gaze.refind import (TargetSighting, find_first_sighting, find_target, fovea, identifying_patches,
-                                    patch_variants, target_patch_problem)
+from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
+                                    find_target, fovea, identifying_patches, patch_variants, target_patch_problem)
 from calib_free.map.gaze_map import Vector
 
 log = logging.getLogger(__name__)
@@ -399,21 +399,26 @@ class LookController:
         Where the fixation measured where its left fovea landed (`left_landing_px`), the target
         is expected at its offset from that landing (`target_before` less the landing, carried
         into `source`'s pixels by `to_source`), to within `LANDING_OFFSET_SPREAD` of it: the
-        measured landing says in which direction the saccade missed as well as how far. Else a
+        measured landing says in which direction the saccade missed as well as how far. A
         corrective step (`step_aim_px`: how far from the fovea it aimed) has a prior of its own,
-        about the fovea: its `corrective_step_error_px`. The map's recent landing errors are no
+        about the fovea: its `corrective_step_error_px`. It bounds the measured landing too: a
+        landing that puts the target beyond `PRIOR_SIGMAS` times it from the fovea contradicts
+        what the encoders say the step did (a left eye's match that was confident but wrong,
+        hundreds of pixels off in the realistic world), and the step's own prior is used. The
+        map's recent landing errors are no
         stand-in: a fixation whose correspondence was refused went otherwise than the map's
         typical one (a depth not measured, eyes that did not converge), and with them a look
         took a nearby repeat for the target in 5 of 100 random pixels
         (`benchmarks.bench.looks`, docs/results/looks.md)."""
         p = self.fixation.params
+        step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
         landed = left_landing_px(fixation, p.correspondence, p.confidence_floor)
         if landed is not None:
             offset = to_source @ (np.asarray(target_before, dtype=float) - landed)
-            return LANDING_OFFSET_SPREAD * float(np.hypot(*offset)), (float(offset[0]), float(offset[1]))
-        if step_aim_px is None:
-            return None, None
-        return self._corrective_step_error_px(fixation, step_aim_px), None
+            distance = float(np.hypot(*offset))
+            if step is None or distance <= PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, step):
+                return LANDING_OFFSET_SPREAD * distance, (float(offset[0]), float(offset[1]))
+        return step, None
 
     def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
         """`corrective_step_error_px` of a corrective fixation that aimed `step_aim_px` from the

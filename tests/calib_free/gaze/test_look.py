@@ -711,6 +711,33 @@ def test_a_repeat_within_a_corrective_steps_reach_leaves_the_target_ambiguous():
     assert "ambiguous" in record.detail and "2 of them lie within" in record.detail
 
 
+def test_a_measured_landing_the_corrective_step_cannot_have_made_is_not_taken():
+    """A corrective step aimed 4 px from the fovea and the encoders say it went as planned. Its
+    left eye's match, confident, says the fovea landed 3 px from where the target was: that
+    landing is the prior, a point. Another says 96 px: no step aimed 4 px makes that, the match
+    is wrong, and the step's own prior about the fovea is taken instead."""
+    controller, _ = looker(PlanarHead())
+    image = rich_texture(seed=1, size=(WIDTH, HEIGHT))
+    pose = np.array([2.0, 1.0, 8.0])
+    planned = np.array([-1.0, 0.0, 0.0])
+    target_before = FOVEA + np.array([4.0, 0.0])
+
+    def stepped(landed: np.ndarray) -> FixationRecord:
+        left = EyeMatch(x=float(landed[0]), y=float(landed[1]), c_max=0.95, c1=0.9, c2=1.0, competitors=0.0,
+                        confidence=0.8)
+        return FixationRecord(index=1, kind=FixationKind.TARGET, target=np.array([*target_before, 0.0]),
+                              planned=planned, pose_before=pose, pose_after=pose + planned, converged=True,
+                              match=FixationMatch(left, left), outcome=FixationOutcome.INCONSISTENT,
+                              pre_left_image=image, final_left_image=image)
+
+    step_error, none = controller._landing_prior(stepped(FOVEA + np.array([100.0, 0.0])), target_before,
+                                                 np.eye(2), step_aim_px=4.0)
+    assert none is None and step_error == pytest.approx(4.0)  # aimed 4 px, the head did as planned
+    error, offset = controller._landing_prior(stepped(target_before - np.array([3.0, 0.0])), target_before,
+                                              np.eye(2), step_aim_px=4.0)
+    assert offset == pytest.approx((3.0, 0.0)) and error == pytest.approx(0.15 * 3.0)
+
+
 def test_a_corrective_steps_expected_error_is_its_aim_and_what_the_head_did_beyond_the_plan():
     planned = np.array([-0.5, 0.25, 0.0])
     assert corrective_step_error_px(2.0, planned, planned, 4.0) == pytest.approx(2.0)
