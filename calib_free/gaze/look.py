@@ -23,10 +23,11 @@ was accepted, else the left eye's alone: `left_landing_px`), that is the fovea p
 target's offset from the landing, seen through the patch's warp, within a reach that grows
 with the offset (`LANDING_OFFSET_SPREAD`; `calib_free.gaze.refind.find_target`): the landing
 says in which direction the saccade missed, not only how far. A repeat within that reach
-leaves the patch ambiguous. A corrective step whose landing nothing measured has a reach of
-its own about the fovea: a step that aimed a few pixels from the fovea, and that the encoders
-say went as planned, cannot have left the target farther than it aimed plus what the head did
-beyond the plan (`corrective_step_error_px`). With no landing measured, the
+leaves the patch ambiguous. A corrective step whose landing nothing measured, or whose
+measured landing contradicts it, has a reach of its own about the fovea: a step that aimed a
+few pixels from the fovea, and that the encoders say went as planned, cannot have left the
+target farther than it aimed plus what the head did beyond the plan
+(`corrective_step_error_px`). With no landing measured, the
 view before the saccade tells them apart where it shows the repeats around the target
 (`place_told_by_repeats`).
 
