@@ -406,11 +406,10 @@ class LookController:
         landing that puts the target beyond `PRIOR_SIGMAS` times it from the fovea contradicts
         what the encoders say the step did (a left eye's match that was confident but wrong,
         hundreds of pixels off in the realistic world), and the step's own prior is used. The
-        map's recent landing errors are no
-        stand-in: a fixation whose correspondence was refused went otherwise than the map's
-        typical one (a depth not measured, eyes that did not converge), and with them a look
-        took a nearby repeat for the target in 5 of 100 random pixels
-        (`benchmarks.bench.looks`, docs/results/looks.md)."""
+        map's recent landing errors are no stand-in: a fixation whose correspondence was refused
+        went otherwise than the map's typical one (a depth not measured, eyes that did not
+        converge), and with them a look took a nearby repeat for the target in 5 of 100 random
+        pixels (`benchmarks.bench.looks`, docs/results/looks.md)."""
         p = self.fixation.params
         step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
         landed = left_landing_px(fixation, p.correspondence, p.confidence_floor)
