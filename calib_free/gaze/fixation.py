@@ -185,6 +185,7 @@ class FixationOutcome(enum.StrEnum):
 
     TAUGHT = "taught"
     TARGET_OUTSIDE = "target outside the map"
+    TARGET_REFUSED = "target refused before the saccade"
     NOT_SETTLED = "head did not settle"
     NO_FRAMES = "no stereo pair in time"
     NO_VERGENCE_MATCH = "foveal patches do not match"
@@ -343,7 +344,7 @@ class FixationController:
                                     self.params.exploration_step_deg)
 
     def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None,
-               continues: bool = False) -> FixationRecord:
+               continues: bool = False, target_check: Callable[[np.ndarray], str] | None = None) -> FixationRecord:
         """One fixation: to a client's image target (x, y, d), or exploratory when None.
 
         `reference_pose`: the pose whose view the target was chosen in, when the head may have
@@ -351,14 +352,17 @@ class FixationController:
         for the target, which is where the client meant, from wherever the head is now.
         `continues`: the fixation follows one that ended at rest, with nothing changed since
         but the target found in its last pair (a look's corrective step): a head still at that
-        rest starts from a pair of it instead of waiting for a new one."""
+        rest starts from a pair of it instead of waiting for a new one.
+        `target_check`: judges the target in the left image before the saccade (grey), where
+        the fixation will look for it; a reason it gives ends the fixation before the head
+        moves (`FixationOutcome.TARGET_REFUSED`)."""
         started = self.clock()
         record = FixationRecord(index=self.count, kind=FixationKind.EXPLORE if target is None else FixationKind.TARGET)
         self.count += 1
         if target is not None:
             record.target = np.asarray(target, dtype=float)
         try:
-            self._run(record, target, reference_pose, continues)
+            self._run(record, target, reference_pose, continues, target_check)
         except HeadTimeoutError as err:
             record.outcome = FixationOutcome.NO_FRAMES if isinstance(err, PairTimeoutError) \
                 else FixationOutcome.NOT_SETTLED
@@ -375,7 +379,7 @@ class FixationController:
         return record
 
     def _run(self, record: FixationRecord, target: Vector | None, reference_pose: Vector | None = None,
-             continues: bool = False) -> None:
+             continues: bool = False, target_check: Callable[[np.ndarray], str] | None = None) -> None:
         p = self.params
         head = self.head
         # The pre-fixation pair, at rest. Every pair of a fixation is taken with the head at
@@ -388,6 +392,11 @@ class FixationController:
             record.pre_left_image = pre_left
         pose_before = head.read_pose()
         record.pose_before = pose_before
+        if target is not None and target_check is not None:
+            refused = target_check(pre_left)
+            if refused:
+                record.outcome, record.detail = FixationOutcome.TARGET_REFUSED, refused
+                return
         height, width = pre_left.shape
         if target is None:
             gaze_map = self.map

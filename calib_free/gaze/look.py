@@ -152,6 +152,15 @@ LANDING_OFFSET_SPREAD = 0.15
 # would let noise decide: a patch seen at std 4.1 in the look's image, taken, ended counted on
 # target 4.7 px truly off in the realistic world.
 LOOK_FLAT_FRACTION = 0.7
+# Likewise a target accepted with its patch's second place in its own view at least
+# ambiguity_ncc_margin below the best is taken as ambiguous in the look's image only where the
+# second comes within this fraction of the margin (0.05 by default). The look's view lies within
+# `SAME_VIEW_DEG` of the one the target was accepted in, in another exposure: for patches with a
+# margin below 0.2, the view's shift moves the margin by p90 0.03, p99 0.07-0.09, and
+# the exposure alone (the UVC webcam's) by p90 0.006 (`python -m benchmarks.diag.own_view_margin`,
+# docs/results/realistic-world.md). At the full margin, 3 of 200 looks in the realistic world were
+# refused after the saccade that had brought the target within 0.5-1.9 px of the fovea.
+LOOK_AMBIGUITY_FRACTION = 0.5
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0
@@ -309,21 +318,28 @@ class LookController:
         p = self.params
         if reference_pose is not None:
             self._restore_view(record, reference_pose)
-        fixation = self._fixate(record, record.target, reference_pose)
-        source = fixation.pre_left_image
         source_xy = (float(record.target[0]), float(record.target[1]))
-        warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
         # The target's patch: whichever of `patch_variants` identify the target in its own view
         # (`identifying_patches`); the larger is tried where the smaller is not found again.
-        # Judged again in the look's own image before the saccade, another exposure than the
-        # one the target was accepted in: flat only below `LOOK_FLAT_FRACTION` of min_patch_std.
+        # Judged again in the look's own image before the saccade (another exposure than the
+        # one the target was accepted in), with the slack of `LOOK_FLAT_FRACTION` and
+        # `LOOK_AMBIGUITY_FRACTION`; refused there, the head does not move.
         p = dataclasses.replace(p, min_patch_std=LOOK_FLAT_FRACTION * p.min_patch_std)
+        judged = dataclasses.replace(p, ambiguity_ncc_margin=LOOK_AMBIGUITY_FRACTION * p.ambiguity_ncc_margin)
         variants = patch_variants(p)
-        if source is not None and fixation.final_left_image is not None:
-            variants, why = identifying_patches(source, source_xy, p)
-            if not variants:
-                record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, why
-                return
+
+        def identifies_target(source: np.ndarray) -> str:
+            nonlocal variants
+            usable, why = identifying_patches(source, source_xy, judged)
+            variants = [dataclasses.replace(v, ambiguity_ncc_margin=p.ambiguity_ncc_margin) for v in usable]
+            return "" if usable else why
+
+        fixation = self._fixate(record, record.target, reference_pose, target_check=identifies_target)
+        if fixation.outcome is FixationOutcome.TARGET_REFUSED:
+            record.outcome, record.detail = LookOutcome.NO_TARGET_PATCH, fixation.detail
+            return
+        source = fixation.pre_left_image
+        warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
         last_error: float | None = None  # the target's distance from the fovea before the last step
         step_aim_px: float | None = None  # how far from the fovea the last corrective step aimed
         target_before = np.array(source_xy)  # where the target was in the last fixation's image before it
@@ -435,8 +451,8 @@ class LookController:
                                         px_per_deg)
 
     def _fixate(self, record: LookRecord, target: Vector, reference_pose: Vector | None = None,
-                continues: bool = False) -> FixationRecord:
-        fixation = self.fixation.fixate(target, reference_pose, continues)
+                continues: bool = False, target_check: Callable[[np.ndarray], str] | None = None) -> FixationRecord:
+        fixation = self.fixation.fixate(target, reference_pose, continues, target_check)
         record.fixations.append(fixation)
         if self.on_fixation is not None:
             self.on_fixation(fixation)

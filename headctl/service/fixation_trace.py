@@ -190,12 +190,12 @@ class TracingController(FixationController):
         self.taps = taps
 
     def fixate(self, target: Vector | None = None, reference_pose: Vector | None = None,
-               continues: bool = False) -> FixationRecord:
+               continues: bool = False, target_check: Callable[[np.ndarray], str] | None = None) -> FixationRecord:
         tracing = self.taps.active
         if tracing:
             self.head.begin()
         try:
-            record = super().fixate(target, reference_pose, continues)
+            record = super().fixate(target, reference_pose, continues, target_check)
         finally:
             traced = self.head.end()
         if tracing and traced is not None:

@@ -68,6 +68,23 @@ def test_a_target_outside_the_map_is_refused_before_moving():
     assert head.moves == []
 
 
+def test_a_target_its_check_refuses_in_the_view_before_the_saccade_is_refused_before_moving():
+    head = FrozenEyesHead()
+    controller = FixationController(head, GazeMap.for_image(320, 240, seed=0), seed=1)
+    seen = []
+
+    def refuse(left):
+        seen.append(left)
+        return "the target's patch repeats"
+
+    record = controller.fixate(target=(150.0, 100.0, 0.0), target_check=refuse)
+    assert record.outcome is FixationOutcome.TARGET_REFUSED and record.detail == "the target's patch repeats"
+    assert head.moves == [] and not record.taught
+    assert len(seen) == 1 and seen[0].dtype == np.float32 and np.array_equal(seen[0], head.left)
+    passed = controller.fixate(target=(150.0, 100.0, 0.0), target_check=lambda left: "")
+    assert passed.outcome is not FixationOutcome.TARGET_REFUSED and head.moves != []
+
+
 def test_timeouts_become_refusals():
     class StuckHead(FrozenEyesHead):
         def wait_settled(self, timeout_s, same_rest=False):

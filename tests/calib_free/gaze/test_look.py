@@ -16,7 +16,7 @@ from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
                                    left_landing_px, target_disparity)
-from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, patch_problem,
+from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, own_view_peaks, patch_problem,
                                     target_patch_problem)
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
                                       FixationRecord, LookParams)
@@ -765,3 +765,39 @@ def test_a_disparity_measured_on_a_patch_repeating_along_its_rows_says_it_may_be
     found = target_disparity(left, twice, 150.0, 110.0, (32, 20), (-60.0, 60.0), LookParams())
     assert found.measured and "repeats along its rows" in found.reason and "may be a repeat's" in found.reason
     assert found.d == pytest.approx(6.0, abs=0.3) or found.d == pytest.approx(36.0, abs=0.3)
+
+
+# --- judging the target again before the saccade ----------------------------------------------
+def repeats_under_a_unique_square(blend: float) -> tuple[PlanarHead, tuple[float, float], np.ndarray]:
+    """A 16 px tile repeated over the plane, and about the target an 81 px square of other
+    texture blended in by `blend`: the more, the farther the target's patch stands from its
+    repeats in its own view. The head, the target and its texel."""
+    tile = cv2.resize(np.random.default_rng(3).uniform(0, 255, (4, 4)).astype(np.float32), (16, 16),
+                      interpolation=cv2.INTER_CUBIC)
+    plane = np.tile(tile, (50, 63))[:800, :1000].copy()
+    target = (236.0, 84.0)
+    texel = PlanarHead(plane=plane).texel_at(target)
+    u, v = texel.round().astype(int)
+    square = plane[v - 40:v + 41, u - 40:u + 41]
+    square[:] = (1 - blend) * square + blend * rich_texture(seed=9, size=(81, 81))
+    return PlanarHead(plane=plane), target, texel
+
+
+def test_a_look_refuses_a_clearly_repeating_target_before_the_head_moves_and_takes_one_near_the_margin():
+    """The look judges the target's patch in its own image, which the client's check did not
+    see: one whose second place comes within 0.03 of NCC of it is refused with the head still
+    where it was; one 0.07 apart (ambiguous at the check's full margin of 0.1, apart by more than
+    half of it) is looked at, and ends on target."""
+    for blend, margin, on_target in ((0.2, 0.025, False), (0.3, 0.074, True)):
+        head, target, texel = repeats_under_a_unique_square(blend)
+        peaks, _ = own_view_peaks(head.wait_pair(0.0, 1.0)[0], target, LookParams())
+        assert peaks is not None and peaks[0] - peaks[1] == pytest.approx(margin, abs=0.01)
+        assert "ambiguous in its own view" in target_patch_problem(head.wait_pair(0.0, 1.0)[0], target, LookParams())
+        controller, learner = looker(head, gain=0.95)
+        record = controller.look((*target, 0.0))
+        if on_target:
+            assert record.on_target and true_error_px(head, texel) <= 1.0, record.detail
+        else:
+            assert record.outcome is LookOutcome.NO_TARGET_PATCH and "ambiguous in its own view" in record.detail
+            assert head.moves == [] and learner.samples == []  # refused before the saccade
+            assert [f.outcome for f in record.fixations] == [FixationOutcome.TARGET_REFUSED]
