@@ -127,8 +127,9 @@ class StepRecorder:
                                     every_warp)
             return sighting, why
 
-        def recorded_fixate(controller, record, target, reference_pose=None, continues=False):  # type: ignore[no-untyped-def]
-            fixation = fixate(controller, record, target, reference_pose, continues)
+        def recorded_fixate(controller, record, target, reference_pose=None, continues=False,  # type: ignore[no-untyped-def]
+                            target_check=None):
+            fixation = fixate(controller, record, target, reference_pose, continues, target_check)
 
             def pose(p: Any) -> list[float] | None:
                 return None if p is None else [round(float(v), 3) for v in p]

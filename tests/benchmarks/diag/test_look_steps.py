@@ -1,7 +1,12 @@
-"""The look-steps diagnostic's summary, on looks made up to know its answer."""
+"""The look-steps diagnostic: its summary, on looks made up to know its answer; its recorder, on a plane head."""
 from __future__ import annotations
 
-from benchmarks.diag.look_steps import summary
+import numpy as np
+
+from benchmarks.diag.look_steps import StepRecorder, summary
+from calib_free.gaze.fixation import FixationController, FixationParams
+from calib_free.gaze.look import LookController, LookOutcome
+from tests.support.planar_head import LinearMap, PlanarHead
 
 
 def fixation(truth, before_vergence, after_vergence, outcome="taught"):
@@ -56,3 +61,21 @@ def test_first_sightings_bin_the_lens_scale_of_those_the_truth_agrees_with_and_l
     assert bins["20-40"]["n"] == 2 and abs(bins["20-40"]["p50"] - 1.03) < 1e-9
     assert (bins["20-40"]["min"], bins["20-40"]["max"]) == (1.02, 1.04)
     assert out["refuted_by_truth"] == [{"target_radius_px": 75.0, "scale": 2.12, "search_px": 14.4, "true_px": 0.7}]
+
+
+def test_the_recorder_sees_every_fixation_and_search_of_a_look_even_one_refused_before_the_saccade():
+    """Installed, the recorder wraps the look's fixations and searches as the look calls them,
+    a target judged before the saccade included."""
+    recorder = StepRecorder(world=None, lens=None)
+    with recorder.installed():
+        looks = LookController(FixationController(PlanarHead(), LinearMap(0.9), FixationParams(), seed=0))
+        record = looks.look((236.0, 84.0, 0.0))
+        flat = LookController(FixationController(PlanarHead(plane=np.full((800, 1000), 128.0, np.float32)),
+                                                 LinearMap(0.9), FixationParams(), seed=0))
+        refused = flat.look((236.0, 84.0, 0.0))
+    steps = recorder.take()
+    assert record.on_target and refused.outcome is LookOutcome.NO_TARGET_PATCH
+    fixations = [s for s in steps if "aim" in s]
+    assert len(fixations) == len(record.fixations) + 1
+    assert fixations[-1]["outcome"] == "target refused before the saccade" and fixations[-1]["true_error_px"] is None
+    assert len([s for s in steps if "search" in s]) == len(record.sightings)
