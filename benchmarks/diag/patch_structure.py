@@ -1,0 +1,84 @@
+"""Diagnostic: the structure of the target patches of recorded looks, against how their first search went.
+
+A patch with structure in one direction only (a straight edge, stripes) matches itself almost as
+well slid along that direction, and where the view changes between the two images (the lens's
+magnification, parallax across a depth edge) the search's best place can slide along it. This
+reads the looks that `benchmarks.diag.look_steps` recorded with `--images`, and prints for each
+look's first target search: the structure tensor of the target's 21 px patch in its own view
+(the sums of the products of its grey-level gradients), as the ratio of its eigenvalues (1 for
+structure alike in every direction, large for an edge) and the localisation error the camera's
+noise alone would leave (`--noise` grey levels over the square root of the smaller eigenvalue,
+px); the first fixation's true error and the search's distance of the target from the fovea
+(px); and whether the look ended on target. Sorted by the ratio: the searches the truth refutes
+(they differ by more than `--disagree-px`) are marked.
+
+    .venv/bin/python -m benchmarks.diag.patch_structure --steps runs/steps.json --images DIR
+        [--noise 2.3] [--disagree-px 1.0]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+HALF_PATCH = 10  # the look's 21 px patch
+
+
+def structure(source: np.ndarray, xy: tuple[float, float], half: int = HALF_PATCH) -> tuple[float, float] | None:
+    """The eigenvalues (smaller, larger) of the structure tensor of the patch around `xy`; None
+    where the patch reaches beyond the image."""
+    x, y = int(round(xy[0])), int(round(xy[1]))
+    if not (half + 1 <= x < source.shape[1] - half - 1 and half + 1 <= y < source.shape[0] - half - 1):
+        return None
+    image = source.astype(np.float32)
+    gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3)[y - half:y + half + 1, x - half:x + half + 1] / 8.0
+    gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3)[y - half:y + half + 1, x - half:x + half + 1] / 8.0
+    tensor = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]], dtype=float)
+    smaller, larger = np.linalg.eigvalsh(tensor)
+    return float(smaller), float(larger)
+
+
+def first_searches(steps_json: Path, images: Path, noise: float) -> list[dict[str, Any]]:
+    """One row a look taken on whose first search was saved."""
+    rows = []
+    for look in json.loads(steps_json.read_text())["looks"]:
+        if look["state"] == "refused":
+            continue
+        fixations = [s for s in look["steps"] if "aim" in s]
+        searches = [s for s in look["steps"] if "search" in s]
+        if not fixations or not searches or searches[0].get("saved") is None:
+            continue
+        saved = np.load(images / f"search-{searches[0]['saved']:03d}.npz")
+        eigen = structure(saved["source"], tuple(saved["source_xy"]))
+        if eigen is None:
+            continue
+        smaller, larger = eigen
+        rows.append({"xy": [round(v, 1) for v in look["xy"]], "ratio": larger / max(smaller, 1e-9),
+                     "noise_bound_px": noise / np.sqrt(max(smaller, 1e-9)),
+                     "truth_px": fixations[0]["true_error_px"], "search_px": searches[0]["search"],
+                     "on_target": look["on_target"]})
+    return sorted(rows, key=lambda r: r["ratio"])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=Path, required=True, help="look_steps' --json")
+    parser.add_argument("--images", type=Path, required=True, help="look_steps' --images")
+    parser.add_argument("--noise", type=float, default=2.3, help="the camera's noise, grey levels (default 2.3)")
+    parser.add_argument("--disagree-px", type=float, default=1.0)
+    args = parser.parse_args()
+    rows = first_searches(args.steps, args.images, args.noise)
+    print(f"{'pixel':>14} {'ratio':>7} {'noise px':>8} {'truth':>7} {'search':>7}  on target")
+    for r in rows:
+        truth, search = r["truth_px"], r["search_px"]
+        refuted = truth is not None and search is not None and abs(search - truth) > args.disagree_px
+        print(f"{str(r['xy']):>14} {r['ratio']:7.1f} {r['noise_bound_px']:8.3f} {truth if truth is not None else '-':>7} "
+              f"{search if search is not None else '-':>7}  {r['on_target']}{'  <- the truth refutes the search' if refuted else ''}")
+
+
+if __name__ == "__main__":
+    main()
