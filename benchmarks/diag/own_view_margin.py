@@ -52,28 +52,45 @@ def _where_now(first: np.ndarray, second: np.ndarray, xy: tuple[float, float], s
     return xy[0] + ix - r, xy[1] + iy - r
 
 
+def random_joints(rng: np.random.Generator) -> dict[str, float]:
+    """A pose of the head fixating the room: pan and tilt drawn within most of their range."""
+    return {"pan": float(rng.uniform(-30, 30)), "tilt": float(rng.uniform(-18, 18)), "left_eye": 2.5,
+            "right_eye": -2.5}
+
+
+def frames_at(sensor: str, joints: dict[str, float], seed: int, later: dict[str, float] | None = None,
+              gap_frames: int = 0) -> tuple[np.ndarray, np.ndarray | None]:
+    """The left eye's frame at `joints` once the auto exposure settled there (SETTLE_FRAMES), and,
+    with `later`, the frame `gap_frames` after it at those joints (grey float)."""
+    config = CameraConfig.from_mapping({"backend": "sim", "eye": "left", "width": 320, "height": 240,
+                                        "fps": FPS, "sensor": {"model": sensor}})
+    camera = create_camera(config, head=HeadModel.default(320, 240), pose_source=fixed_pose(**joints),
+                           scene=shared_scene(seed, False), clock=ManualClock())
+    assert isinstance(camera, SimulatedCamera)
+    with camera:
+        for n in range(SETTLE_FRAMES):
+            first = camera.render(joints, n / FPS)
+        second = None if later is None else camera.render(later, (SETTLE_FRAMES - 1 + gap_frames) / FPS)
+    return first.astype(np.float32), None if second is None else second.astype(np.float32)
+
+
+def settled_frame(sensor: str, rng: np.random.Generator, seed: int) -> np.ndarray:
+    """The left eye's settled frame at a random pose (`random_joints`)."""
+    return frames_at(sensor, random_joints(rng), seed)[0]
+
+
 def margin_changes(sensor: str, poses: int, pixels: int, seed: int, gap_frames: int,
                    view_deg: float = LookController.SAME_VIEW_DEG) -> np.ndarray:
     """|margin in the second frame - margin in the first| for the patches near the threshold."""
     rng = np.random.default_rng(seed)
     params = LookParams()
-    config = CameraConfig.from_mapping({"backend": "sim", "eye": "left", "width": 320, "height": 240,
-                                        "fps": FPS, "sensor": {"model": sensor}})
     changes: list[float] = []
-    step = view_deg
     for _ in range(poses):
-        joints = {"pan": float(rng.uniform(-30, 30)), "tilt": float(rng.uniform(-18, 18)),
-                  "left_eye": 2.5, "right_eye": -2.5}
-        moved = {**joints, "pan": joints["pan"] + float(rng.uniform(-step, step)),
-                 "tilt": joints["tilt"] + float(rng.uniform(-step, step))}
-        camera = create_camera(config, head=HeadModel.default(320, 240), pose_source=fixed_pose(**joints),
-                               scene=shared_scene(seed, False), clock=ManualClock())
-        assert isinstance(camera, SimulatedCamera)
-        with camera:
-            for n in range(SETTLE_FRAMES):
-                first = camera.render(joints, n / FPS)
-            second = camera.render(moved, (SETTLE_FRAMES - 1 + gap_frames) / FPS)
-        first, second = first.astype(np.float32), second.astype(np.float32)
+        joints = random_joints(rng)
+        moved = {**joints, "pan": joints["pan"] + float(rng.uniform(-view_deg, view_deg)),
+                 "tilt": joints["tilt"] + float(rng.uniform(-view_deg, view_deg))}
+        first, second = frames_at(sensor, joints, seed, moved, gap_frames)
+        assert second is not None
         for _ in range(pixels):
             xy = (float(rng.uniform(40, 280)), float(rng.uniform(40, 200)))
             peaks, _ = own_view_peaks(first, xy, params)

@@ -12,8 +12,14 @@ px); the first fixation's true error and the search's distance of the target fro
 (px); and whether the look ended on target. Sorted by the ratio: the searches the truth refutes
 (they differ by more than `--disagree-px`) are marked.
 
+With `--rendered N` instead: how the ratio is spread over the targets a client may pick, N
+random pixels a pose of the generated room at 40 random poses (the UVC webcam's frames once its
+auto exposure settled) that the look's own-view checks accept (`target_patch_problem`): the
+share above a few ratios, what refusing above each would cost.
+
     .venv/bin/python -m benchmarks.diag.patch_structure --steps runs/steps.json --images DIR
         [--noise 2.3] [--disagree-px 1.0]
+    .venv/bin/python -m benchmarks.diag.patch_structure --rendered 40 [--seed 0]
 """
 from __future__ import annotations
 
@@ -24,6 +30,10 @@ from typing import Any
 
 import cv2
 import numpy as np
+
+from benchmarks.diag import own_view_margin
+from calib_free.gaze import refind
+from calib_free.gaze.fixation import LookParams
 
 HALF_PATCH = 10  # the look's 21 px patch
 
@@ -64,13 +74,39 @@ def first_searches(steps_json: Path, images: Path, noise: float) -> list[dict[st
     return sorted(rows, key=lambda r: r["ratio"])
 
 
+def rendered_ratios(pixels: int, poses: int = 40, seed: int = 0) -> np.ndarray:
+    """The eigenvalue ratio of every accepted target among `pixels` random ones a pose (see the
+    module doc)."""
+    rng = np.random.default_rng(seed)
+    ratios = []
+    for _ in range(poses):
+        frame = own_view_margin.settled_frame("uvc_webcam", rng, seed)
+        for _ in range(pixels):
+            xy = (float(rng.uniform(0, frame.shape[1] - 1)), float(rng.uniform(0, frame.shape[0] - 1)))
+            eigen = structure(frame, xy)
+            if eigen is None or refind.target_patch_problem(frame, xy, LookParams()):
+                continue
+            ratios.append(eigen[1] / max(eigen[0], 1e-9))
+    return np.asarray(ratios)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=Path, required=True, help="look_steps' --json")
-    parser.add_argument("--images", type=Path, required=True, help="look_steps' --images")
+    parser.add_argument("--steps", type=Path, help="look_steps' --json")
+    parser.add_argument("--images", type=Path, help="look_steps' --images")
+    parser.add_argument("--rendered", type=int, help="random pixels a pose of the rendered room, instead")
+    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--noise", type=float, default=2.3, help="the camera's noise, grey levels (default 2.3)")
     parser.add_argument("--disagree-px", type=float, default=1.0)
     args = parser.parse_args()
+    if args.rendered:
+        ratios = rendered_ratios(args.rendered, seed=args.seed)
+        print(f"{ratios.size} accepted targets; eigenvalue ratio p50 {np.median(ratios):.1f}, p90 "
+              f"{np.percentile(ratios, 90):.1f}; above " + ", ".join(
+                  f"{limit}: {np.mean(ratios > limit):.1%}" for limit in (15, 20, 30, 50)))
+        return
+    if args.steps is None or args.images is None:
+        parser.error("--steps and --images (a look_steps recording), or --rendered N")
     rows = first_searches(args.steps, args.images, args.noise)
     print(f"{'pixel':>14} {'ratio':>7} {'noise px':>8} {'truth':>7} {'search':>7}  on target")
     for r in rows:

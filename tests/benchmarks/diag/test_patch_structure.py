@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from benchmarks.diag import patch_structure
 from benchmarks.diag.patch_structure import first_searches, structure
 
 
@@ -41,3 +42,10 @@ def test_first_searches_reads_each_look_taken_on_and_sorts_by_the_ratio(tmp_path
     assert rows[0]["ratio"] < 2.0 < 20.0 < rows[1]["ratio"]
     assert rows[1]["truth_px"] == 0.3 and rows[1]["search_px"] == 4.1
     assert rows[1]["noise_bound_px"] > rows[0]["noise_bound_px"]
+
+
+def test_rendered_ratios_counts_only_the_targets_the_look_accepts(monkeypatch):
+    ratios = patch_structure.rendered_ratios(pixels=30, poses=1, seed=0)
+    assert ratios.size > 0 and np.all(ratios >= 1.0)
+    monkeypatch.setattr(patch_structure.refind, "target_patch_problem", lambda *args: "refused")
+    assert patch_structure.rendered_ratios(pixels=30, poses=1, seed=0).size == 0
