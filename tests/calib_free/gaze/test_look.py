@@ -16,7 +16,8 @@ from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
                                    left_landing_px, target_disparity)
-from calib_free.gaze.refind import (TargetSighting, find_target, identifying_patches, own_view_peaks, patch_problem,
+from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
+                                    own_view_peaks, patch_problem,
                                     target_patch_problem)
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
                                       FixationRecord, LookParams)
@@ -801,3 +802,22 @@ def test_a_look_refuses_a_clearly_repeating_target_before_the_head_moves_and_tak
             assert record.outcome is LookOutcome.NO_TARGET_PATCH and "ambiguous in its own view" in record.detail
             assert head.moves == [] and learner.samples == []  # refused before the saccade
             assert [f.outcome for f in record.fixations] == [FixationOutcome.TARGET_REFUSED]
+
+
+# --- the first search's two patches ----------------------------------------------------------
+def test_where_the_two_patches_disagree_the_first_search_takes_the_one_nearer_the_fovea():
+    """The smaller patch found the target 10 px from the fovea; the larger one, about the same
+    point, finds it elsewhere: nearer the fovea it wins, farther (or within 2 px of the smaller
+    one's, the two patches' own disagreement, or not found) the smaller one's place stands."""
+    small, large = LookParams(), LookParams(target_patch_size=(41, 41))
+    fovea_xy = (159.5, 119.5)
+    found = TargetSighting(169.5, 119.5, 0.9, np.eye(2))
+
+    def larger_finds(x, y):
+        return lambda variant: TargetSearch(None if x is None else TargetSighting(x, y, 0.85, np.eye(2)))
+
+    assert nearer_of_two_patches(found, small, [large], larger_finds(160.0, 119.5), fovea_xy)[1] is large
+    assert nearer_of_two_patches(found, small, [large], larger_finds(160.0, 119.5), fovea_xy)[0].x == 160.0
+    for x, y in ((180.0, 119.5), (168.0, 119.5), (None, None)):
+        assert nearer_of_two_patches(found, small, [large], larger_finds(x, y), fovea_xy) == (found, small)
+    assert nearer_of_two_patches(found, large, [], larger_finds(160.0, 119.5), fovea_xy) == (found, large)
