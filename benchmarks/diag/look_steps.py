@@ -9,7 +9,8 @@ position then; and after each fixation the target search's answer (the patch's d
 the fovea, or why it was not found), with the patch's size, how much less well it matches
 the best other place of its own view than its own, and how far the target lay from the image
 centre, the scales of the warp it was found with (its singular values), and the landing error
-the search was told to expect (measured, or a corrective step's own). Summarised: how
+the search was told to expect (measured, or a corrective step's own) and, after a corrective
+step, the step's own expected error, which bounds the search. Summarised: how
 far the first saccade truly left the target in the looks that failed, the outcomes of the
 looks' fixations, and how far the vergence moved in the corrective steps (each degree of
 vergence turns the left eye half a degree, which moves the target on the left fovea: about 2
@@ -75,7 +76,7 @@ class StepRecorder:
     def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
                        warps: list[np.ndarray] | None, expected: float | None,
                        offset: tuple[float, float] | None, sighting: Any, why: str,
-                       every_warp: dict[str, Any] | None = None) -> None:
+                       every_warp: dict[str, Any] | None = None, step: float | None = None) -> None:
         h, w = image.shape[:2]
         peaks, _ = own_view_peaks(source, source_xy, params)
         saved = None
@@ -86,13 +87,15 @@ class StepRecorder:
                                 patch=np.asarray(params.target_patch_size),
                                 warps=np.asarray(warps if warps is not None else []),
                                 expected=np.asarray(np.nan if expected is None else expected, dtype=float),
-                                offset=np.asarray((np.nan, np.nan) if offset is None else offset, dtype=float))
+                                offset=np.asarray((np.nan, np.nan) if offset is None else offset, dtype=float),
+                                step=np.asarray(np.nan if step is None else step, dtype=float))
             saved, self.searches_saved = self.searches_saved, self.searches_saved + 1
         with self._lock:
             self.steps.append({
                 "every_warp": every_warp, "saved": saved,
                 "expected_error_px": None if expected is None else round(float(expected), 2),
                 "expected_offset_px": None if offset is None else [round(float(v), 2) for v in offset],
+                "step_error_px": None if step is None else round(float(step), 2),
                 "search": None if sighting is None else round(float(np.hypot(
                     sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
                 "patch": list(params.target_patch_size),
@@ -114,17 +117,18 @@ class StepRecorder:
             recorder._record_search(source, source_xy, image, variant, None, expected, offset, sighting, why)
             return sighting, variant, why
 
-        def recorded_find(source, source_xy, image, params, warps=None, expected=None, offset=None):  # type: ignore[no-untyped-def]
-            sighting, why = find_target(source, source_xy, image, params, warps, expected, offset)
+        def recorded_find(source, source_xy, image, params, warps=None, expected=None, offset=None,  # type: ignore[no-untyped-def]
+                          step=None):
+            sighting, why = find_target(source, source_xy, image, params, warps, expected, offset, step)
             every_warp: dict[str, Any] | None = None
             if sighting is None and warps is not None:
                 # What the search would say trying every candidate warp, not the one carried over.
-                again, again_why = find_target(source, source_xy, image, params, None, expected, offset)
+                again, again_why = find_target(source, source_xy, image, params, None, expected, offset, step)
                 h, w = image.shape[:2]
                 every_warp = {"search": None if again is None else round(float(np.hypot(
                     again.x - (w - 1) / 2.0, again.y - (h - 1) / 2.0)), 2), "why": again_why}
             recorder._record_search(source, source_xy, image, params, warps, expected, offset, sighting, why,
-                                    every_warp)
+                                    every_warp, step)
             return sighting, why
 
         def recorded_fixate(controller, record, target, reference_pose=None, continues=False,  # type: ignore[no-untyped-def]

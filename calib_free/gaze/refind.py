@@ -139,18 +139,21 @@ class TargetSearch:
 
 def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
                 warps: list[np.ndarray] | None = None, expected_error_px: float | None = None,
-                expected_offset_px: tuple[float, float] | None = None) -> tuple[TargetSighting | None, str]:
+                expected_offset_px: tuple[float, float] | None = None,
+                step_error_px: float | None = None) -> tuple[TargetSighting | None, str]:
     """Where the patch around `source_xy` of `source` is in `image`: (sighting, '') or (None, why
     not); see `search_target`."""
-    found = search_target(source, source_xy, image, params, warps, expected_error_px, expected_offset_px)
+    found = search_target(source, source_xy, image, params, warps, expected_error_px, expected_offset_px,
+                          step_error_px)
     return found.sighting, found.why
 
 
 def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
                   warps: list[np.ndarray] | None = None, expected_error_px: float | None = None,
-                  expected_offset_px: tuple[float, float] | None = None) -> TargetSearch:
+                  expected_offset_px: tuple[float, float] | None = None,
+                  step_error_px: float | None = None) -> TargetSearch:
     """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
-    `params.search_radius_px` of the fovea.
+    `params.search_radius_px` of the fovea; after a corrective step, within its reach.
 
     `warps`: the linear warps to try (default: `candidate_warps`, for a patch brought from
     wherever it was to near the fovea). Where the fixation is expected to have brought the
@@ -160,14 +163,26 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
     one alone within `PRIOR_SIGMAS` times that error (magnified as the patch is, at least
     `MIN_EXPECTED_ERROR_PX`) of the expected place is the target (`expected_place`). None: no
     such prior; the place whose repeats `source` shows around the target is it
-    (`place_told_by_repeats`)."""
+    (`place_told_by_repeats`).
+
+    `step_error_px`: a corrective step's expected error (`calib_free.gaze.look.corrective_step_error_px`),
+    which bounds where the target can be, not only which repeat it is: a step that aimed a few
+    pixels from the fovea and went as the encoders say cannot have left the target farther. The
+    search then keeps within `PRIOR_SIGMAS` times it (at least `MIN_EXPECTED_ERROR_PX`) either
+    side of the fovea, and a best match farther out is no sighting (`step_reach_px`)."""
     source, image = as_grey_float(source), as_grey_float(image)
     w, h = params.target_patch_size
     height, width = image.shape
     centre = fovea(image)
     if warps is None:
         warps = candidate_warps(source_xy, fovea(source), params.max_target_scale)
-    radius = params.search_radius_px if params.search_radius_px is not None else width // 3
+    radius = full_radius = params.search_radius_px if params.search_radius_px is not None else width // 3
+    bound = ""
+    if step_error_px is not None:
+        step_reach = step_reach_px(step_error_px)
+        if step_reach < radius:
+            radius = step_reach
+            bound = f" within {step_reach} px of the fovea, as far as the corrective step can have left it"
     x0 = int(max(0, np.floor(centre[0] - radius - w / 2)))
     y0 = int(max(0, np.floor(centre[1] - radius - h / 2)))
     x1 = int(min(width, np.ceil(centre[0] + radius + w / 2) + 1))
@@ -196,8 +211,10 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
 
     c = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     # Near the fovea first, where the saccade meant to bring the target: a repeat of its texture
-    # farther away does not make it ambiguous there. Else the whole search window.
-    near = max(radius // 3, 4)
+    # farther away does not make it ambiguous there. Else the whole search window. The near
+    # part is a third of the unbounded radius whatever bounds the window: a corrective step's
+    # reach narrower than that is searched whole at once.
+    near = min(radius, max(full_radius // 3, 4))
     u0 = int(max(0, np.floor(centre[0] - near - x0 - c[0])))
     v0 = int(max(0, np.floor(centre[1] - near - y0 - c[1])))
     u1 = min(placements[1], int(np.ceil(centre[0] + near - x0 - c[0])) + 1)
@@ -226,7 +243,8 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                     region, peak, (ix, iy) = rescored, float(repeak), (jx, jy)
                     position, warp = refined[0], refined[1] @ warp
         if peak < params.min_target_ncc:
-            why = why or f"the best match of the target's patch scores NCC {peak:.2f} < {params.min_target_ncc}"
+            why = why or (f"the best match of the target's patch{bound} scores NCC {peak:.2f} < "
+                          f"{params.min_target_ncc}")
             continue
         matched = True
         second = second_peak(region, ix, iy, max(w, h) / 2)
@@ -272,6 +290,15 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
             position = (x0 + b[0] + u + c[0], y0 + a[0] + v + c[1])
         return TargetSearch(TargetSighting(float(position[0]), float(position[1]), peak, warp), "", True)
     return TargetSearch(None, why, matched)
+
+
+def step_reach_px(step_error_px: float) -> int:
+    """How far either side of the fovea a search after a corrective step looks for the target
+    (`search_target`): `PRIOR_SIGMAS` times the step's expected error, at least
+    `MIN_EXPECTED_ERROR_PX`; whole pixels, rounded up. The error is in the pixels of the image
+    searched already (the step aimed in the image before it, at the fovea too), so no warp
+    magnifies it."""
+    return int(np.ceil(PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, step_error_px)))
 
 
 def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,

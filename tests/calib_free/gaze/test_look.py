@@ -712,6 +712,47 @@ def test_a_repeat_within_a_corrective_steps_reach_leaves_the_target_ambiguous():
     assert "ambiguous" in record.detail and "2 of them lie within" in record.detail
 
 
+def test_a_better_match_beyond_a_corrective_steps_reach_is_not_the_target():
+    """After the first fixation the target's surroundings blur and pick up noise (NCC about 0.8
+    with its patch), and a sharp copy appears 24 px beside it (NCC 1): the best match, and no
+    repeat within the ambiguity margin. The corrective step aimed about 4 px from the fovea and
+    went as planned, so the copy is not where it took the target: the search keeps within the
+    step's reach and finds the target there."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    copied = copy_after_the_first_fixation(head, texel, (24, 0))
+    ended: list[FixationRecord] = []
+
+    def degrade(fixation: FixationRecord) -> None:
+        copied(fixation)
+        ended.append(fixation)
+        if len(ended) == 1:
+            u, v, r = int(round(texel[0])), int(round(texel[1])), 14
+            noise = np.random.default_rng(3).normal(0.0, 0.7 * float(head.plane.std()), (2 * r + 1, 2 * r + 1))
+            head.plane[v - r:v + r + 1, u - r:u + r + 1] += noise.astype(np.float32)
+    controller = FixationController(head, LinearMap(0.95), FixationParams(confidence_floor=1.0), seed=0)
+    looks = LookController(controller, LookParams(search_radius_px=150), on_fixation=degrade)
+    record = looks.look((*target, 0.0))
+    assert record.corrective_steps >= 1
+    assert record.on_target, record.detail
+    assert true_error_px(head, texel) <= 1.0
+
+
+def test_a_search_after_a_corrective_step_keeps_within_its_reach_and_says_so_when_empty():
+    source = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source_xy = (230.4, 80.7)
+    landed = FOVEA + np.array([14.0, 0.0])  # the target 14 px from the fovea
+    shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
+    after = cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR)
+    identity = [np.eye(2)]
+    sighting, _ = find_target(source, source_xy, after, LookParams(), identity, step_error_px=5.0)
+    assert sighting is not None and np.hypot(sighting.x - landed[0], sighting.y - landed[1]) <= 0.3  # 15 px reach
+    sighting, why = find_target(source, source_xy, after, LookParams(), identity, step_error_px=2.0)
+    assert sighting is None
+    assert "within 6 px of the fovea, as far as the corrective step can have left it" in why
+
+
 def test_a_measured_landing_the_corrective_step_cannot_have_made_is_not_taken():
     """A corrective step aimed 4 px from the fovea and the encoders say it went as planned. Its
     left eye's match, confident, says the fovea landed 3 px from where the target was: that
@@ -731,11 +772,13 @@ def test_a_measured_landing_the_corrective_step_cannot_have_made_is_not_taken():
                               match=FixationMatch(left, left), outcome=FixationOutcome.INCONSISTENT,
                               pre_left_image=image, final_left_image=image)
 
-    step_error, none = controller._landing_prior(stepped(FOVEA + np.array([100.0, 0.0])), target_before,
-                                                 np.eye(2), step_aim_px=4.0)
-    assert none is None and step_error == pytest.approx(4.0)  # aimed 4 px, the head did as planned
+    far = stepped(FOVEA + np.array([100.0, 0.0]))
+    step = controller._corrective_step_error_px(far, 4.0)
+    assert step == pytest.approx(4.0)  # aimed 4 px, the head did as planned
+    step_error, none = controller._landing_prior(far, target_before, np.eye(2), step)
+    assert none is None and step_error == pytest.approx(4.0)
     error, offset = controller._landing_prior(stepped(target_before - np.array([3.0, 0.0])), target_before,
-                                              np.eye(2), step_aim_px=4.0)
+                                              np.eye(2), step)
     assert offset == pytest.approx((3.0, 0.0)) and error == pytest.approx(0.15 * 3.0)
 
 
