@@ -275,8 +275,8 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                     why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
                            f"correspondence was not accepted; {undecided})")
                     continue
-                where = (f"within {reach:.1f} px of the fovea, where the saccade was expected to bring it "
-                         f"({PRIOR_SIGMAS:g} x the landing error)" if expected_offset_px is None else
+                where = (f"within {reach:.1f} px of the fovea, where the fixation was expected to bring it "
+                         f"({PRIOR_SIGMAS:g} x its expected error)" if expected_offset_px is None else
                          f"within {reach:.1f} px of ({origin[0] + expected_at[0]:.1f}, "
                          f"{origin[1] + expected_at[1]:.1f}), where the fixation's measured landing puts the "
                          f"target ({PRIOR_SIGMAS:g} x its expected error)")
