@@ -182,7 +182,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
         step_reach = step_reach_px(step_error_px)
         if step_reach < radius:
             radius = step_reach
-            bound = f" within {step_reach} px of the fovea, as far as the corrective step can have left it"
+            bound = f" within {step_reach} px of the fovea, as far as the corrective step can have left it,"
     x0 = int(max(0, np.floor(centre[0] - radius - w / 2)))
     y0 = int(max(0, np.floor(centre[1] - radius - h / 2)))
     x1 = int(min(width, np.ceil(centre[0] + radius + w / 2) + 1))
