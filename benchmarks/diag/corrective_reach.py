@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.diag.look_steps import recording_arguments, recordings
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.refind import find_target, fovea
 
@@ -53,7 +54,7 @@ def corrective_searches(steps_json: Path, images: Path) -> list[dict[str, Any]]:
                 continue
             saved = np.load(images / f"search-{step['saved']:03d}.npz")
             image = saved["image"]
-            params = dataclasses.replace(LookParams(), target_patch_size=tuple(int(v) for v in saved["patch"]))
+            params = dataclasses.replace(LookParams(), target_patch_size=(int(saved["patch"][0]), int(saved["patch"][1])))
             warps = list(saved["warps"]) if len(saved["warps"]) else None
             expected = float(saved["expected"])
             offset = None if np.isnan(saved["offset"][0]) else (float(saved["offset"][0]), float(saved["offset"][1]))
@@ -78,14 +79,11 @@ def counts(rows: list[dict[str, Any]], key: str, agree_px: float) -> dict[str, i
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=Path, action="append", required=True, help="a look_steps --json file")
-    parser.add_argument("--images", type=Path, action="append", required=True, help="its --images directory")
+    recording_arguments(parser)
     parser.add_argument("--agree-px", type=float, default=3.0, help="a search this near the truth is right")
     args = parser.parse_args(argv)
-    if len(args.steps) != len(args.images):
-        parser.error(f"--steps given {len(args.steps)} times and --images {len(args.images)}: one each a recording")
     rows: list[dict[str, Any]] = []
-    for steps_json, images in zip(args.steps, args.images):
+    for steps_json, images in recordings(parser, args):
         rows += [{"recording": steps_json.name, **row} for row in corrective_searches(steps_json, images)]
     print(f"{len(rows)} searches after corrective steps")
     print(f"{'recording':<22}{'look':>5}{'step':>5}{'truth':>8}{'σ':>7}{'unbounded':>11}{'bounded':>9}")

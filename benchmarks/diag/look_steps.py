@@ -26,6 +26,7 @@ for `--explore-s`); without it the daemon starts from a random map in a temporar
 """
 from __future__ import annotations
 
+import argparse
 import collections
 import contextlib
 import sys
@@ -154,6 +155,31 @@ class StepRecorder:
         finally:
             look_module.find_first_sighting, look_module.find_target = find_first, find_target
             look_module.LookController._fixate = fixate  # type: ignore[method-assign]
+
+
+def saved_first_search(look: dict[str, Any], images: Path) -> tuple[dict[str, Any], dict[str, Any], Any] | None:
+    """A recorded look's first fixation, its first target search and that search's saved inputs
+    (`--images`: source, source_xy, image, ...); None for a look refused, or whose first search
+    was not saved."""
+    steps = look.get("steps") or []
+    fixation = next((s for s in steps if "aim" in s), None)
+    search = next((s for s in steps if "search" in s), None)
+    if look["state"] == "refused" or fixation is None or search is None or search.get("saved") is None:
+        return None
+    return fixation, search, np.load(images / f"search-{search['saved']:03d}.npz")
+
+
+def recording_arguments(parser: argparse.ArgumentParser) -> None:
+    """`--steps FILE --images DIR`, given once for each recording a diagnostic reads."""
+    parser.add_argument("--steps", type=Path, action="append", required=True, help="a look_steps --json file")
+    parser.add_argument("--images", type=Path, action="append", required=True, help="its --images directory")
+
+
+def recordings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[tuple[Path, Path]]:
+    """The (steps, images) pairs of `recording_arguments`; a usage error where they do not pair up."""
+    if len(args.steps) != len(args.images):
+        parser.error(f"--steps given {len(args.steps)} times and --images {len(args.images)}: one each a recording")
+    return list(zip(args.steps, args.images))
 
 
 def first_sightings(looks: list[dict[str, Any]], agree_px: float = 2.0, bin_px: float = 20.0) -> dict[str, Any]:

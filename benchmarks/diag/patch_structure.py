@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from benchmarks.diag import own_view_margin
+from benchmarks.diag.look_steps import saved_first_search
 from calib_free.gaze import refind
 from calib_free.gaze.fixation import LookParams
 
@@ -56,20 +57,17 @@ def first_searches(steps_json: Path, images: Path, noise: float) -> list[dict[st
     """One row a look taken on whose first search was saved."""
     rows = []
     for look in json.loads(steps_json.read_text())["looks"]:
-        if look["state"] == "refused":
+        first = saved_first_search(look, images)
+        if first is None:
             continue
-        fixations = [s for s in look["steps"] if "aim" in s]
-        searches = [s for s in look["steps"] if "search" in s]
-        if not fixations or not searches or searches[0].get("saved") is None:
-            continue
-        saved = np.load(images / f"search-{searches[0]['saved']:03d}.npz")
+        fixation, search, saved = first
         eigen = structure(saved["source"], tuple(saved["source_xy"]))
         if eigen is None:
             continue
         smaller, larger = eigen
         rows.append({"xy": [round(v, 1) for v in look["xy"]], "ratio": larger / max(smaller, 1e-9),
                      "noise_bound_px": noise / np.sqrt(max(smaller, 1e-9)),
-                     "truth_px": fixations[0]["true_error_px"], "search_px": searches[0]["search"],
+                     "truth_px": fixation["true_error_px"], "search_px": search["search"],
                      "on_target": look["on_target"]})
     return sorted(rows, key=lambda r: r["ratio"])
 

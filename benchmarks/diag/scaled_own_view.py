@@ -23,8 +23,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_search
 from calib_free.gaze.fixation import LookParams
-from calib_free.gaze.refind import fovea, second_peak, warped_patch
+from calib_free.gaze.refind import fovea, own_view_window, second_peak, warped_patch
 
 THRESHOLDS = (0.05, 0.075, 0.1, 0.125, 0.15)
 
@@ -35,9 +36,7 @@ def own_view_margins(source: np.ndarray, xy: tuple[float, float], scales: tuple[
     module doc), searched within `radius_px` of it (default a third of the width, as the look
     does); None where the patch reaches beyond the image or is flat."""
     image = source.astype(np.float32)
-    radius = image.shape[1] // 3 if radius_px is None else radius_px
-    x0, y0 = int(max(0, np.floor(xy[0] - radius - size / 2))), int(max(0, np.floor(xy[1] - radius - size / 2)))
-    window = image[y0:int(np.ceil(xy[1] + radius + size / 2)) + 1, x0:int(np.ceil(xy[0] + radius + size / 2)) + 1]
+    window = own_view_window(image, xy, LookParams(target_patch_size=(size, size), search_radius_px=radius_px))
     plain = warped_patch(image, xy, np.eye(2), (size, size))
     if plain is None or float(plain.std()) < 1.0:
         return None
@@ -64,11 +63,10 @@ def recorded_margins(steps_json: Path, images: Path, scales: tuple[float, ...]) 
     it failed as ambiguous, and its two margins."""
     rows = []
     for look in json.loads(steps_json.read_text())["looks"]:
-        steps = look.get("steps") or []
-        first = next((s for s in steps if "search" in s), None)
-        if look["state"] == "refused" or first is None or first.get("saved") is None:
+        first = saved_first_search(look, images)
+        if first is None:
             continue
-        saved = np.load(images / f"search-{first['saved']:03d}.npz")
+        saved = first[2]
         margins = own_view_margins(saved["source"], tuple(saved["source_xy"]), scales,
                                    LookParams().target_patch_size[0])
         if margins is None:
@@ -87,18 +85,16 @@ def refusals(rows: list[dict[str, Any]], key: str, threshold: float) -> tuple[in
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--steps", type=Path, action="append", required=True, help="a look_steps --json file")
-    parser.add_argument("--images", type=Path, action="append", required=True, help="its --images directory")
+    recording_arguments(parser)
     parser.add_argument("--scales", default="0.9,0.95,1.05,1.1", help="the scales tried beside 1 (comma-separated)")
     args = parser.parse_args(argv)
-    if len(args.steps) != len(args.images):
-        parser.error(f"--steps given {len(args.steps)} times and --images {len(args.images)}: one each a recording")
+    pairs = recordings(parser, args)
     try:
         scales = tuple(float(v) for v in args.scales.split(","))
     except ValueError:
         parser.error(f"--scales: expected numbers separated by commas, got {args.scales!r}")
     rows: list[dict[str, Any]] = []
-    for steps_json, images in zip(args.steps, args.images):
+    for steps_json, images in pairs:
         rows += recorded_margins(steps_json, images, scales)
     on, ambiguous = sum(r["on_target"] for r in rows), sum(r["ambiguous"] for r in rows)
     print(f"{len(rows)} looks taken on: {on} on target, {ambiguous} failed as ambiguous")

@@ -493,13 +493,21 @@ def own_view_peaks(source: np.ndarray, source_xy: tuple[float, float],
                       f"by (grey levels' std {float(template.std()):.1f} < min_patch_std {params.min_patch_std:g}: "
                       "what it shows is mostly the camera's noise)")
     w, h = params.target_patch_size
+    scores = np.nan_to_num(cv2.matchTemplate(own_view_window(source, source_xy, params), template,
+                                             cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0, neginf=0.0)
+    _, peak, _, (ix, iy) = cv2.minMaxLoc(scores)
+    return (float(peak), second_peak(scores, ix, iy, max(w, h) / 2)), ""
+
+
+def own_view_window(source: np.ndarray, source_xy: tuple[float, float], params: LookParams) -> np.ndarray:
+    """The part of `source` whose patches of `target_patch_size` lie within the search radius
+    of `source_xy` (`search_radius_px`, default a third of the width): where the own-view
+    checks look for the patch's other places."""
+    w, h = params.target_patch_size
     radius = params.search_radius_px if params.search_radius_px is not None else source.shape[1] // 3
     x0 = int(max(0, np.floor(source_xy[0] - radius - w / 2)))
     y0 = int(max(0, np.floor(source_xy[1] - radius - h / 2)))
-    window = source[y0:int(np.ceil(source_xy[1] + radius + h / 2)) + 1, x0:int(np.ceil(source_xy[0] + radius + w / 2)) + 1]
-    scores = np.nan_to_num(cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0, neginf=0.0)
-    _, peak, _, (ix, iy) = cv2.minMaxLoc(scores)
-    return (float(peak), second_peak(scores, ix, iy, max(w, h) / 2)), ""
+    return source[y0:int(np.ceil(source_xy[1] + radius + h / 2)) + 1, x0:int(np.ceil(source_xy[0] + radius + w / 2)) + 1]
 
 
 def patch_variants(params: LookParams) -> list[LookParams]:
