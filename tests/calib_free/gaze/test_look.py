@@ -14,8 +14,8 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
-                                   left_landing_px, target_disparity)
+from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, disparity_for_vergence,
+                                   foveal_px_per_deg, left_landing_px, target_disparity, vergence_goal)
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem,
                                     target_patch_problem)
@@ -288,6 +288,62 @@ def test_a_corrective_step_takes_no_disparity_beyond_the_maps_range():
     fixation.final_right_image = np.roll(left, 90, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=120)
     assert controller._disparity_at(fixation, sighting) == 0.0
+
+
+class RightEyeSeesTheTargetElsewhere(PlanarHead):
+    """A plane head whose right image shows the surroundings of `texel` 40 px to the left of
+    where the plane's depth puts them (a repeat of its texture along the rows, say) while the
+    texel lies more than 30 px from the fovea: a disparity measured there is -40 px, though the
+    whole plane, and the texel, is at one depth. The fovea's surroundings stay as they are."""
+
+    def __init__(self, texel: np.ndarray) -> None:
+        super().__init__()
+        self.texel = texel
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        left, right = super().wait_pair(after_s, timeout_s)
+        x, y = (int(round(v)) for v in self.image_position(self.texel))
+        if self.moves and abs(x - FOVEA[0]) > 30 and x >= 70:
+            right = right.copy()
+            right[y - 20:y + 20, x - 70:x - 10] = left[y - 20:y + 20, x - 30:x + 30]
+        return left, right
+
+
+@pytest.mark.parametrize("depth_known", [True, False])
+def test_a_corrective_step_verges_at_the_targets_depth_where_the_disparity_measured_would_not(depth_known):
+    """The first saccade (a map 25 % short) leaves the target 35 px from the fovea, where the
+    right image shows its texture 40 px off. The target's d was measured before the look (0:
+    the plane's depth), so the step takes the d at which the map verges the eyes there, not the
+    -40 px that would verge them 6 deg nearer. Without a known depth the step has nothing to
+    hold the measurement to."""
+    target = (FOVEA[0] - 140.0, FOVEA[1])
+    head = RightEyeSeesTheTargetElsewhere(PlanarHead().texel_at(target))
+    controller, _ = looker(head, gain=0.75, max_corrective_steps=5)
+    record = controller.look((*target, 0.0), depth_known=depth_known)
+    first, step = record.fixations[0], record.fixations[1]
+    assert first.converged and first.pose_after is not None
+    assert abs(true_error_px_at(head, first.pose_after, target) - 35.0) <= 1.0
+    if depth_known:
+        assert step.target[2] == pytest.approx(0.0, abs=0.5)
+        assert record.on_target, record.detail
+    else:
+        assert step.target[2] == pytest.approx(-40.0, abs=1.0)
+
+
+def true_error_px_at(head: PlanarHead, pose: np.ndarray, target: tuple[float, float]) -> float:
+    """How far from the left fovea, at `pose`, the texel at `target` of the start pose is."""
+    texel = head.texel_at(target, np.array([0.0, 0.0, 8.0]))
+    return float(np.hypot(*(head.image_position(texel, pose) - FOVEA)))
+
+
+def test_the_disparity_at_which_the_map_verges_the_eyes_at_a_depth():
+    gaze_map, pose = LinearMap(0.75), np.array([0.0, 0.0, 8.0])  # vergence 8 - 0.15 d
+    assert vergence_goal(gaze_map, pose, (150.0, 120.0, -40.0)) == pytest.approx(14.0)
+    assert vergence_goal(gaze_map, pose, (150.0, 120.0, 90.0)) is None  # beyond the map's range
+    d = disparity_for_vergence(gaze_map, pose, (150.0, 120.0), 5.0, -40.0, 3.0)
+    assert d is not None and vergence_goal(gaze_map, pose, (150.0, 120.0, d)) == pytest.approx(5.0, abs=0.05)
+    # 20 deg would need d = -80 px, beyond the map's +-60 px: none.
+    assert disparity_for_vergence(gaze_map, pose, (150.0, 120.0), 20.0, 0.0, 3.0) is None
 
 
 def test_a_target_without_a_patch_to_find_it_by_is_refused_whatever_its_disparity():
