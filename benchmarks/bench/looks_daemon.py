@@ -80,7 +80,7 @@ def failure_kind(row: dict[str, Any]) -> str:
     """A failed look's kind: its state, outcome and the first clause of its detail, without the
     pixel's coordinates and the figures."""
     if row["state"] == "refused" and "beyond the joint limits" in row["detail"]:
-        return f"refused ({row['outcome']}): beyond the joint limits from the pose now"
+        return f"refused ({row['outcome']}): beyond the joint limits"
     if row["state"] == "refused":  # why the look's patch cannot find it (after why d was not measured)
         detail = re.sub(r"^the target's patch at \([^)]*\) ", "", row["detail"].split("cannot be looked at: ")[-1])
         return f"refused ({row['outcome']}): " + re.split(r"[;:(]", detail)[0].strip()

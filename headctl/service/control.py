@@ -266,7 +266,9 @@ class ServiceControl:
     @staticmethod
     def _check_reach(running: RunningParts, target: tuple[float, float, float], pose: np.ndarray) -> None:
         """Refuse, before the head moves, a target whose saccade the map sends clearly beyond the
-        pan or tilt limits (`REACH_MARGIN_DEG`): from this pose no look can end on it."""
+        pan or tilt limits (`REACH_MARGIN_DEG`): no look can end on it. The pose that fixates a
+        point is the same whatever pose the head starts from (its eyes verge symmetrically), so
+        turning the head first does not bring it within reach; turning the robot does."""
         head = running.head
         try:
             goal = pose + running.adapter.command(target, pose=pose)
@@ -276,9 +278,9 @@ class ServiceControl:
         if beyond:
             x, y, _ = target
             raise InvalidRequestError(
-                f"x, y: the target at ({x:g}, {y:g}) is beyond the joint limits from the pose now: the map's "
-                f"saccade to it ends at {beyond} (servo_bus.joints); no look can end on it from here: turn the "
-                "head towards it first (an angles look)", "x")
+                f"x, y: the target at ({x:g}, {y:g}) is beyond the joint limits: the map's saccade to it ends at "
+                f"{beyond} (servo_bus.joints); the pose that fixates it is the same from any other, so no look "
+                "can end on it: turn the robot the head is on towards it", "x")
 
     def get_look(self, look_id: int) -> LookJob:
         return self.parts.looks.get(look_id)

@@ -35,6 +35,8 @@ def test_a_target_the_map_sends_beyond_the_pan_limit_is_refused_naming_it():
     assert err.value.field == "x"
     assert "pan 45.0 outside [-40, 40] deg" in str(err.value) and "(300, 120)" in str(err.value)
     assert "tilt" not in str(err.value)
+    # Turning the head first would not help: the pose that fixates a point is one pose.
+    assert "turn the robot" in str(err.value) and "angles look" not in str(err.value)
 
 
 def test_a_tilt_beyond_its_limit_from_below_is_refused_too():
