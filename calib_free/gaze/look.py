@@ -167,8 +167,6 @@ LOOK_AMBIGUITY_FRACTION = 0.5
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0
-SECANT_START_PX = 10.0  # `disparity_for_vergence`'s second point, this far from its first
-VERGENCE_PRECISION_DEG = 0.05  # `disparity_for_vergence` is done this near; fine vergence does the rest
 PLAUSIBLE_PX_PER_DEG = (0.5, 50.0)
 
 
@@ -239,32 +237,6 @@ def vergence_goal(gaze_map: MapReader, pose: np.ndarray, target: Vector) -> floa
         return float(pose[2] + gaze_map.command(target, pose=pose)[2])
     except OutOfRangeError:
         return None
-
-
-def disparity_for_vergence(gaze_map: MapReader, pose: np.ndarray, xy: tuple[float, float], vergence: float,
-                           start_d: float, tolerance_deg: float, iterations: int = 4) -> float | None:
-    """The d at which the map's command for (x, y, d) seen at `pose` verges the eyes at
-    `vergence` (deg): the secant method from `start_d` (the map's vergence changes smoothly,
-    nearly linearly, with d), `iterations` steps, to within `VERGENCE_PRECISION_DEG`. The
-    nearest found where none comes that near; None where none comes within `tolerance_deg`
-    or the map does not cover the way there."""
-    def miss(d: float) -> float | None:
-        goal = vergence_goal(gaze_map, pose, (*xy, d))
-        return None if goal is None or gaze_map.check_position((*xy, d)) else goal - vergence
-
-    a, b = start_d, start_d + SECANT_START_PX
-    fa, fb = miss(a), miss(b)
-    best: tuple[float, float] | None = None  # (|miss|, d)
-    for _ in range(iterations):
-        if fa is None or fb is None or fb == fa:
-            break
-        a, b, fa = b, b - fb * (b - a) / (fb - fa), fb
-        fb = miss(b)
-        if fb is not None and (best is None or abs(fb) < best[0]):
-            best = (abs(fb), b)
-            if best[0] <= VERGENCE_PRECISION_DEG:
-                break
-    return best[1] if best is not None and best[0] <= tolerance_deg else None
 
 
 @dataclass
@@ -538,30 +510,28 @@ class LookController:
     def _step_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
                         aim: tuple[float, float]) -> float:
         """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
-        there (`_disparity_at`), unless the map would verge the eyes with it farther from the
-        target's depth (`_target_vergence`) than `max_vergence_mismatch_deg`, a depth that
-        `_depth_mismatch` would refuse. Such a d is the right eye's match on a repeat of the
-        texture along its rows, and the map turns the head with the vergence it gives it (the
-        left eye keeps its direction only if the head turns by about half the vergence's
-        change): in the realistic world's recorded looks (seven recordings, 460 looks taken
-        on), 13 corrective steps took a d of 10 px or more, 10 of them left the target 3 px or
-        more off the fovea, and 2 of their 13 looks ended on target. The step then takes the d
-        at which the map verges the eyes at the target's depth (`disparity_for_vergence`), or,
-        where the map gives none, the depth the eyes fixate (d = 0)."""
+        there (`_disparity_at`), unless the eyes converged at the target's depth (within
+        `max_vergence_mismatch_deg` of `_target_vergence`) and the map would verge them with
+        the measured d farther from it than that, a depth `_depth_mismatch` would refuse. Such
+        a d is the right eye's match on a repeat of the texture along its rows, and the map
+        turns the head with the vergence it gives it (the left eye keeps its direction only if
+        the head turns by about half the vergence's change): in the realistic world's recorded
+        looks (seven recordings, 460 looks taken on), 13 corrective steps took a d of 10 px or
+        more, 10 of them left the target 3 px or more off the fovea, and 2 of their 13 looks
+        ended on target. The step then takes d = 0: the depth the eyes fixate, the target's.
+        Where they converged elsewhere, the target's d itself is in doubt (measured on a
+        repeat before the look, say), and the step keeps what it measured."""
         d = self._disparity_at(fixation, sighting)
         meant, pose = self._target_vergence(record), fixation.pose_after
-        if meant is None or pose is None:
+        if meant is None or pose is None or not fixation.converged:
             return d
         tolerance = self.params.max_vergence_mismatch_deg
-        gaze_map = self.fixation.map
-        verged = vergence_goal(gaze_map, pose, (*aim, d))
-        if verged is not None and abs(verged - meant) <= tolerance:
+        verged = vergence_goal(self.fixation.map, pose, (*aim, d))
+        if abs(pose[2] - meant) > tolerance or verged is None or abs(verged - meant) <= tolerance:
             return d
-        held = disparity_for_vergence(gaze_map, pose, aim, meant, d, tolerance)
-        chosen = held if held is not None else 0.0
-        log.debug("corrective step at (%.1f, %.1f): d %.1f px would verge at %s deg, the target's depth is at "
-                  "%.1f deg: d %.1f px", aim[0], aim[1], d, verged, meant, chosen)
-        return chosen
+        log.debug("corrective step at (%.1f, %.1f): d %.1f px would verge the eyes at %.1f deg, the target's "
+                  "depth and the eyes' at %.1f and %.1f deg: d 0", aim[0], aim[1], d, verged, meant, pose[2])
+        return 0.0
 
     def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
         """d at the target's new position, measured between the final left and right images as

@@ -14,8 +14,8 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, disparity_for_vergence,
-                                   foveal_px_per_deg, left_landing_px, target_disparity, vergence_goal)
+from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
+                                   left_landing_px, target_disparity, vergence_goal)
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem,
                                     target_patch_problem)
@@ -309,25 +309,27 @@ class RightEyeSeesTheTargetElsewhere(PlanarHead):
         return left, right
 
 
-@pytest.mark.parametrize("depth_known", [True, False])
-def test_a_corrective_step_verges_at_the_targets_depth_where_the_disparity_measured_would_not(depth_known):
+@pytest.mark.parametrize("told_d, depth_known, step_d", [
+    (0.0, True, 0.0),  # the eyes converged at the target's depth: the step keeps them there
+    (0.0, False, -40.0),  # no depth to hold the measurement to
+    (30.0, True, -40.0),  # the eyes converged 4.5 deg from the d told: that d is in doubt
+])
+def test_a_corrective_step_keeps_the_eyes_at_the_targets_depth_against_a_repeats_disparity(told_d, depth_known,
+                                                                                           step_d):
     """The first saccade (a map 25 % short) leaves the target 35 px from the fovea, where the
-    right image shows its texture 40 px off. The target's d was measured before the look (0:
-    the plane's depth), so the step takes the d at which the map verges the eyes there, not the
-    -40 px that would verge them 6 deg nearer. Without a known depth the step has nothing to
-    hold the measurement to."""
+    right image shows its texture 40 px off, though the whole plane is at one depth. The
+    target's d told and the eyes converged at the plane's depth (d 0): the step takes d = 0,
+    not the -40 px that would verge the eyes 6 deg nearer and turn the head with them."""
     target = (FOVEA[0] - 140.0, FOVEA[1])
     head = RightEyeSeesTheTargetElsewhere(PlanarHead().texel_at(target))
     controller, _ = looker(head, gain=0.75, max_corrective_steps=5)
-    record = controller.look((*target, 0.0), depth_known=depth_known)
+    record = controller.look((*target, told_d), depth_known=depth_known)
     first, step = record.fixations[0], record.fixations[1]
     assert first.converged and first.pose_after is not None
     assert abs(true_error_px_at(head, first.pose_after, target) - 35.0) <= 1.0
-    if depth_known:
-        assert step.target[2] == pytest.approx(0.0, abs=0.5)
+    assert step.target[2] == pytest.approx(step_d, abs=0.5)
+    if step_d == 0.0:
         assert record.on_target, record.detail
-    else:
-        assert step.target[2] == pytest.approx(-40.0, abs=1.0)
 
 
 def true_error_px_at(head: PlanarHead, pose: np.ndarray, target: tuple[float, float]) -> float:
@@ -336,14 +338,10 @@ def true_error_px_at(head: PlanarHead, pose: np.ndarray, target: tuple[float, fl
     return float(np.hypot(*(head.image_position(texel, pose) - FOVEA)))
 
 
-def test_the_disparity_at_which_the_map_verges_the_eyes_at_a_depth():
+def test_the_vergence_the_maps_command_ends_at():
     gaze_map, pose = LinearMap(0.75), np.array([0.0, 0.0, 8.0])  # vergence 8 - 0.15 d
     assert vergence_goal(gaze_map, pose, (150.0, 120.0, -40.0)) == pytest.approx(14.0)
     assert vergence_goal(gaze_map, pose, (150.0, 120.0, 90.0)) is None  # beyond the map's range
-    d = disparity_for_vergence(gaze_map, pose, (150.0, 120.0), 5.0, -40.0, 3.0)
-    assert d is not None and vergence_goal(gaze_map, pose, (150.0, 120.0, d)) == pytest.approx(5.0, abs=0.05)
-    # 20 deg would need d = -80 px, beyond the map's +-60 px: none.
-    assert disparity_for_vergence(gaze_map, pose, (150.0, 120.0), 20.0, 0.0, 3.0) is None
 
 
 def test_a_target_without_a_patch_to_find_it_by_is_refused_whatever_its_disparity():
