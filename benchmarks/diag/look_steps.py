@@ -2,7 +2,8 @@
 
 The looks of the real-time daemon benchmark (the same daemon, the same random pixels from a
 head near the centre), with each of a look's fixations recorded as it ends, on the fixation
-thread: its aim (x, y, d), outcome and its detail, whether the eyes converged and in how
+thread: its aim (x, y, d) and, for a corrective step, the d measured at the target before it
+(the aim's d is that one unless the step held the eyes at the target's depth), outcome and its detail, whether the eyes converged and in how
 many vergence steps, the pose before and after, and the truth, the distance from the left
 fovea of the world point the pixel showed before the look, projected at the servos' true
 position then; and after each fixation the target search's answer (the patch's distance from
@@ -111,7 +112,14 @@ class StepRecorder:
         """The look module's target searches and fixations wrapped to record, for the block."""
         find_first, find_target = look_module.find_first_sighting, look_module.find_target
         fixate = look_module.LookController._fixate
+        disparity_at = look_module.LookController._disparity_at
         recorder = self
+        measured: list[float] = []  # the d measured for the corrective step about to be taken
+
+        def recorded_disparity(controller, fixation, sighting):  # type: ignore[no-untyped-def]
+            d = disparity_at(controller, fixation, sighting)
+            measured[:] = [float(d)]
+            return d
 
         def recorded_first(source, source_xy, image, variants, magnification, expected=None, offset=None):  # type: ignore[no-untyped-def]
             sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected, offset)
@@ -139,9 +147,11 @@ class StepRecorder:
             def pose(p: Any) -> list[float] | None:
                 return None if p is None else [round(float(v), 3) for v in p]
 
+            step_d = measured.pop() if continues and measured else None
             with recorder._lock:
                 recorder.steps.append({
-                    "aim": [round(float(v), 2) for v in target], "outcome": str(fixation.outcome),
+                    "aim": [round(float(v), 2) for v in target],
+                    "measured_d": None if step_d is None else round(step_d, 2), "outcome": str(fixation.outcome),
                     "detail": fixation.detail,
                     "converged": fixation.converged, "vergence_steps": fixation.vergence_steps,
                     "pose_before": pose(fixation.pose_before), "pose_after": pose(fixation.pose_after),
@@ -150,11 +160,13 @@ class StepRecorder:
 
         look_module.find_first_sighting, look_module.find_target = recorded_first, recorded_find
         look_module.LookController._fixate = recorded_fixate  # type: ignore[method-assign]
+        look_module.LookController._disparity_at = recorded_disparity  # type: ignore[method-assign]
         try:
             yield self
         finally:
             look_module.find_first_sighting, look_module.find_target = find_first, find_target
             look_module.LookController._fixate = fixate  # type: ignore[method-assign]
+            look_module.LookController._disparity_at = disparity_at  # type: ignore[method-assign]
 
 
 def saved_first_search(look: dict[str, Any], images: Path) -> tuple[dict[str, Any], dict[str, Any], Any] | None:

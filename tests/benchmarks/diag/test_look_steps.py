@@ -79,3 +79,9 @@ def test_the_recorder_sees_every_fixation_and_search_of_a_look_even_one_refused_
     assert len(fixations) == len(record.fixations) + 1
     assert fixations[-1]["outcome"] == "target refused before the saccade" and fixations[-1]["true_error_px"] is None
     assert len([s for s in steps if "search" in s]) == len(record.sightings)
+    # A corrective step records the d measured before it (the plane's: 0 at converged eyes); the
+    # first fixation measures none.
+    look_fixations = fixations[:len(record.fixations)]
+    assert record.corrective_steps >= 1 and look_fixations[0]["measured_d"] is None
+    assert all(f["measured_d"] is not None and abs(f["measured_d"]) <= 1.0 and f["measured_d"] == f["aim"][2]
+               for f in look_fixations[1:])
