@@ -3,10 +3,10 @@
 The looks of the real-time daemon benchmark (the same daemon, the same random pixels from a
 head near the centre), with each of a look's fixations recorded as it ends, on the fixation
 thread: its aim (x, y, d) and, for a corrective step, the d measured at the target before it
-(the aim's d is that one unless the step held the eyes at the target's depth), outcome and its detail, whether the eyes converged and in how
-many vergence steps, the pose before and after, and the truth, the distance from the left
-fovea of the world point the pixel showed before the look, projected at the servos' true
-position then; and after each fixation the target search's answer (the patch's distance from
+(the aim's d is that one unless the step held the eyes at the target's depth), outcome and
+its detail, whether the eyes converged and in how many vergence steps, the pose before and
+after, and the truth, the distance from the left fovea of the world point the pixel showed
+before the look, projected at the servos' true position then; and after each fixation the target search's answer (the patch's distance from
 the fovea, or why it was not found), with the patch's size, how much less well it matches
 the best other place of its own view than its own, and how far the target lay from the image
 centre, the scales of the warp it was found with (its singular values), and the landing error
