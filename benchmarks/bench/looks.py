@@ -65,6 +65,14 @@ def world_error_px(model, scene, lens, before: dict[str, float], after: dict[str
                    xy: tuple[float, float]) -> tuple[float, bool]:
     """`true_error_px` in `scene` seen through `lens`, the left camera's own (a simulated unit's
     lens differs from the model's); the fovea is the model's, the image centre the method uses."""
+    (dx, dy), hidden = world_offset_px(model, scene, lens, before, after, xy)
+    return float(np.hypot(dx, dy)), hidden
+
+
+def world_offset_px(model, scene, lens, before: dict[str, float], after: dict[str, float],
+                    xy: tuple[float, float]) -> tuple[tuple[float, float], bool]:
+    """Where the world point pixel `xy` showed at the joints `before` is seen at the joints
+    `after`, from the fovea (x, y), and whether it is hidden there (`world_error_px`)."""
     (rotation, centre), _ = model.eye_frames_from_joints(*(before[j] for j in JOINT_ORDER))
     ray = lens.unproject(np.array([xy]))[0]
     point = first_surface(scene, centre, rotation.T @ ray)
@@ -72,7 +80,7 @@ def world_error_px(model, scene, lens, before: dict[str, float], after: dict[str
     uv, _ = lens.project(((point - centre) @ rotation.T)[None])
     hidden = hidden_from(scene, centre, point, 1e-3)
     cx, cy = model.lens_left.principal_point
-    return float(np.hypot(uv[0, 0] - cx, uv[0, 1] - cy)), hidden
+    return (float(uv[0, 0] - cx), float(uv[0, 1] - cy)), hidden
 
 
 def right_eye_truth(rig, xy: tuple[float, float]) -> tuple[bool, bool, float, float]:

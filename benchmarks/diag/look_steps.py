@@ -4,9 +4,11 @@ The looks of the real-time daemon benchmark (the same daemon, the same random pi
 head near the centre), with each of a look's fixations recorded as it ends, on the fixation
 thread: its aim (x, y, d) and, for a corrective step, the d measured at the target before it
 (the aim's d is that one unless the step held the eyes at the target's depth), outcome and
-its detail, whether the eyes converged and in how many vergence steps, the pose before and
-after, and the truth, the distance from the left fovea of the world point the pixel showed
-before the look, projected at the servos' true position then; and after each fixation the target search's answer (the patch's distance from
+its detail, whether the eyes converged and in how many vergence steps (and the foveal
+disparity before each), the saccade's planned command, the pose before and after, and the
+truth: where the world point the pixel showed before the look lies from the left fovea,
+projected at the servos' true position then (x, y, and its distance); and after each
+fixation the target search's answer (the patch's distance from
 the fovea, or why it was not found), with the patch's size, how much less well it matches
 the best other place of its own view than its own, and how far the target lay from the image
 centre, the scales of the warp it was found with (its singular values), and the landing error
@@ -40,7 +42,7 @@ from typing import Any, Iterator
 import numpy as np
 
 import calib_free.gaze.look as look_module
-from benchmarks.bench.looks import world_error_px
+from benchmarks.bench.looks import world_offset_px
 from benchmarks.bench.looks_daemon import look_arguments, report, run_looks
 from calib_free.gaze.refind import own_view_peaks
 from headctl.api.client import ApiClient
@@ -68,12 +70,14 @@ class StepRecorder:
             steps, self.steps = self.steps, []
             return steps
 
-    def _truth_px(self) -> float | None:
+    def _truth_px(self) -> tuple[float, float] | None:
+        """The truth now: where the world point the look's pixel showed lies from the left
+        fovea (x, y); None before a look, or where the point is hidden."""
         if self._before is None or self._xy is None:
             return None
-        error, hidden = world_error_px(self.world.model, self.world.scene, self.lens, self._before,
-                                       self.world.true_joints(), self._xy)
-        return None if error is None or hidden else round(float(error), 2)
+        offset, hidden = world_offset_px(self.world.model, self.world.scene, self.lens, self._before,
+                                         self.world.true_joints(), self._xy)
+        return None if hidden else offset
 
     def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
                        warps: list[np.ndarray] | None, expected: float | None,
@@ -148,6 +152,7 @@ class StepRecorder:
                 return None if p is None else [round(float(v), 3) for v in p]
 
             step_d = measured.pop() if continues and measured else None
+            truth = recorder._truth_px()
             with recorder._lock:
                 recorder.steps.append({
                     "aim": [round(float(v), 2) for v in target],
@@ -155,7 +160,10 @@ class StepRecorder:
                     "detail": fixation.detail,
                     "converged": fixation.converged, "vergence_steps": fixation.vergence_steps,
                     "pose_before": pose(fixation.pose_before), "pose_after": pose(fixation.pose_after),
-                    "true_error_px": recorder._truth_px()})
+                    "planned": pose(fixation.planned), "vergence_disparities_px": [
+                        round(float(v), 2) for v in fixation.vergence_disparities_px],
+                    "true_error_px": None if truth is None else round(float(np.hypot(*truth)), 2),
+                    "true_offset_px": None if truth is None else [round(v, 2) for v in truth]})
             return fixation
 
         look_module.find_first_sighting, look_module.find_target = recorded_first, recorded_find

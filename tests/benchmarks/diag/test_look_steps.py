@@ -78,6 +78,11 @@ def test_the_recorder_sees_every_fixation_and_search_of_a_look_even_one_refused_
     fixations = [s for s in steps if "aim" in s]
     assert len(fixations) == len(record.fixations) + 1
     assert fixations[-1]["outcome"] == "target refused before the saccade" and fixations[-1]["true_error_px"] is None
+    # Each fixation's saccade plan and the foveal disparity before each vergence step, as the look ran them.
+    for recorded, ran in zip(fixations, record.fixations):
+        assert recorded["planned"] == [round(float(v), 3) for v in ran.planned]
+        assert len(recorded["vergence_disparities_px"]) == len(ran.vergence_disparities_px) >= 1
+    assert fixations[-1]["planned"] is None
     assert len([s for s in steps if "search" in s]) == len(record.sightings)
     # A corrective step records the d measured before it (the plane's: 0 at converged eyes); the
     # first fixation measures none.
