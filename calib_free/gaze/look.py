@@ -6,15 +6,17 @@ closes the loop on what it sees: the target's patch, taken around (x, y) in the 
 just before the saccade, is found again in the left image after it (`calib_free.gaze.refind`),
 and while it lies farther than `LookParams.tolerance_px` from the left fovea a corrective
 fixation goes to where it is now -- the map's command for that position and the disparity
-measured there -- up to `max_corrective_steps` of them. Every step is a fixation like any
+measured there (d = 0, the depth the eyes fixate, where that d would verge them away from the
+target's known depth, or the map's command for it turn the head beyond what a step this short
+calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
 other: converged and confident, it teaches the map. A saccade the joint limits stopped ends
 the look: no correction can go further.
 
 A target is in the view of the pose it was chosen in (`reference_pose`). When the head has
 moved since (a queued look), the look first returns to that pose, so that the image before
 the saccade is the view the target was chosen in and its patch is the target's. A target
-sent without its disparity is looked at with the one `target_disparity` measures in that
-view, else from the depth the eyes fixate.
+sent without its disparity is looked at with the one measured in that view, else from the
+depth the eyes fixate (`calib_free.gaze.target_depth`).
 
 Where the target's patch matches two places of the new image nearly alike (a texture that
 repeats), the look takes the one alone near where the fixation is expected to have left the
@@ -56,15 +58,14 @@ from typing import Callable
 
 import numpy as np
 
-from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
+from calib_free.correspondence.disparity import horizontal_offset
 from calib_free.correspondence.search import CorrespondenceParams, match_eye
-from calib_free.correspondence.stereo import row_rival_ncc
-from calib_free.errors import DisparityError, OutOfRangeError, TargetPatchError
+from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, MapReader, PairTimeoutError, next_boost)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
-                                    find_target, fovea, identifying_patches, patch_variants, target_patch_problem)
+                                    find_target, fovea, identifying_patches, patch_variants)
 from calib_free.map.gaze_map import Vector
 
 log = logging.getLogger(__name__)
@@ -84,56 +85,6 @@ class LookOutcome(enum.StrEnum):
 _STOPS_A_LOOK = frozenset({FixationOutcome.SHUTDOWN, FixationOutcome.CANCELLED, FixationOutcome.BUS_DOWN,
                            FixationOutcome.SERVO_FAULT, FixationOutcome.NO_FRAMES, FixationOutcome.NOT_SETTLED,
                            FixationOutcome.TARGET_OUTSIDE})
-
-
-@dataclass(frozen=True)
-class TargetDisparity:
-    """The disparity a target sent without one is looked at with: measured (`ncc` its match's),
-    or the fixation's own, 0, when it cannot be measured but the look can find the target by
-    its patch. `reason`, when d may not be the target's: why it was not measured, or why the
-    measured one may be a repeat's (the look then does not hold the eyes' final vergence
-    against it)."""
-
-    d: float
-    ncc: float | None = None
-    reason: str = ""
-
-    @property
-    def measured(self) -> bool:
-        return self.ncc is not None
-
-
-def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, patch_size: tuple[int, int],
-                     disparity_range: tuple[float, float], look: LookParams,
-                     band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0,
-                     rival_margin: float = CorrespondenceParams.stereo_rival_margin) -> TargetDisparity:
-    """The disparity to look at (x, y) of the left image with (`disparity_at`). Where it cannot
-    be measured (seen by one eye only, a vertical disparity or depth edge the match does not
-    survive, a patch too near the border for `patch_size`), d = 0 (`row_offset_px`: the
-    pair's vertical misalignment, `FixationController.row_offset_px`): the look starts at the depth
-    the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
-    Where the patch matches another place along the same rows of the right image within
-    `rival_margin` of NCC (`row_rival_ncc`: a texture repeating along the rows), d is the best
-    match's but may be a repeat's, and says so. TargetPatchError when the target has no patch
-    for the closed loop to find it again by (`target_patch_problem`: flat, repetitive, reaching
-    beyond the image): no look can end on it, whatever its d."""
-    problem = target_patch_problem(as_grey_float(left), (x, y), look)
-    try:
-        d, ncc = disparity_at(left, right, x, y, patch_size, disparity_range, band_px, row_offset_px)
-    except DisparityError as err:
-        if problem:
-            raise TargetPatchError(f"{err}, and the target cannot be looked at: {problem}") from None
-        return TargetDisparity(0.0, None, f"{err}: looked at from the depth the eyes fixate (d = 0)")
-    if problem:
-        raise TargetPatchError(f"the target at ({x:g}, {y:g}) cannot be looked at: {problem}")
-    search_px = max(abs(disparity_range[0]), abs(disparity_range[1]))
-    rival = row_rival_ncc(as_grey_float(left), as_grey_float(right), (x, y), patch_size, d, search_px,
-                          row_offset_px, band_px)
-    if rival > ncc - rival_margin:
-        return TargetDisparity(d, ncc, f"the patch at ({x:g}, {y:g}) repeats along its rows in the right image "
-                                       f"(NCC {rival:.2f} against {ncc:.2f} at d = {d:.1f} px): d may be a "
-                                       "repeat's, so the eyes' final vergence is not held against it")
-    return TargetDisparity(d, ncc)
 
 
 # A saccade's pan or tilt goal beyond the joint limits by more than this (a servo's tick, 0.088
@@ -164,6 +115,15 @@ LOOK_FLAT_FRACTION = 0.7
 # docs/results/realistic-world.md). At the full margin, 3 of 200 looks in the realistic world were
 # refused after the saccade that had brought the target within 0.5-1.9 px of the fovea.
 LOOK_AMBIGUITY_FRACTION = 0.5
+# A corrective step's command turning pan and tilt farther than this many times what the step
+# calls for (its aim's offset from the fovea, and half its vergence change: the left eye turns
+# by half of it, which the head makes up for), plus the slack, is the map's beyond what it
+# learned, and the step takes d = 0 (`step_turn_bound_deg`). In the realistic world's recorded
+# corrective steps (eight recordings, 566 steps), at the 4 px a degree the steps show at the
+# fovea, 5 turned beyond it and no other: each had measured d 16 or 58 px 1.5-2.4 px from the
+# fovea, turned the head 1.9-11.9 deg, and left the target 6-57 px off.
+STEP_TURN_FACTOR = 2.0
+STEP_TURN_SLACK_DEG = 0.5
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0
@@ -228,6 +188,15 @@ def corrective_step_error_px(aim_px: float, moved: np.ndarray, planned: np.ndarr
     took it."""
     beyond = np.asarray(moved, dtype=float) - np.asarray(planned, dtype=float)
     return float(aim_px + px_per_deg * (np.hypot(beyond[0], beyond[1]) + abs(beyond[2]) / 2.0))
+
+
+def step_turn_bound_deg(aim_px: float, vergence_change_deg: float, px_per_deg: float) -> float:
+    """How far (deg, pan and tilt together) the command of a corrective step aimed `aim_px`
+    from the fovea, with a vergence change `vergence_change_deg`, may turn the head: the turn
+    that brings the aim to the fovea at `px_per_deg`, and half the vergence change (the head
+    keeps the left eye's direction against it), `STEP_TURN_FACTOR` times, plus
+    `STEP_TURN_SLACK_DEG`."""
+    return STEP_TURN_FACTOR * (aim_px / px_per_deg + abs(vergence_change_deg) / 2.0) + STEP_TURN_SLACK_DEG
 
 
 def vergence_goal(gaze_map: MapReader, pose: np.ndarray, target: Vector) -> float | None:
@@ -300,8 +269,9 @@ class LookController:
     def look(self, target: Vector, reference_pose: Vector | None = None, depth_known: bool = True) -> LookRecord:
         """Look at an image target (x, y, d) chosen in the view of `reference_pose` (None: the
         head's view now), until it is on the left fovea or the look fails. `depth_known`
-        False: d is not the target's (it could not be measured, `target_disparity`), so the
-        eyes' final vergence is not held against it."""
+        False: d is not the target's (it could not be measured,
+        `calib_free.gaze.target_depth.target_disparity`), so the eyes' final vergence is not
+        held against it."""
         started = self.clock()
         record = LookRecord(np.asarray(target, dtype=float), depth_known=depth_known)
         try:
@@ -508,6 +478,45 @@ class LookController:
         return beyond_limits(fixation.pose_before + fixation.planned, head.pose_low, head.pose_high, REACH_MARGIN_DEG)
 
     def _step_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
+                        aim: tuple[float, float]) -> float:
+        """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
+        there, held to the target's depth (`_held_disparity`); d = 0, the depth the eyes fixate,
+        where the map's command for it would turn the head beyond what the step calls for
+        (`_turn_beyond_step`)."""
+        d = self._held_disparity(record, fixation, sighting, aim)
+        beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d)
+        if beyond:
+            log.debug("corrective step at (%.1f, %.1f): %s: d 0", aim[0], aim[1], beyond)
+            return 0.0
+        return d
+
+    def _turn_beyond_step(self, fixation: FixationRecord, aim: tuple[float, float], d: float) -> str:
+        """Why the map's command for the step (`aim`, d), from where `fixation` left the head,
+        is not the step's ('' if it may be): it turns pan and tilt beyond `step_turn_bound_deg`.
+        A d the map has few samples near (a near thing's large disparity, or a repeat's) is
+        where its command goes astray: in the realistic world a d of 58 px measured 1.6 px from
+        the fovea turned the pan 9.7 deg with a vergence change of 3.6, and left the target 47
+        px off. Not judged where the map cannot say its pixels a degree at the fovea."""
+        pose, image = fixation.pose_after, fixation.final_left_image
+        if pose is None or image is None:
+            return ""
+        height, width = image.shape[:2]
+        px_per_deg = foveal_px_per_deg(self.fixation.map, pose, (width, height))
+        try:
+            command = self.fixation.map.command((*aim, d), pose=pose)
+        except OutOfRangeError:
+            return ""
+        if px_per_deg is None:
+            return ""
+        aim_px = float(np.hypot(aim[0] - (width - 1) / 2.0, aim[1] - (height - 1) / 2.0))
+        turn = float(np.hypot(command[0], command[1]))
+        bound = step_turn_bound_deg(aim_px, float(command[2]), px_per_deg)
+        if turn <= bound:
+            return ""
+        return (f"d {d:.1f} px: the map's command turns the head {turn:.1f} deg, beyond the {bound:.1f} deg a step "
+                f"aimed {aim_px:.1f} px from the fovea with a vergence change of {float(command[2]):.1f} deg calls for")
+
+    def _held_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
                         aim: tuple[float, float]) -> float:
         """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
         there (`_disparity_at`), unless the eyes converged at the target's depth (within

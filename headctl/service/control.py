@@ -27,8 +27,9 @@ from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.errors import DisparityError, MapFileError, OutOfRangeError, TargetPatchError
 from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
-from calib_free.gaze.look import REACH_MARGIN_DEG, TargetDisparity, beyond_limits
-from calib_free.gaze.look import target_disparity as look_disparity
+from calib_free.gaze.look import REACH_MARGIN_DEG, beyond_limits
+from calib_free.gaze.target_depth import TargetDisparity
+from calib_free.gaze.target_depth import target_disparity as look_disparity
 from drivers.servo.bus import BusState
 from drivers.servo.joints import JOINTS
 from drivers.cameras.camera import Frame
@@ -64,7 +65,7 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
                      disparity_range: tuple[float, float], look: LookParams,
                      band_px: int = DISPARITY_BAND_PX, row_offset_px: float = 0.0,
                      rival_margin: float = CorrespondenceParams.stereo_rival_margin) -> TargetDisparity:
-    """`calib_free.gaze.look.target_disparity`; InvalidRequestError (naming `d`) when the target
+    """`calib_free.gaze.target_depth.target_disparity`; InvalidRequestError (naming `d`) when the target
     cannot be looked at."""
     try:
         return look_disparity(left, right, x, y, patch_size, disparity_range, look, band_px, row_offset_px,

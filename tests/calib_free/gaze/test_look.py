@@ -14,8 +14,9 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import (LookController, LookOutcome, corrective_step_error_px, foveal_px_per_deg,
-                                   left_landing_px, target_disparity, vergence_goal)
+from calib_free.gaze.look import (LookController, LookOutcome, LookRecord, corrective_step_error_px,
+                                   foveal_px_per_deg, left_landing_px, step_turn_bound_deg, vergence_goal)
+from calib_free.gaze.target_depth import target_disparity
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem,
                                     target_patch_problem)
@@ -288,6 +289,57 @@ def test_a_corrective_step_takes_no_disparity_beyond_the_maps_range():
     fixation.final_right_image = np.roll(left, 90, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=120)
     assert controller._disparity_at(fixation, sighting) == 0.0
+
+
+class MapBeyondItsSamples(LinearMap):
+    """A linear map that, for a |d| beyond 30 px (where it learned nothing), turns the pan a
+    degree more for every pixel further: what a map's polynomial does off its samples."""
+
+    def command(self, position, pose=None) -> np.ndarray:
+        command = super().command(position, pose)
+        command[0] += max(0.0, abs(float(position[2])) - 30.0)
+        return command
+
+
+class MapKeepingTheLeftEye(LinearMap):
+    """A linear map whose pan turns by half the vergence change, as a real head's does: the
+    left eye turns with half of it, and the head makes that up to keep the eye's direction."""
+
+    def command(self, position, pose=None) -> np.ndarray:
+        command = super().command(position, pose)
+        command[0] += command[2] / 2.0
+        return command
+
+
+@pytest.mark.parametrize("gaze_map, shift_px, step_d", [
+    (LinearMap(1.0), 12, 12.0),  # a d the map has learned: taken as measured
+    (MapBeyondItsSamples(1.0), 12, 12.0),  # the same map within its samples
+    (MapKeepingTheLeftEye(1.0), 45, 45.0),  # a large d: the head turns 4.5 deg with the vergence, as it must
+    (MapBeyondItsSamples(1.0), 45, 0.0),  # a large d the map would turn the head 15 deg for
+])
+def test_a_corrective_step_takes_no_disparity_whose_command_turns_the_head_beyond_the_step(gaze_map, shift_px,
+                                                                                        step_d):
+    """A target 2.2 px from the fovea after a fixation whose eyes did not converge, where the
+    right image matches it `shift_px` px to the right. The step aims 0.6 deg of pan away and
+    the vergence 9 deg at most (4.5 for the left eye): a command that turns the head 15 deg is
+    the map's beyond its samples, and the step takes d = 0 instead."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    controller.fixation.map = gaze_map
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(FOVEA[0] + 2.0, FOVEA[1] + 1.0, 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([200.0, 100.0, 0.0]), converged=False,
+                              outcome=FixationOutcome.NO_VERGENCE_MATCH, pose_after=np.array([0.0, 0.0, 8.0]))
+    fixation.final_left_image, fixation.final_right_image = left, np.roll(left, shift_px, axis=1)
+    controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=80)
+    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
+    aim = (sighting.x, sighting.y)
+    assert controller._step_disparity(look, fixation, sighting, aim) == pytest.approx(step_d, abs=0.3)
+
+
+def test_a_steps_turn_bound_is_twice_its_aims_turn_and_half_its_vergence_change_with_slack():
+    assert step_turn_bound_deg(8.0, 0.0, 4.0) == pytest.approx(2 * 2.0 + 0.5)
+    assert step_turn_bound_deg(8.0, -3.0, 4.0) == pytest.approx(2 * (2.0 + 1.5) + 0.5)
 
 
 class RightEyeSeesTheTargetElsewhere(PlanarHead):
