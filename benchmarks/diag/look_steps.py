@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import collections
 import contextlib
+import json
 import sys
 import tempfile
 import threading
@@ -187,6 +188,16 @@ def saved_first_search(look: dict[str, Any], images: Path) -> tuple[dict[str, An
     if look["state"] == "refused" or fixation is None or search is None or search.get("saved") is None:
         return None
     return fixation, search, np.load(images / f"search-{search['saved']:03d}.npz")
+
+
+def saved_first_searches(steps_json: Path, images: Path,
+                         ) -> Iterator[tuple[dict[str, Any], dict[str, Any], dict[str, Any], Any]]:
+    """(look, its first fixation, its first search, that search's saved inputs) for each look of
+    a recording (`--json`, `--images`) whose first search was saved (`saved_first_search`)."""
+    for look in json.loads(steps_json.read_text())["looks"]:
+        first = saved_first_search(look, images)
+        if first is not None:
+            yield (look, *first)
 
 
 def recording_arguments(parser: argparse.ArgumentParser) -> None:

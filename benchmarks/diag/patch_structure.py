@@ -24,7 +24,6 @@ share above a few ratios, what refusing above each would cost.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ import cv2
 import numpy as np
 
 from benchmarks.diag import own_view_margin
-from benchmarks.diag.look_steps import saved_first_search
+from benchmarks.diag.look_steps import saved_first_searches
 from calib_free.gaze import refind
 from calib_free.gaze.fixation import LookParams
 
@@ -56,11 +55,7 @@ def structure(source: np.ndarray, xy: tuple[float, float], half: int = HALF_PATC
 def first_searches(steps_json: Path, images: Path, noise: float) -> list[dict[str, Any]]:
     """One row a look taken on whose first search was saved."""
     rows = []
-    for look in json.loads(steps_json.read_text())["looks"]:
-        first = saved_first_search(look, images)
-        if first is None:
-            continue
-        fixation, search, saved = first
+    for look, fixation, search, saved in saved_first_searches(steps_json, images):
         eigen = structure(saved["source"], tuple(saved["source_xy"]))
         if eigen is None:
             continue

@@ -16,14 +16,13 @@ would refuse: of those that ended on target, and of those that failed as ambiguo
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_search
+from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_searches
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.refind import fovea, own_view_window, second_peak, warped_patch
 
@@ -62,11 +61,7 @@ def recorded_margins(steps_json: Path, images: Path, scales: tuple[float, ...]) 
     """One row a look taken on whose first search was saved: whether it ended on target, whether
     it failed as ambiguous, and its two margins."""
     rows = []
-    for look in json.loads(steps_json.read_text())["looks"]:
-        first = saved_first_search(look, images)
-        if first is None:
-            continue
-        saved = first[2]
+    for look, _, _, saved in saved_first_searches(steps_json, images):
         margins = own_view_margins(saved["source"], tuple(saved["source_xy"]), scales,
                                    LookParams().target_patch_size[0])
         if margins is None:

@@ -1,0 +1,46 @@
+"""The ambiguous-places diagnostic: a target and its copy, each scored plain and with its warp fitted."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from benchmarks.diag.ambiguous_places import places_against_truth, verdict
+from tests.support.planar_head import HEIGHT, WIDTH, rich_texture
+
+FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
+
+
+def after_saccade(source: np.ndarray, source_xy: tuple[float, float], landed: np.ndarray,
+                  copy_offset: tuple[int, int] | None) -> np.ndarray:
+    """`source` moved so that `source_xy` lies at `landed`, with the square of 41 px about it
+    copied `copy_offset` px away (a repeat) when given."""
+    shift = np.array([[1.0, 0.0, landed[0] - source_xy[0]], [0.0, 1.0, landed[1] - source_xy[1]]])
+    image = cv2.warpAffine(source, shift, (WIDTH, HEIGHT), flags=cv2.INTER_LINEAR)
+    if copy_offset is not None:
+        u, v, h = int(round(landed[0])), int(round(landed[1])), 12
+        du, dv = copy_offset
+        image[v + dv - h:v + dv + h + 1, u + du - h:u + du + h + 1] = image[v - h:v + h + 1, u - h:u + h + 1].copy()
+    return image
+
+
+def test_a_copy_of_the_target_scores_as_high_as_the_target_once_fitted_and_a_unique_one_does_not():
+    source = rich_texture(seed=6, size=(WIDTH, HEIGHT))
+    source_xy, landed = (230.4, 80.7), FOVEA + np.array([0.4, -0.3])
+    truth = (float(landed[0]), float(landed[1]))
+    copied = places_against_truth(source, source_xy, after_saccade(source, source_xy, landed, (30, 0)), (21, 21),
+                                  truth, margin=0.15)
+    assert copied is not None
+    assert copied["nearest_place_px"] < 1.0 and copied["truth_fitted"] > 0.95
+    assert any(abs(p["from_truth_px"] - 30.0) < 1.5 for p in copied["places"])
+    assert copied["best_repeat_fitted"] > 0.95  # the copy: nothing in the image tells it from the target
+    unique = places_against_truth(source, source_xy, after_saccade(source, source_xy, landed, None), (21, 21),
+                                  truth, margin=0.15)
+    assert unique is not None and unique["truth_fitted"] > 0.95
+    assert unique["best_repeat_fitted"] is None or unique["best_repeat_fitted"] < 0.9
+
+
+def test_a_search_is_right_near_the_truth_wrong_beyond_three_pixels_and_says_when_it_found_nothing():
+    assert verdict(None, (10.0, 10.0)) == "none"
+    assert verdict((11.0, 11.0), (10.0, 10.0)) == "right"
+    assert verdict((12.0, 11.0), (10.0, 10.0)) == "near"
+    assert verdict((13.5, 10.0), (10.0, 10.0)) == "wrong"
