@@ -2,8 +2,9 @@
 
 Runs `--fixations` exploratory fixations on the simulated head from a random map, as
 `headctl experiment online` does, and judges every fixation that reached the correspondence
-against the truth, eye by eye: where the point on that eye's fovea after the fixation (its
-optical axis' first surface at the true final joints) was in that eye's pre-fixation image.
+against the truth, eye by eye: where the point on that eye's fovea after the fixation (the
+first surface on the ray through its image centre at the true final joints, through the
+unit's own lens) was in that eye's pre-fixation image.
 Per eye, not through the left eye's point alone: at a depth edge the left fovea's centre can
 lie on the far surface while the patch around it, and the right fovea, hold the near one's
 edge; the fixation then teaches the edge's (x, y, d), rightly.
@@ -16,8 +17,11 @@ fixation's confidence floor), what the same recorded pairs would have taught: th
 correspondence, the stereo check and the floor again on every matched fixation (those refused
 as outside the map left out: the map of the moment is not kept).
 
-    .venv/bin/python -m benchmarks.diag.online_refusals [--fixations 1000] [--seed 2]
-        [--room generated|photos] [--exploration teaching|random]
+`--config` names the simulated head (default: the packaged one, the realistic world);
+`--room config` keeps that config's room.
+
+    .venv/bin/python -m benchmarks.diag.online_refusals [--config configs/sim.yaml] [--fixations 1000]
+        [--seed 2] [--room generated|photos|config] [--exploration teaching|random]
         [--compare context_min_correlation=0.0] [--compare floor=0.2,stereo_tolerance_px=3] [--json FILE]
 """
 from __future__ import annotations
@@ -41,8 +45,10 @@ from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationParams
 from drivers.servo.joints import JOINTS
 from calib_free.sim.head_model import HeadModel
-from drivers.sim.scene import Scene
-from drivers.sim.truth import axis_point, hidden_from, texture_at
+from drivers.sim.camera import SimulatedCamera
+from drivers.sim.scene import Lens, Scene
+from drivers.sim.truth import centre_point, hidden_from, texture_at
+from headctl.config.head import HeadConfig, load_config
 from headctl.experiments.online import SimulatedHeadRig, exploration_for
 
 RIGHT_PX, WRONG_PX = 1.0, 3.0
@@ -72,15 +78,17 @@ class Judged:
         return "right" if worst <= RIGHT_PX else "wrong" if worst > WRONG_PX else "within 3 px"
 
 
-def eye_truths(model: HeadModel, scene: Scene, before: dict[str, float],
+def eye_truths(model: HeadModel, scene: Scene, lenses: tuple[Lens, Lens], before: dict[str, float],
                after: dict[str, float]) -> tuple[list[np.ndarray], bool, str]:
-    """Per eye, where its fovea's point after the fixation was before it; whether both were
-    seen; the left point's texture."""
+    """Per eye, where its fovea's point after the fixation was before it, through that eye's
+    own lens (`lenses`, left and right: a unit's lens differs from the model's, its centre
+    off the image centre by up to 10 px in the realistic world); whether both were seen; the
+    left point's texture."""
     frames_after = model.eye_frames_from_joints(*(after[j] for j in JOINTS))
     frames_before = model.eye_frames_from_joints(*(before[j] for j in JOINTS))
     truths, seen = [], True
-    points = [axis_point(scene, rotation, centre) for rotation, centre in frames_after]
-    for point, (rotation, centre), lens in zip(points, frames_before, (model.lens_left, model.lens_right)):
+    points = [centre_point(scene, lens, rotation, centre) for (rotation, centre), lens in zip(frames_after, lenses)]
+    for point, (rotation, centre), lens in zip(points, frames_before, lenses):
         uv, visible = lens.project(((point - centre) @ rotation.T)[None])
         seen = seen and bool(visible[0]) and not hidden_from(scene, centre, point, 1e-3)
         truths.append(uv[0])
@@ -103,14 +111,18 @@ class RecordingHead:
         return pair
 
 
-def run(fixations: int, seed: int, room: str, exploration: str, keep_pairs: bool) -> tuple[list[Judged], collections.Counter[str]]:
+def run(fixations: int, seed: int, room: str | None, exploration: str, keep_pairs: bool,
+        config: HeadConfig | None = None) -> tuple[list[Judged], collections.Counter[str]]:
     params = FixationParams(exploration=exploration, correspondence=CorrespondenceParams.profile_values("default"))
     judged: list[Judged] = []
     unmatched: collections.Counter[str] = collections.Counter()
-    with SimulatedHeadRig(seed=seed, fixation=params, room=room) as rig, \
+    with SimulatedHeadRig(seed=seed, fixation=params, room=room, config=config) as rig, \
             MapAdapter(GazeMap.for_image(320, 240, seed=seed)) as adapter:
         world = rig.devices.world
         assert world is not None
+        cameras = [rig.devices.cameras[side] for side in ("left", "right")]
+        assert all(isinstance(camera, SimulatedCamera) for camera in cameras)  # the rig checked it
+        lenses = (cameras[0].unit_lens, cameras[1].unit_lens)  # type: ignore[attr-defined]
         head = RecordingHead(rig.head)
         controller = FixationController(head, adapter, params, seed=seed, clock=rig.clock.monotonic, learner=adapter)
         before = world.true_joints()
@@ -121,7 +133,7 @@ def run(fixations: int, seed: int, room: str, exploration: str, keep_pairs: bool
             if record.match is None:
                 unmatched[str(record.outcome)] += 1
             else:
-                truths, seen, texture = eye_truths(rig.model, rig.scene, before, after)
+                truths, seen, texture = eye_truths(rig.model, rig.scene, lenses, before, after)
                 pairs = None
                 if keep_pairs:
                     pairs = tuple(as_grey_float(im).astype(np.uint8) for im in (*head.pairs[0], *head.pairs[-1]))
@@ -168,14 +180,17 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--fixations", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=2)
-    parser.add_argument("--room", default="generated")
+    parser.add_argument("--config", type=Path, help="the simulated head's config (default: the packaged one)")
+    parser.add_argument("--room", default="generated", help="generated, photos, or config: the config's own")
     parser.add_argument("--exploration", default=exploration_for("default"))
     parser.add_argument("--compare", action="append", default=[], metavar="KEY=VALUE,...")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     settings = [parse_setting(text) for text in args.compare]
     started = time.monotonic()
-    judged, unmatched = run(args.fixations, args.seed, args.room, args.exploration, bool(settings))
+    config = load_config(args.config) if args.config else None
+    room = None if args.room == "config" else args.room
+    judged, unmatched = run(args.fixations, args.seed, room, args.exploration, bool(settings), config)
     table = collections.Counter((case.outcome, case.texture, case.verdict()) for case in judged)
     print(f"{args.fixations} fixations, seed {args.seed}, {args.room} room, {args.exploration} exploration; "
           f"{len(judged)} matched ({time.monotonic() - started:.0f} s)")
