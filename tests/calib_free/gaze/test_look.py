@@ -291,6 +291,21 @@ def test_a_corrective_step_takes_no_disparity_beyond_the_maps_range():
     assert controller._disparity_at(fixation, sighting) == 0.0
 
 
+@pytest.mark.parametrize("left_by_vergence, step_d", [(25.0, 25.0), (90.0, 0.0)])
+def test_a_step_after_eyes_that_did_not_converge_takes_what_vergence_left_within_the_maps_range(left_by_vergence,
+                                                                                               step_d):
+    """The right image matches nothing at the target (NCC below the floor): the step takes the
+    disparity fine vergence left, unless that lies beyond the map's range (60 px), where the
+    map has no command for it and the step would fail as outside the map."""
+    controller, _ = looker(PlanarHead(), gain=1.0)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(162.0, 121.0, 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([162.0, 121.0, 0.0]), converged=False,
+                              outcome=FixationOutcome.NOT_CONVERGED, vergence_disparities_px=[40.0, left_by_vergence])
+    fixation.final_left_image, fixation.final_right_image = left, rich_texture(seed=5, size=(WIDTH, HEIGHT))
+    assert controller._disparity_at(fixation, sighting) == step_d
+
+
 class MapBeyondItsSamples(LinearMap):
     """A linear map that, for a |d| beyond 30 px (where it learned nothing), turns the pan a
     degree more for every pixel further: what a map's polynomial does off its samples."""
