@@ -502,13 +502,14 @@ class LookController:
             return ""
         height, width = image.shape[:2]
         px_per_deg = foveal_px_per_deg(self.fixation.map, pose, (width, height))
+        if px_per_deg is None:
+            return ""
         try:
             command = self.fixation.map.command((*aim, d), pose=pose)
         except OutOfRangeError:
             return ""
-        if px_per_deg is None:
-            return ""
-        aim_px = float(np.hypot(aim[0] - (width - 1) / 2.0, aim[1] - (height - 1) / 2.0))
+        cx, cy = fovea(image)
+        aim_px = float(np.hypot(aim[0] - cx, aim[1] - cy))
         turn = float(np.hypot(command[0], command[1]))
         bound = step_turn_bound_deg(aim_px, float(command[2]), px_per_deg)
         if turn <= bound:
