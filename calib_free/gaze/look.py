@@ -556,6 +556,7 @@ class LookController:
         search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
         d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search),
                                    fp.vergence_band_px)
+
         def in_map(disparity: float) -> bool:
             return not self.fixation.map.check_position((sighting.x, sighting.y, disparity))
 
