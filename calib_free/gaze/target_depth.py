@@ -5,7 +5,8 @@ map's command for (x, y, d) verges the eyes at the target's depth. `target_dispa
 it in the pair the target was chosen in (`calib_free.correspondence.disparity.disparity_at`),
 says where that measurement may be a repeat's, and falls back to the depth the eyes fixate
 (d = 0) where nothing can be measured but the look can still find the target by its patch.
-A target with no patch to find it by is refused here, before the head moves.
+A target with no patch to find it by is refused here, before the head moves. At the look's
+end, `vergence_on_a_repeat` says where the depth the eyes converged at may be a repeat's.
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
 from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.correspondence.stereo import row_rival_ncc
 from calib_free.errors import DisparityError, TargetPatchError
@@ -69,3 +70,28 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
                                        f"(NCC {rival:.2f} against {ncc:.2f} at d = {d:.1f} px): d may be a "
                                        "repeat's, so the eyes' final vergence is not held against it")
     return TargetDisparity(d, ncc)
+
+
+def vergence_on_a_repeat(left: np.ndarray, right: np.ndarray, patch_size: tuple[int, int], search_px: float,
+                         row_offset_px: float = 0.0,
+                         rival_margin: float = CorrespondenceParams.stereo_rival_margin) -> str:
+    """Why the depth the eyes converged at may be a repeat's ('' where it cannot): the left
+    fovea's patch (`patch_size`, fine vergence's) matches the right image where the eyes
+    converged and, within `rival_margin` of NCC, another place along the same rows within
+    +-`search_px` (`row_rival_ncc`; `row_offset_px`: the pair's vertical misalignment). On
+    such a texture fine vergence may settle with the right eye on a repeat, and the eyes'
+    vergence then says nothing of what the left eye sees, as a d measured on such a patch says
+    nothing of the target's depth (`target_disparity`)."""
+    grey_left, grey_right = as_grey_float(left), as_grey_float(right)
+    height, width = grey_left.shape
+    fovea = ((width - 1) / 2.0, (height - 1) / 2.0)
+    band_px = DISPARITY_BAND_PX if row_offset_px else 0
+    d, ncc = horizontal_offset(grey_left, grey_right, fovea, patch_size, (-search_px, search_px), band_px,
+                               row_offset_px)
+    if ncc <= 0:
+        return ""
+    rival = row_rival_ncc(grey_left, grey_right, fovea, patch_size, d, search_px, row_offset_px, band_px)
+    if rival <= ncc - rival_margin:
+        return ""
+    return (f"the fovea's patch repeats along its rows in the right image (NCC {rival:.2f} against {ncc:.2f} at "
+            f"{d:.1f} px): the right eye may be on a repeat")

@@ -16,7 +16,7 @@ from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import (LookController, LookOutcome, LookRecord, corrective_step_error_px,
                                    foveal_px_per_deg, left_landing_px, step_turn_bound_deg, vergence_goal)
-from calib_free.gaze.target_depth import target_disparity
+from calib_free.gaze.target_depth import target_disparity, vergence_on_a_repeat
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem,
                                     target_patch_problem)
@@ -251,6 +251,54 @@ def test_a_look_alike_at_another_depth_is_not_taken_for_the_target():
     assert record.fixations[-1].converged
     assert record.outcome is LookOutcome.TARGET_LOST and "another depth" in record.detail
     assert not record.on_target
+
+
+class RowRepeatHead(PlanarHead):
+    """A plane head whose right eye sees, `REPEAT_PX` along its rows from the left fovea's
+    content, a copy of that content's surroundings with noise (NCC about 0.97 against the true
+    place's 1): texture repeating along the rows wherever the head looks."""
+
+    REPEAT_PX = -50
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        left, right = super().wait_pair(after_s, timeout_s)
+        u, v = int(round(FOVEA[0])), int(round(FOVEA[1]))
+        source = left[v - 16:v + 17, u - 24:u + 25]
+        noise = np.random.default_rng(1).normal(0.0, 0.25 * float(source.std()), source.shape)
+        at = u + int(round(self.disparity_px())) + self.REPEAT_PX
+        right = right.copy()
+        right[v - 16:v + 17, at - 24:at + 25] = source + noise.astype(np.float32)
+        return left, right
+
+
+def test_eyes_at_another_depth_on_a_patch_repeating_along_its_rows_end_the_look_on_the_left_fovea():
+    """The target told at the d of its repeat 50 px along the right image's rows: the saccade
+    verges the eyes 10 deg nearer than the plane, where the repeat lies at the right fovea, and
+    fine vergence takes them back to the plane (the truer match). As with a look-alike, the
+    eyes end 10 deg from the vergence the map gives the told d, but the fovea's patch repeats
+    along its rows, so the vergence may be a repeat's and does not say the left eye sees a
+    look-alike: the look ends on target, truly, and says why the vergence differs."""
+    head = RowRepeatHead()
+    controller, _ = looker(head, gain=1.0)
+    target = (200.0, 100.0)
+    texel = head.texel_at(target)
+    record = controller.look((*target, -50.0))
+    assert record.fixations[-1].converged
+    assert record.outcome is LookOutcome.ON_TARGET and record.on_target
+    assert true_error_px(head, texel) <= 1.0
+    assert "deg away from the vergence the map gives the target's d" in record.detail
+    assert "repeats along its rows in the right image" in record.detail
+
+
+def test_the_vergence_may_be_a_repeats_only_where_the_foveas_patch_repeats_along_the_rows():
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    right = np.roll(left, 4, axis=1)
+    assert vergence_on_a_repeat(left, right, (32, 20), 106) == ""
+    twice = with_a_copy_beside(right, FOVEA + np.array([4.0, 0.0]), (-40, 0), size=41)
+    assert "repeats along its rows" in vergence_on_a_repeat(left, twice, (32, 20), 106)
+    assert vergence_on_a_repeat(left, twice, (32, 20), 30) == ""  # the repeat beyond the search
+    below = with_a_copy_beside(right, FOVEA + np.array([4.0, 0.0]), (-40, 24), size=41)
+    assert vergence_on_a_repeat(left, below, (32, 20), 106) == ""  # a repeat on other rows
 
 
 def test_a_target_is_looked_at_with_its_measured_disparity_else_from_the_fixation_depth():
