@@ -455,11 +455,8 @@ class LookController:
         docs/results/realistic-world.md). Nor where the fovea's patch repeats along its rows in
         the right image (`vergence_on_a_repeat`): the right eye may be on a repeat, which moves
         the vergence by a repeat's disparity whatever the left eye sees; the look then ends on
-        the left fovea, its reference, and says so. In the benchmark runs all 32 looks refused
-        as at another depth were truly within 2 px of the target (mismatches of 3.0-4.9 deg,
-        two of 9 deg); of 7 such looks recorded fixation by fixation, the 6 truly on target
-        ended on a fixation whose stereo check found the patch repeating along its rows, and
-        the one look-alike (59 px off, 13.6 deg) on one that taught."""
+        the left fovea, its reference, and says so (in the benchmark runs the looks refused as at
+        another depth were all but one truly on target, most on such a patch: docs/method.md)."""
         meant = self._target_vergence(record)
         if meant is None or not fixation.converged or fixation.pose_after is None:
             return "", ""
@@ -474,13 +471,18 @@ class LookController:
         return f"{converged}: another thing at another depth looks like the target", ""
 
     def _vergence_on_a_repeat(self, fixation: FixationRecord) -> str:
+        """`vergence_on_a_repeat` in the fixation's final pair, with fine vergence's patch and search."""
         left, right = fixation.final_left_image, fixation.final_right_image
         if left is None or right is None:
             return ""
         fp = self.fixation.params
-        search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
-        return vergence_on_a_repeat(left, right, fp.vergence_patch_size, search, self.fixation.row_offset_px,
-                                    fp.correspondence.stereo_rival_margin)
+        return vergence_on_a_repeat(left, right, fp.vergence_patch_size, self._vergence_search_px(left.shape[1]),
+                                    self.fixation.row_offset_px, fp.correspondence.stereo_rival_margin)
+
+    def _vergence_search_px(self, width: int) -> int:
+        """How far either side of the right fovea fine vergence looks (`vergence_search_px`)."""
+        search = self.fixation.params.vergence_search_px
+        return search if search is not None else width // 3
 
     def _target_vergence(self, record: LookRecord) -> float | None:
         """The vergence (deg) the map gave the first saccade for the target's d, within the joint
@@ -576,7 +578,7 @@ class LookController:
         left, right = fixation.final_left_image, fixation.final_right_image
         assert left is not None and right is not None
         fp = self.fixation.params
-        search = fp.vergence_search_px if fp.vergence_search_px is not None else left.shape[1] // 3
+        search = self._vergence_search_px(left.shape[1])
         d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search),
                                    fp.vergence_band_px)
 
