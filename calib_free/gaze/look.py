@@ -468,7 +468,8 @@ class LookController:
         repeat = self._vergence_on_a_repeat(fixation)
         if repeat:
             return "", f"; {converged}: {repeat}"
-        return f"{converged}: another thing at another depth looks like the target", ""
+        return (f"{converged}: another thing at another depth looks like the target, or the map's vergence for "
+                "it is that far off (a young map's; a later look may end on it)"), ""
 
     def _vergence_on_a_repeat(self, fixation: FixationRecord) -> str:
         """`vergence_on_a_repeat` in the fixation's final pair, with fine vergence's patch and search."""

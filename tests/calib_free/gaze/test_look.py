@@ -250,6 +250,7 @@ def test_a_look_alike_at_another_depth_is_not_taken_for_the_target():
     # The eyes converge on the plane, 6 deg of vergence from what the map gives d = 30 px.
     assert record.fixations[-1].converged
     assert record.outcome is LookOutcome.TARGET_LOST and "another depth" in record.detail
+    assert "or the map's vergence for it is that far off" in record.detail
     assert not record.on_target
 
 
