@@ -38,12 +38,22 @@ def stereo_inconsistency(match: FixationMatch, pre_left: np.ndarray, pre_right: 
         return (f"the pre-fixation pair's disparity at (x*, y*) is {d_pre:.1f} px (NCC {score:.2f}), "
                 f"d* = {d_star:.1f} px")
     search_px = pre_left.shape[1] / 3.0
-    rival = row_rival_ncc(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y), params.patch_size,
-                          d_pre, search_px, row_offset_px, band_px)
-    if rival > score - params.stereo_rival_margin:
+    rival = row_repeat_ncc(as_grey_float(pre_left), as_grey_float(pre_right), (left.x, left.y), params.patch_size,
+                           d_pre, score, search_px, params.stereo_rival_margin, row_offset_px, band_px)
+    if rival is not None:
         return (f"the patch at (x*, y*) repeats along its rows in the right image (NCC {rival:.2f} against "
                 f"{score:.2f} at d* = {d_star:.1f} px): the eyes may have verged on different repeats")
     return ""
+
+
+def row_repeat_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
+                   d: float, ncc: float, search_px: float, margin: float, row_offset_px: float = 0.0,
+                   band_px: int = 0) -> float | None:
+    """The NCC of a repeat of the left patch at `xy` along the same rows of `right` that scores
+    within `margin` of `ncc`, its match at `d` (`row_rival_ncc`): on such a texture d may be a
+    repeat's. None where no place along the rows comes that near."""
+    rival = row_rival_ncc(left, right, xy, patch_size, d, search_px, row_offset_px, band_px)
+    return rival if rival > ncc - margin else None
 
 
 def row_rival_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],

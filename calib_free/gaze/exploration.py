@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 
 from calib_free.correspondence.search import CorrespondenceParams, correspondence_map
-from calib_free.correspondence.stereo import row_rival_ncc
+from calib_free.correspondence.stereo import row_repeat_ncc
 from calib_free.correspondence.disparity import horizontal_offset
 from calib_free.errors import OutOfRangeError
 
@@ -410,9 +410,9 @@ class TeachingExplorer:
         """Why the target's d is ambiguous ('' if not): its patch matches nearly as well (NCC
         within `stereo_rival_margin` of `ncc`) elsewhere along the same rows of the right image."""
         x, y, d = (float(v) for v in target)
-        rival = row_rival_ncc(view.pre_left, view.pre_right, (x, y), self.correspondence.patch_size, d, search,
-                              view.row_offset_px)
-        return "a rival along the row" if rival > ncc - self.params.stereo_rival_margin else ""
+        rival = row_repeat_ncc(view.pre_left, view.pre_right, (x, y), self.correspondence.patch_size, d, ncc, search,
+                               self.params.stereo_rival_margin, view.row_offset_px)
+        return "a rival along the row" if rival is not None else ""
 
     def repeat_problem(self, view: ExplorationView, target: np.ndarray) -> str:
         """Why the patch at `target` repeats elsewhere in either pre-fixation image ('' if not)."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, disparity_at, horizontal_offset
 from calib_free.correspondence.search import CorrespondenceParams
-from calib_free.correspondence.stereo import row_rival_ncc
+from calib_free.correspondence.stereo import row_repeat_ncc
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.refind import target_patch_problem
@@ -49,7 +49,7 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
     pair's vertical misalignment, `FixationController.row_offset_px`): the look starts at the depth
     the eyes fixate, and fine vergence and the loop's corrective steps find the target's own.
     Where the patch matches another place along the same rows of the right image within
-    `rival_margin` of NCC (`row_rival_ncc`: a texture repeating along the rows), d is the best
+    `rival_margin` of NCC (`row_repeat_ncc`: a texture repeating along the rows), d is the best
     match's but may be a repeat's, and says so. TargetPatchError when the target has no patch
     for the closed loop to find it again by (`target_patch_problem`: flat, repetitive, reaching
     beyond the image): no look can end on it, whatever its d."""
@@ -63,9 +63,9 @@ def target_disparity(left: np.ndarray, right: np.ndarray, x: float, y: float, pa
     if problem:
         raise TargetPatchError(f"the target at ({x:g}, {y:g}) cannot be looked at: {problem}")
     search_px = max(abs(disparity_range[0]), abs(disparity_range[1]))
-    rival = row_rival_ncc(as_grey_float(left), as_grey_float(right), (x, y), patch_size, d, search_px,
-                          row_offset_px, band_px)
-    if rival > ncc - rival_margin:
+    rival = row_repeat_ncc(as_grey_float(left), as_grey_float(right), (x, y), patch_size, d, ncc, search_px,
+                           rival_margin, row_offset_px, band_px)
+    if rival is not None:
         return TargetDisparity(d, ncc, f"the patch at ({x:g}, {y:g}) repeats along its rows in the right image "
                                        f"(NCC {rival:.2f} against {ncc:.2f} at d = {d:.1f} px): d may be a "
                                        "repeat's, so the eyes' final vergence is not held against it")
@@ -78,7 +78,7 @@ def vergence_on_a_repeat(left: np.ndarray, right: np.ndarray, patch_size: tuple[
     """Why the depth the eyes converged at may be a repeat's ('' where it cannot): the left
     fovea's patch (`patch_size`, fine vergence's) matches the right image where the eyes
     converged and, within `rival_margin` of NCC, another place along the same rows within
-    +-`search_px` (`row_rival_ncc`; `row_offset_px`: the pair's vertical misalignment). On
+    +-`search_px` (`row_repeat_ncc`; `row_offset_px`: the pair's vertical misalignment). On
     such a texture fine vergence may settle with the right eye on a repeat, and the eyes'
     vergence then says nothing of what the left eye sees, as a d measured on such a patch says
     nothing of the target's depth (`target_disparity`)."""
@@ -90,8 +90,9 @@ def vergence_on_a_repeat(left: np.ndarray, right: np.ndarray, patch_size: tuple[
                                row_offset_px)
     if ncc <= 0:
         return ""
-    rival = row_rival_ncc(grey_left, grey_right, fovea, patch_size, d, search_px, row_offset_px, band_px)
-    if rival <= ncc - rival_margin:
+    rival = row_repeat_ncc(grey_left, grey_right, fovea, patch_size, d, ncc, search_px, rival_margin, row_offset_px,
+                           band_px)
+    if rival is None:
         return ""
     return (f"the fovea's patch repeats along its rows in the right image (NCC {rival:.2f} against {ncc:.2f} at "
             f"{d:.1f} px): the right eye may be on a repeat")
