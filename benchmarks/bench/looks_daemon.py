@@ -12,7 +12,7 @@ ending on target (`done`) of all looks, of those within reach and of those the d
 (the daemon's own, on target), the look's wall time (`duration_s`), and the others' outcomes
 and details; the looks taken on whose first saccade the map sent beyond the pan or tilt limits,
 by how far, and how many of those ended on target (what the API's reach margin,
-`calib_free.gaze.look.REACH_MARGIN_DEG`, refuses or lets through); beside them the truth, the world point the pixel showed before the look (the
+`calib_free.gaze.look_geometry.REACH_MARGIN_DEG`, refuses or lets through); beside them the truth, the world point the pixel showed before the look (the
 first surface along its ray through the left camera's own lens) projected at the servos' true
 final position, its distance from the fovea.
 

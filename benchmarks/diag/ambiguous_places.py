@@ -19,7 +19,8 @@ Then what a prior about the fovea would do where no landing was measured: every 
 search without one searched again (`calib_free.gaze.refind.search_target`) as if the saccade
 were known to leave the target within each `--fovea-reach` of the fovea, and the target it
 finds, or its failure, set against the search as recorded and the truth (right within 1.5 px
-of the true place, wrong beyond 3 px).
+of the true place, wrong beyond 3 px; in a recording without offsets, by the distance from the
+fovea alone, which counts only some of the wrong ones).
 
     .venv/bin/python -m benchmarks.diag.ambiguous_places --steps runs/steps.json --images DIR
         [--steps ... --images ...] [--margin 0.15] [--fovea-reach 6,9,12]
@@ -123,14 +124,27 @@ def verdict(found_xy: tuple[float, float] | None, truth_xy: tuple[float, float])
     return "right" if off <= 1.5 else "wrong" if off > REPEAT_PX else "near"
 
 
+def verdict_by_distance(found_xy: tuple[float, float] | None, fovea_xy: tuple[float, float],
+                        true_error_px: float) -> str:
+    """`verdict` where only the target's true distance from the fovea is known (recordings
+    without offsets): the found place's distance against it. A wrong place at the true
+    distance passes, so 'wrong' counts at least the wrong ones."""
+    if found_xy is None:
+        return "none"
+    off = abs(float(np.hypot(found_xy[0] - fovea_xy[0], found_xy[1] - fovea_xy[1])) - true_error_px)
+    return "right" if off <= 1.5 else "wrong" if off > REPEAT_PX else "near"
+
+
 def fovea_prior_tally(steps_json: Path, images: Path, reaches: list[float]) -> dict[float, collections.Counter[str]]:
     """For each reach, how the recorded first searches without a measured landing would change
     with a prior about the fovea of that reach: counts of 'as recorded -> with the prior'
-    verdicts (`verdict`), of those whose truth is known."""
+    verdicts (`verdict`), of those whose truth is known; by the distance alone
+    (`verdict_by_distance`) where the recording kept no offset."""
     tally: dict[float, collections.Counter[str]] = {reach: collections.Counter() for reach in reaches}
     for _, fixation, _, saved in saved_first_searches(steps_json, images):
         truth = true_place(fixation, saved)
-        if truth is None or not np.isnan(float(saved["offset"][0])):
+        true_error = fixation.get("true_error_px")
+        if (truth is None and true_error is None) or not np.isnan(float(saved["offset"][0])):
             continue  # truth unknown, or a landing was measured
         params = dataclasses.replace(LookParams(), target_patch_size=tuple(int(v) for v in saved["patch"]))
         inputs = (saved["source"], tuple(float(v) for v in saved["source_xy"]), saved["image"], params)
@@ -139,9 +153,13 @@ def fovea_prior_tally(steps_json: Path, images: Path, reaches: list[float]) -> d
             sighting = search_target(*inputs, None, expected, None).sighting
             return None if sighting is None else (sighting.x, sighting.y)
 
-        recorded = verdict(found(None), truth)
+        def judged(xy: tuple[float, float] | None) -> str:
+            return verdict(xy, truth) if truth is not None else verdict_by_distance(xy, fovea(saved["image"]),
+                                                                                      float(true_error))
+
+        recorded = judged(found(None))
         for reach in reaches:
-            tally[reach][f"{recorded} -> {verdict(found(reach / PRIOR_SIGMAS), truth)}"] += 1
+            tally[reach][f"{recorded} -> {judged(found(reach / PRIOR_SIGMAS))}"] += 1
     return tally
 
 

@@ -29,12 +29,16 @@ leaves the patch ambiguous. A corrective step whose landing nothing measured, or
 measured landing contradicts it, has a reach of its own about the fovea: a step that aimed a
 few pixels from the fovea, and that the encoders say went as planned, cannot have left the
 target farther than it aimed plus what the head did beyond the plan
-(`corrective_step_error_px`). That reach bounds the search after every corrective step, not
-only the choice among repeats: a best match beyond it is a look-alike, whatever its score. In
-the realistic world's recorded looks (five seeds, 116 searches after corrective steps), 3 found
-the target 12-30 px from the fovea after steps that could have left it no farther than 2-3 px;
-the truth put it 0.2-3.4 px away. With no landing measured, the view before the saccade tells
-the repeats apart where it shows them around the target (`place_told_by_repeats`).
+(`corrective_step_error_px`). A first saccade whose landing nothing measured is expected to
+have left the target within a pixel of the fovea, and farther by what the encoders say went
+beyond the plan (`FIRST_SACCADE_ERROR_PX`): a prior among repeats, not a bound. A corrective
+step's reach bounds the search after it, not only the choice among repeats: a best match
+beyond it is a look-alike, whatever its score. In the realistic world's recorded looks (five
+seeds, 116 searches after corrective steps), 3 found the target 12-30 px from the fovea after
+steps that could have left it no farther than 2-3 px; the truth put it 0.2-3.4 px away. Where
+more than one repeat lies within the reach, the view before the saccade tells them apart where
+it shows them around the target (`place_told_by_repeats`). The geometry of these priors and of
+the joint limits is `calib_free.gaze.look_geometry`'s.
 
 The first search after the saccade tries only the radial scales of the patch that the looks
 on target have found the lens to show at the target's distance from the image centre, once
@@ -60,10 +64,12 @@ from typing import Callable
 import numpy as np
 
 from calib_free.correspondence.disparity import horizontal_offset
-from calib_free.correspondence.search import CorrespondenceParams, match_eye
 from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
-                                      HeadTimeoutError, LookParams, MapReader, PairTimeoutError, next_boost)
+                                      HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
+from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSET_SPREAD, REACH_MARGIN_DEG,
+                                           beyond_limits, corrective_step_error_px, foveal_px_per_deg,
+                                           left_landing_px, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
@@ -89,17 +95,6 @@ _STOPS_A_LOOK = frozenset({FixationOutcome.SHUTDOWN, FixationOutcome.CANCELLED, 
                            FixationOutcome.TARGET_OUTSIDE})
 
 
-# A saccade's pan or tilt goal beyond the joint limits by more than this (a servo's tick, 0.088
-# deg, rounded down) stops the head at the limit. Its target then stays off the fovea: in the
-# real-time looks benchmark every look whose first saccade the map sent 0.13-0.83 deg beyond
-# ended 3-13 px off it (5 of 5, both worlds, docs/results/realistic-world.md), farther than
-# the 4 px a degree at the fovea would say (the map is least sure at the edges of its range).
-REACH_MARGIN_DEG = 0.05
-# Where a fixation measured where its fovea landed, the target is expected at the fovea plus its
-# offset from that landing, seen through the patch's warp; expected to within this fraction of
-# the offset: the warp is the lens's at the target, the landing lies that far from it, and the
-# lens's magnification changes across the way (`calib_free.gaze.refind.search_target`).
-LANDING_OFFSET_SPREAD = 0.15
 # A target accepted with its patch's std at least min_patch_std in one exposure is judged again
 # in the look's own image before the saccade: another exposure, whose contrast may differ by the
 # auto exposure's gain between them (up to x1.4, and a lamp or the daylight changing). The look
@@ -117,97 +112,6 @@ LOOK_FLAT_FRACTION = 0.7
 # docs/results/realistic-world.md). At the full margin, 3 of 200 looks in the realistic world were
 # refused after the saccade that had brought the target within 0.5-1.9 px of the fovea.
 LOOK_AMBIGUITY_FRACTION = 0.5
-# A corrective step's command turning pan and tilt farther than this many times what the step
-# calls for (its aim's offset from the fovea, and half its vergence change: the left eye turns
-# by half of it, which the head makes up for), plus the slack, is the map's beyond what it
-# learned, and the step takes d = 0 (`step_turn_bound_deg`). In the realistic world's recorded
-# corrective steps (eight recordings, 566 steps), at the 4 px a degree the steps show at the
-# fovea, 5 turned beyond it and no other: each had measured d 16 or 58 px 1.5-2.4 px from the
-# fovea, turned the head 1.9-11.9 deg, and left the target 6-57 px off.
-STEP_TURN_FACTOR = 2.0
-STEP_TURN_SLACK_DEG = 0.5
-# The map's pan for targets this far either side of the fovea gives its pixels a degree there
-# (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
-FOVEAL_SPAN_PX = 10.0
-PLAUSIBLE_PX_PER_DEG = (0.5, 50.0)
-
-
-def beyond_limits(goal: np.ndarray, low: np.ndarray, high: np.ndarray, margin_deg: float) -> str:
-    """Which of a saccade's pan and tilt goals (`goal`, a pose) lie more than `margin_deg`
-    beyond the limits `low`, `high`, said ('' if none)."""
-    beyond = [f"{name} {goal[i]:.1f} outside [{low[i]:g}, {high[i]:g}] deg"
-              for i, name in enumerate(("pan", "tilt"))
-              if not low[i] - margin_deg <= goal[i] <= high[i] + margin_deg]
-    return "; ".join(beyond)
-
-
-def left_landing_px(fixation: FixationRecord, params: CorrespondenceParams,
-                    confidence_floor: float) -> np.ndarray | None:
-    """Where the left fovea landed, in the image before `fixation`: the position (x, y) there of
-    what its final left image shows at the fovea. From the fixation's correspondence where it
-    taught; else from the left eye's alone (`match_eye`) where that is confident (at least
-    `confidence_floor`): a fixation that taught nothing (its eyes did not converge, or the right
-    eye's match was refused) may still say where the left eye went. A look finds its target in
-    the left image, so this is the landing that tells the target from a repeat of its texture.
-    None when not measured. A fixation that converged but was refused matched its left eye so
-    already: that match is taken, not made again."""
-    pre, post = fixation.pre_left_image, fixation.final_left_image
-    if pre is None or post is None:
-        return None
-    if fixation.taught and fixation.position is not None:
-        return np.asarray(fixation.position[:2], dtype=float)
-    match = fixation.match.left if fixation.match is not None else match_eye(pre, post, params)
-    if not match.confidence >= confidence_floor:  # NaN: not measured
-        return None
-    return np.array([match.x, match.y])
-
-
-def foveal_px_per_deg(gaze_map: MapReader, pose: np.ndarray, image_size: tuple[int, int]) -> float | None:
-    """Pixels of image motion at the fovea a degree of pan turns, as the map has learned it: the
-    pan it commands for targets `FOVEAL_SPAN_PX` either side of the fovea, seen at `pose`; None
-    where the map does not cover them or learned no plausible slope (a young map)."""
-    width, height = image_size
-    if width <= 0 or height <= 0:
-        return None
-    cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
-    try:
-        pan = [float(gaze_map.command((cx + side * FOVEAL_SPAN_PX, cy, 0.0), pose=pose)[0]) for side in (-1, 1)]
-    except OutOfRangeError:
-        return None
-    turn_deg = abs(pan[1] - pan[0])
-    px_per_deg = 2 * FOVEAL_SPAN_PX / turn_deg if turn_deg > 0 else float("inf")
-    return px_per_deg if PLAUSIBLE_PX_PER_DEG[0] <= px_per_deg <= PLAUSIBLE_PX_PER_DEG[1] else None
-
-
-def corrective_step_error_px(aim_px: float, moved: np.ndarray, planned: np.ndarray, px_per_deg: float) -> float:
-    """How far from the fovea a corrective fixation is expected to have left the target, where
-    it was not measured: as far as the step aimed (`aim_px`, from the fovea: a step that did
-    nothing leaves the target there, one the map misjudged by a fraction of itself nearer), and
-    farther by what the encoders say the head did beyond the plan (`moved` against `planned`,
-    both (pan, tilt, vergence) in deg): pan and tilt, and half the vergence, which turns the
-    left eye by half its change (fine vergence after the step), at `px_per_deg`. A repeat of
-    the target's texture several times that far from the fovea is not where a step this short
-    took it."""
-    beyond = np.asarray(moved, dtype=float) - np.asarray(planned, dtype=float)
-    return float(aim_px + px_per_deg * (np.hypot(beyond[0], beyond[1]) + abs(beyond[2]) / 2.0))
-
-
-def step_turn_bound_deg(aim_px: float, vergence_change_deg: float, px_per_deg: float) -> float:
-    """How far (deg, pan and tilt together) the command of a corrective step aimed `aim_px`
-    from the fovea, with a vergence change `vergence_change_deg`, may turn the head: the turn
-    that brings the aim to the fovea at `px_per_deg`, and half the vergence change (the head
-    keeps the left eye's direction against it), `STEP_TURN_FACTOR` times, plus
-    `STEP_TURN_SLACK_DEG`."""
-    return STEP_TURN_FACTOR * (aim_px / px_per_deg + abs(vergence_change_deg) / 2.0) + STEP_TURN_SLACK_DEG
-
-
-def vergence_goal(gaze_map: MapReader, pose: np.ndarray, target: Vector) -> float | None:
-    """The vergence (deg) the map's command for `target` (x, y, d), seen at `pose`, ends at;
-    None where the map does not cover it."""
-    try:
-        return float(pose[2] + gaze_map.command(target, pose=pose)[2])
-    except OutOfRangeError:
-        return None
 
 
 @dataclass
@@ -337,6 +241,8 @@ class LookController:
             sighting, why = None, ""
             step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
             expected, offset = self._landing_prior(fixation, target_before, to_source, step)
+            if expected is None and step_aim_px is None:  # the first saccade, its landing not measured
+                expected = self._corrective_step_error_px(fixation, FIRST_SACCADE_ERROR_PX)
             if warps is None:
                 sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
                                                              self.magnification, expected, offset)

@@ -165,7 +165,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
     such prior; the place whose repeats `source` shows around the target is it
     (`place_told_by_repeats`).
 
-    `step_error_px`: a corrective step's expected error (`calib_free.gaze.look.corrective_step_error_px`),
+    `step_error_px`: a corrective step's expected error (`calib_free.gaze.look_geometry.corrective_step_error_px`),
     which bounds where the target can be, not only which repeat it is: a step that aimed a few
     pixels from the fovea and went as the encoders say cannot have left the target farther. The
     search then keeps within `PRIOR_SIGMAS` times it (at least `MIN_EXPECTED_ERROR_PX`) either

@@ -27,7 +27,7 @@ from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.errors import DisparityError, MapFileError, OutOfRangeError, TargetPatchError
 from calib_free.map.file import read_map, write_map
 from calib_free.gaze.fixation import FixationRecord, LookParams
-from calib_free.gaze.look import REACH_MARGIN_DEG, beyond_limits
+from calib_free.gaze.look_geometry import REACH_MARGIN_DEG, beyond_limits
 from calib_free.gaze.target_depth import TargetDisparity
 from calib_free.gaze.target_depth import target_disparity as look_disparity
 from drivers.servo.bus import BusState

@@ -4,7 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from benchmarks.diag.ambiguous_places import places_against_truth, verdict
+from benchmarks.diag.ambiguous_places import places_against_truth, verdict, verdict_by_distance
 from tests.support.planar_head import HEIGHT, WIDTH, rich_texture
 
 FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
@@ -44,3 +44,12 @@ def test_a_search_is_right_near_the_truth_wrong_beyond_three_pixels_and_says_whe
     assert verdict((11.0, 11.0), (10.0, 10.0)) == "right"
     assert verdict((12.0, 11.0), (10.0, 10.0)) == "near"
     assert verdict((13.5, 10.0), (10.0, 10.0)) == "wrong"
+
+
+def test_by_the_distance_alone_a_place_at_the_true_distance_is_right_whatever_its_direction():
+    fovea = (100.0, 50.0)
+    assert verdict_by_distance(None, fovea, 2.0) == "none"
+    assert verdict_by_distance((102.0, 50.0), fovea, 2.0) == "right"
+    assert verdict_by_distance((100.0, 48.0), fovea, 2.0) == "right"  # the other side: not told
+    assert verdict_by_distance((103.0, 52.0), fovea, 2.0) == "near"
+    assert verdict_by_distance((110.0, 50.0), fovea, 2.0) == "wrong"

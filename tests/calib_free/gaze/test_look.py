@@ -14,8 +14,9 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import (LookController, LookOutcome, LookRecord, corrective_step_error_px,
-                                   foveal_px_per_deg, left_landing_px, step_turn_bound_deg, vergence_goal)
+from calib_free.gaze.look import LookController, LookOutcome, LookRecord
+from calib_free.gaze.look_geometry import (corrective_step_error_px, foveal_px_per_deg, left_landing_px,
+                                           step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.target_depth import target_disparity, vergence_on_a_repeat
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem,
@@ -556,12 +557,12 @@ def test_a_measured_landing_says_where_the_target_is_not_only_how_far():
     assert sighting is None and "neither lies within" in why and "measured landing puts the target" in why
 
 
-def repeat_after_the_first_move(texel: np.ndarray):
-    """A plane head's `on_move` that copies the 45 x 45 texels around `texel` 46 px beside it
-    once the head has moved: a repeat the view before did not hold."""
+def repeat_after_the_first_move(texel: np.ndarray, offset: tuple[int, int] = (46, 0)):
+    """A plane head's `on_move` that copies the 45 x 45 texels around `texel` `offset` px beside
+    it once the head has moved: a repeat the view before did not hold."""
     def repeat(h) -> None:
         if len(h.moves) == 1:
-            h.plane = with_a_copy_beside(h.plane, texel, (46, 0), size=45)
+            h.plane = with_a_copy_beside(h.plane, texel, offset, size=45)
     return repeat
 
 
@@ -579,13 +580,32 @@ def test_a_look_tells_the_target_from_a_repeat_that_appears_after_the_saccade():
     record = controller.look((*target, 0.0))
     assert record.fixations[0].landing_error_px is not None  # its correspondence was accepted
     assert record.on_target and true_error_px(head, texel) <= 1.0, record.detail
-    # The same look where no correspondence is accepted: where the saccade landed is not known.
+    # The same look where no correspondence is accepted: where the saccade landed is not known,
+    # but a first saccade that went as planned is expected to have left the target within a few
+    # pixels of the fovea, and only one copy lies there.
     head = PlanarHead()
     head.on_move = repeat
     controller, _ = looker(head, gain=1.0, params=FixationParams(confidence_floor=1.0), search_radius_px=150)
     record = controller.look((*target, 0.0))
+    assert record.fixations[0].landing_error_px is None and not record.fixations[0].taught
+    assert record.on_target and record.corrective_steps == 0, record.detail
+    assert true_error_px(head, texel) <= 1.0
+
+
+def test_a_first_saccade_whose_landing_is_unknown_does_not_take_a_repeat_beyond_its_reach():
+    """The map's saccade falls 20 % short, leaving the target 17 px from the fovea; nothing
+    measures where it landed, and a copy of the target's surroundings lies 45 px beside it. The
+    prior a first saccade has about the fovea reaches neither: the look fails as ambiguous
+    instead of taking either, and says where it expected the target."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    head.on_move = repeat_after_the_first_move(texel, (-30, -33))
+    controller, _ = looker(head, gain=0.8, params=FixationParams(confidence_floor=1.0), search_radius_px=150)
+    record = controller.look((*target, 0.0))
+    assert record.fixations[0].landing_error_px is None
     assert record.outcome is LookOutcome.TARGET_LOST and "ambiguous" in record.detail
-    assert "where the saccade landed is not known" in record.detail
+    assert "neither lies within" in record.detail and "of the fovea" in record.detail
 
 
 def test_a_look_whose_saccade_fell_short_tells_the_target_from_a_repeat_by_where_it_landed():
@@ -597,11 +617,7 @@ def test_a_look_whose_saccade_fell_short_tells_the_target_from_a_repeat_by_where
     head = PlanarHead()
     target = (236.0, 84.0)
     texel = head.texel_at(target)
-
-    def copy(h) -> None:
-        if len(h.moves) == 1:
-            h.plane = with_a_copy_beside(h.plane, texel, (-30, -33), size=45)
-    head.on_move = copy
+    head.on_move = repeat_after_the_first_move(texel, (-30, -33))
     controller, _ = looker(head, gain=0.8, search_radius_px=150)  # the copy within the near search
     record = controller.look((*target, 0.0))
     first = record.fixations[0]
