@@ -120,8 +120,12 @@ def verdict(found_xy: tuple[float, float] | None, truth_xy: tuple[float, float])
     (beyond 3 px) or 'near'."""
     if found_xy is None:
         return "none"
-    off = float(np.hypot(found_xy[0] - truth_xy[0], found_xy[1] - truth_xy[1]))
-    return "right" if off <= 1.5 else "wrong" if off > REPEAT_PX else "near"
+    return _verdict_of_offset(float(np.hypot(found_xy[0] - truth_xy[0], found_xy[1] - truth_xy[1])))
+
+
+def _verdict_of_offset(off_px: float) -> str:
+    """'right' within 1.5 px of the truth, 'wrong' beyond `REPEAT_PX`, else 'near'."""
+    return "right" if off_px <= 1.5 else "wrong" if off_px > REPEAT_PX else "near"
 
 
 def verdict_by_distance(found_xy: tuple[float, float] | None, fovea_xy: tuple[float, float],
@@ -131,8 +135,8 @@ def verdict_by_distance(found_xy: tuple[float, float] | None, fovea_xy: tuple[fl
     distance passes, so 'wrong' counts at least the wrong ones."""
     if found_xy is None:
         return "none"
-    off = abs(float(np.hypot(found_xy[0] - fovea_xy[0], found_xy[1] - fovea_xy[1])) - true_error_px)
-    return "right" if off <= 1.5 else "wrong" if off > REPEAT_PX else "near"
+    return _verdict_of_offset(abs(float(np.hypot(found_xy[0] - fovea_xy[0], found_xy[1] - fovea_xy[1]))
+                                  - true_error_px))
 
 
 def fovea_prior_tally(steps_json: Path, images: Path, reaches: list[float]) -> dict[float, collections.Counter[str]]:

@@ -240,9 +240,8 @@ class LookController:
                 return
             sighting, why = None, ""
             step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
-            expected, offset = self._landing_prior(fixation, target_before, to_source, step)
-            if expected is None and step_aim_px is None:  # the first saccade, its landing not measured
-                expected = self._corrective_step_error_px(fixation, FIRST_SACCADE_ERROR_PX)
+            expected, offset = self._landing_prior(fixation, target_before, to_source, step,
+                                                   first=step_aim_px is None)
             if warps is None:
                 sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
                                                              self.magnification, expected, offset)
@@ -301,7 +300,8 @@ class LookController:
             fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
 
     def _landing_prior(self, fixation: FixationRecord, target_before: np.ndarray, to_source: np.ndarray,
-                       step: float | None = None) -> tuple[float | None, tuple[float, float] | None]:
+                       step: float | None = None,
+                       first: bool = False) -> tuple[float | None, tuple[float, float] | None]:
         """Where `fixation` is expected to have left the target, for the search after it: (the
         expected error, the target's expected offset from the fovea), both in `source`'s
         pixels, or (None, None) where nothing says.
@@ -316,6 +316,8 @@ class LookController:
         from the fovea contradicts what the encoders say the step did (a left eye's match that
         was confident but wrong, hundreds of pixels off in the realistic world), and the step's
         own prior is used; and it bounds the search (`search_target`'s `step_error_px`). The
+        `first` fixation, the saccade, has a prior about the fovea where its landing was not
+        measured: `FIRST_SACCADE_ERROR_PX` and what the encoders say went beyond the plan. The
         map's recent landing errors are no stand-in: a fixation whose correspondence was refused
         went otherwise than the map's typical one (a depth not measured, eyes that did not
         converge), and with them a look took a nearby repeat for the target in 5 of 100 random
@@ -327,6 +329,8 @@ class LookController:
             distance = float(np.hypot(*offset))
             if step is None or distance <= PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, step):
                 return LANDING_OFFSET_SPREAD * distance, (float(offset[0]), float(offset[1]))
+        if first:
+            return self._corrective_step_error_px(fixation, FIRST_SACCADE_ERROR_PX), None
         return step, None
 
     def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
