@@ -50,17 +50,18 @@ def row_repeat_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float],
                    d: float, ncc: float, search_px: float, margin: float, row_offset_px: float = 0.0,
                    band_px: int = 0) -> float | None:
     """The NCC of a repeat of the left patch at `xy` along the same rows of `right` that scores
-    within `margin` of `ncc`, its match at `d` (`row_rival_ncc`): on such a texture d may be a
+    within `margin` of `ncc`, its match at `d` (`_row_rival_ncc`): on such a texture d may be a
     repeat's. None where no place along the rows comes that near."""
-    rival = row_rival_ncc(left, right, xy, patch_size, d, search_px, row_offset_px, band_px)
+    rival = _row_rival_ncc(left, right, xy, patch_size, d, search_px, row_offset_px, band_px)
     return rival if rival > ncc - margin else None
 
 
-def row_rival_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
-                  d: float, search_px: float, row_offset_px: float = 0.0, band_px: int = 0) -> float:
+def _row_rival_ncc(left: np.ndarray, right: np.ndarray, xy: tuple[float, float], patch_size: tuple[int, int],
+                   d: float, search_px: float, row_offset_px: float = 0.0, band_px: int = 0) -> float:
     """NCC of the best placement of the left patch at `xy` along the same rows of `right`
-    (`row_offset_px` below, and `band_px` rows either side), within +-`search_px` of disparity and more than half a patch from
-    `d`: how well a repeat of it matches (-1 when nothing is searched)."""
+    (`row_offset_px` below, and `band_px` rows either side), within +-`search_px` of disparity
+    and more than half a patch from `d`: how well a repeat of it matches (-1 when nothing is
+    searched)."""
     exclude = patch_size[0] / 2.0
     best = -1.0
     for side in ((-search_px, d - exclude), (d + exclude, search_px)):
