@@ -151,7 +151,7 @@ def find_target(source: np.ndarray, source_xy: tuple[float, float], image: np.nd
 def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: LookParams,
                   warps: list[np.ndarray] | None = None, expected_error_px: float | None = None,
                   expected_offset_px: tuple[float, float] | None = None,
-                  step_error_px: float | None = None) -> TargetSearch:
+                  step_error_px: float | None = None, prior_in_image: bool = False) -> TargetSearch:
     """Where the patch around `source_xy` of `source` is in `image` (both grey), searched within
     `params.search_radius_px` of the fovea; after a corrective step, within its reach.
 
@@ -163,7 +163,9 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
     one alone within `PRIOR_SIGMAS` times that error (magnified as the patch is, at least
     `MIN_EXPECTED_ERROR_PX`) of the expected place is the target (`expected_place`). None: no
     such prior; the place whose repeats `source` shows around the target is it
-    (`place_told_by_repeats`).
+    (`place_told_by_repeats`). `prior_in_image`: the offset and the error are in the pixels of
+    the image searched, about its fovea (what the encoders say a fixation did, through the map),
+    not `source`'s, and no warp carries them.
 
     `step_error_px`: a corrective step's expected error (`calib_free.gaze.look_geometry.corrective_step_error_px`),
     which bounds where the target can be, not only which repeat it is: a step that aimed a few
@@ -254,10 +256,12 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
             origin = (x0 + b[0] + c[0], y0 + a[0] + c[1])  # image position of the region's (0, 0)
             chosen: tuple[int, int] | None = None
             near, reach = 0, np.inf
-            shift = warp @ np.asarray(expected_offset_px if expected_offset_px is not None else (0.0, 0.0))
+            offset = np.asarray(expected_offset_px if expected_offset_px is not None else (0.0, 0.0))
+            shift = offset if prior_in_image else warp @ offset
             expected_at = (centre[0] + shift[0] - origin[0], centre[1] + shift[1] - origin[1])  # in the region
             if expected_error_px is not None:
-                reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, expected_error_px * _magnification(warp))
+                reach = PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX,
+                                           expected_error_px * (1.0 if prior_in_image else _magnification(warp)))
                 chosen, near = expected_place(region, peak - params.ambiguity_ncc_margin, expected_at, reach)
             undecided = ""
             if chosen is None and (expected_error_px is None or near > 1):
@@ -275,10 +279,12 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                     why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
                            f"correspondence was not accepted; {undecided})")
                     continue
+                put_by = ("the head's motion as the encoders read it" if prior_in_image
+                          else "the fixation's measured landing")
                 where = (f"within {reach:.1f} px of the fovea, where the fixation was expected to bring it "
                          f"({PRIOR_SIGMAS:g} x its expected error)" if expected_offset_px is None else
                          f"within {reach:.1f} px of ({origin[0] + expected_at[0]:.1f}, "
-                         f"{origin[1] + expected_at[1]:.1f}), where the fixation's measured landing puts the "
+                         f"{origin[1] + expected_at[1]:.1f}), where {put_by} puts the "
                          f"target ({PRIOR_SIGMAS:g} x its expected error)")
                 why = (f"{ambiguous}, and {near} of them lie {where}: the target's texture repeats nearer "
                        f"than the map can tell apart ({undecided})" if near else f"{ambiguous}, and neither lies {where}")
@@ -304,7 +310,7 @@ def step_reach_px(step_error_px: float) -> int:
 def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,
                         variants: list[LookParams], magnification: LearnedMagnification,
                         expected_error_px: float | None = None, expected_offset_px: tuple[float, float] | None = None,
-                        ) -> tuple[TargetSighting | None, LookParams, str]:
+                        prior_in_image: bool = False) -> tuple[TargetSighting | None, LookParams, str]:
     """The target after a look's first saccade: searched by each of the patches `variants` in
     turn (`search_target`), first with only the radial scales the looks have learned the lens
     to show at the target's distance from the centre (`LearnedMagnification.radial_scales`),
@@ -314,7 +320,8 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
     scale is tried: a stretch beyond the learned one would only find a look-alike. Where the
     patch found the target and a larger one finds it elsewhere, the nearer the fovea is taken
     (`nearer_of_two_patches`). (sighting, the patch it was found by, '') or (None, the first
-    patch, why not)."""
+    patch, why not). The prior (`expected_error_px`, `expected_offset_px`, `prior_in_image`) is
+    `search_target`'s."""
     centre = fovea(source)
     distance = float(np.hypot(source_xy[0] - centre[0], source_xy[1] - centre[1]))
 
@@ -324,10 +331,11 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
             return None  # nothing learned at this distance: every scale
         return search_target(source, source_xy, image, variant,
                              candidate_warps(source_xy, centre, variant.max_target_scale, scales), expected_error_px,
-                             expected_offset_px)
+                             expected_offset_px, prior_in_image=prior_in_image)
 
     def every_scale(variant: LookParams) -> TargetSearch:
-        return search_target(source, source_xy, image, variant, None, expected_error_px, expected_offset_px)
+        return search_target(source, source_xy, image, variant, None, expected_error_px, expected_offset_px,
+                             prior_in_image=prior_in_image)
 
     learned_why, matched = "", False
     for k, variant in enumerate(variants):
