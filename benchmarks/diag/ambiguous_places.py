@@ -22,14 +22,24 @@ finds, or its failure, set against the search as recorded and the truth (right w
 of the true place, wrong beyond 3 px; in a recording without offsets, by the distance from the
 fovea alone, which counts only some of the wrong ones).
 
+Then where a first saccade's motion beyond its plan (the recorded poses: after, less before,
+less planned) moved the target: at `--px-per-deg` (the simulated head's map at the fovea),
+pan and tilt move the view by that, and vergence by half of it against the pan (the left eye
+turns by half its change). By how far the motion went, the target's true distance from the
+fovea and from where the shift puts it; and the first searches without a measured landing
+searched again with the prior centred there, within 1 px and each `--shift-spread` of the
+shift, against the prior about the fovea as wide as the whole motion.
+
     .venv/bin/python -m benchmarks.diag.ambiguous_places --steps runs/steps.json --images DIR
-        [--steps ... --images ...] [--margin 0.15] [--fovea-reach 6,9,12]
+        [--steps ... --images ...] [--margin 0.15] [--fovea-reach 6,9,12] [--px-per-deg 4.0]
+        [--shift-spread 0.25,0.5]
 """
 from __future__ import annotations
 
 import argparse
 import collections
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +49,7 @@ import numpy as np
 from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_searches
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import LookParams
+from calib_free.gaze.look_geometry import FIRST_SACCADE_ERROR_PX
 from calib_free.gaze.refind import (PRIOR_SIGMAS, _refine, candidate_warps, distinct_places, fovea, search_target,
                                     warped_patch)
 
@@ -148,8 +159,8 @@ def fovea_prior_tally(steps_json: Path, images: Path, reaches: list[float]) -> d
     for _, fixation, _, saved in saved_first_searches(steps_json, images):
         truth = true_place(fixation, saved)
         true_error = fixation.get("true_error_px")
-        if (truth is None and true_error is None) or not np.isnan(float(saved["offset"][0])):
-            continue  # truth unknown, or a landing was measured
+        if (truth is None and true_error is None) or landing_measured(saved):
+            continue
         params = dataclasses.replace(LookParams(), target_patch_size=tuple(int(v) for v in saved["patch"]))
         inputs = (saved["source"], tuple(float(v) for v in saved["source_xy"]), saved["image"], params)
 
@@ -167,6 +178,65 @@ def fovea_prior_tally(steps_json: Path, images: Path, reaches: list[float]) -> d
     return tally
 
 
+def landing_measured(saved: Any) -> bool:
+    """Whether a saved search had a measured landing for its prior (an offset in the source's
+    pixels), not the encoders' shift in the image's or none."""
+    in_image = "in_image" in saved.files and bool(saved["in_image"])
+    return not in_image and not np.isnan(float(saved["offset"][0]))
+
+
+def beyond_plan_shift_px(fixation: dict[str, Any], px_per_deg: float) -> tuple[np.ndarray, float] | None:
+    """(where a recorded fixation's motion beyond its plan moved the view at the fovea, (dx, dy)
+    px; that motion's whole extent, px: pan and tilt, and half the vergence, at `px_per_deg`);
+    None for a recording without its plan."""
+    if fixation.get("planned") is None or fixation.get("pose_after") is None:
+        return None
+    beyond = np.asarray(fixation["pose_after"]) - np.asarray(fixation["pose_before"]) - np.asarray(fixation["planned"])
+    shift = px_per_deg * np.array([beyond[0] - beyond[2] / 2.0, beyond[1]])
+    return shift, float(px_per_deg * (np.hypot(beyond[0], beyond[1]) + abs(beyond[2]) / 2.0))
+
+
+BEYOND_BANDS_PX = ((0.0, 1.0), (1.0, 4.0), (4.0, float("inf")))
+
+
+def excess_shift_tally(steps_json: Path, images: Path, px_per_deg: float, spreads: list[float],
+                       ) -> tuple[list[tuple[float, float, float, float]], dict[float, collections.Counter[str]]]:
+    """Of a recording's first fixations whose plan and true offset are known: (motion beyond the
+    plan, the target's true distance from the fovea, from where the shift puts it, the shift's
+    length), all px; and for each spread, how the first searches without a measured landing
+    change from the prior about the fovea as wide as the whole motion (`FIRST_SACCADE_ERROR_PX`
+    + the motion) to the prior centred on the shift (+ spread x the shift): counts of
+    'about the fovea -> centred' verdicts (`verdict`)."""
+    rows: list[tuple[float, float, float, float]] = []
+    tally: dict[float, collections.Counter[str]] = {spread: collections.Counter() for spread in spreads}
+    for look in json.loads(steps_json.read_text())["looks"]:
+        fixation = next((s for s in look.get("steps") or [] if "aim" in s), None)
+        moved = None if fixation is None else beyond_plan_shift_px(fixation, px_per_deg)
+        if moved is None or fixation.get("true_offset_px") is None:
+            continue
+        shift, whole = moved
+        true = np.asarray(fixation["true_offset_px"], dtype=float)
+        rows.append((whole, float(np.hypot(*true)), float(np.hypot(*(true - shift))), float(np.hypot(*shift))))
+    for _, fixation, _, saved in saved_first_searches(steps_json, images):
+        moved = beyond_plan_shift_px(fixation, px_per_deg)
+        truth = true_place(fixation, saved)
+        if moved is None or truth is None or landing_measured(saved):
+            continue
+        shift, whole = moved
+        params = dataclasses.replace(LookParams(), target_patch_size=tuple(int(v) for v in saved["patch"]))
+        inputs = (saved["source"], tuple(float(v) for v in saved["source_xy"]), saved["image"], params, None)
+
+        def found(expected: float, offset: tuple[float, float] | None) -> tuple[float, float] | None:
+            sighting = search_target(*inputs, expected, offset, prior_in_image=True).sighting
+            return None if sighting is None else (sighting.x, sighting.y)
+
+        about_fovea = verdict(found(FIRST_SACCADE_ERROR_PX + whole, None), truth)
+        for spread in spreads:
+            centred = found(FIRST_SACCADE_ERROR_PX + spread * float(np.hypot(*shift)), (float(shift[0]), float(shift[1])))
+            tally[spread][f"{about_fovea} -> {verdict(centred, truth)}"] += 1
+    return rows, tally
+
+
 def _fmt(value: float | None, spec: str = ".2f") -> str:
     return "-" if value is None else format(value, spec)
 
@@ -176,17 +246,33 @@ def main(argv: list[str] | None = None) -> int:
     recording_arguments(parser)
     parser.add_argument("--margin", type=float, default=0.15, help="places within this NCC of the best are listed")
     parser.add_argument("--fovea-reach", default="6,9,12", help="reaches (px) of a prior about the fovea to try")
+    parser.add_argument("--px-per-deg", type=float, default=4.0,
+                        help="the view's pixels a degree at the fovea, for the motion beyond the plan")
+    parser.add_argument("--shift-spread", default="0.25,0.5",
+                        help="fractions of the shift to try as the centred prior's spread")
     args = parser.parse_args(argv)
-    try:
-        reaches = [float(v) for v in args.fovea_reach.split(",")]
-    except ValueError:
-        parser.error(f"--fovea-reach: expected numbers separated by commas, got {args.fovea_reach!r}")
+
+    def numbers(option: str, text: str) -> list[float]:
+        try:
+            return [float(v) for v in text.split(",")]
+        except ValueError:
+            parser.error(f"{option}: expected numbers separated by commas, got {text!r}")
+
+    reaches, spreads = numbers("--fovea-reach", args.fovea_reach), numbers("--shift-spread", args.shift_spread)
+    if args.px_per_deg <= 0:
+        parser.error(f"--px-per-deg: expected a positive number, got {args.px_per_deg}")
     rows: list[dict[str, Any]] = []
     tally: dict[float, collections.Counter[str]] = {reach: collections.Counter() for reach in reaches}
+    shifts: list[tuple[float, float, float, float]] = []
+    centred: dict[float, collections.Counter[str]] = {spread: collections.Counter() for spread in spreads}
     for steps_json, images in recordings(parser, args):
         rows += recorded_cases(steps_json, images, args.margin)
         for reach, counts in fovea_prior_tally(steps_json, images, reaches).items():
             tally[reach].update(counts)
+        more, counts_by_spread = excess_shift_tally(steps_json, images, args.px_per_deg, spreads)
+        shifts += more
+        for spread, counts in counts_by_spread.items():
+            centred[spread].update(counts)
     print(f"{len(rows)} looks whose first search was ambiguous, with the truth known")
     print(f"{'true offset':>16}  {'best':>5}  {'truth':>5}  {'fitted':>6}  {'nearest place':>13}  "
           f"{'best repeat, fitted':>19}")
@@ -204,6 +290,27 @@ def main(argv: list[str] | None = None) -> int:
         same = sum(n for k, n in tally[reach].items() if k not in changed)
         print(f"  reach {reach:g} px: {same} unchanged; " + (", ".join(f"{k}: {n}" for k, n in changed.items())
                                                                or "none changed"))
+    print(f"\nfirst fixations with their plan and truth ({len(shifts)}), by their motion beyond the plan "
+          f"(px at {args.px_per_deg:g} px a degree): the target's true distance from the fovea, and from where "
+          "the shift puts it, p50 / p90 (and as a fraction of the shift)")
+    table = np.array(shifts).reshape(-1, 4)
+    for low, high in BEYOND_BANDS_PX:
+        band = table[(table[:, 0] >= low) & (table[:, 0] < high)]
+        if len(band):
+            shifted = band[band[:, 3] >= 1.0]  # a fraction of a shift under a pixel says nothing
+            ratio = shifted[:, 2] / shifted[:, 3]
+            fraction = (f" ({np.median(ratio):.2f} / {np.percentile(ratio, 90):.2f} of the {len(shifted)} shifts of "
+                        "1 px or more)" if len(shifted) else "")
+            print(f"  {low:g}-{high:g} px: {len(band)}; from the fovea {np.median(band[:, 1]):.1f} / "
+                  f"{np.percentile(band[:, 1], 90):.1f} px; from the shifted place {np.median(band[:, 2]):.1f} / "
+                  f"{np.percentile(band[:, 2], 90):.1f} px{fraction}")
+    print("first searches without a measured landing, about the fovea as wide as the whole motion -> centred on "
+          "the shift:")
+    for spread in spreads:
+        changed = {k: n for k, n in sorted(centred[spread].items()) if k.split(" -> ")[0] != k.split(" -> ")[1]}
+        same = sum(n for k, n in centred[spread].items() if k not in changed)
+        print(f"  spread {spread:g}: {same} unchanged; " + (", ".join(f"{k}: {n}" for k, n in changed.items())
+                                                            or "none changed"))
     return 0
 
 

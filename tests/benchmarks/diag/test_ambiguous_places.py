@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
-from benchmarks.diag.ambiguous_places import places_against_truth, verdict, verdict_by_distance
+from benchmarks.diag.ambiguous_places import (beyond_plan_shift_px, landing_measured, places_against_truth, verdict,
+                                              verdict_by_distance)
 from tests.support.planar_head import HEIGHT, WIDTH, rich_texture
 
 FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
@@ -53,3 +55,25 @@ def test_by_the_distance_alone_a_place_at_the_true_distance_is_right_whatever_it
     assert verdict_by_distance((100.0, 48.0), fovea, 2.0) == "right"  # the other side: not told
     assert verdict_by_distance((103.0, 52.0), fovea, 2.0) == "near"
     assert verdict_by_distance((110.0, 50.0), fovea, 2.0) == "wrong"
+
+
+def test_a_motion_beyond_the_plan_shifts_the_view_by_pan_and_tilt_and_half_the_vergence_against_the_pan():
+    fixation = {"pose_before": [1.0, 2.0, 3.0], "planned": [-5.0, 1.0, 0.5], "pose_after": [-3.5, 2.5, 5.5]}
+    shift, whole = beyond_plan_shift_px(fixation, 4.0)  # 0.5 pan, -0.5 tilt, 2.0 vergence beyond
+    assert shift == pytest.approx((4.0 * (0.5 - 1.0), -2.0))
+    assert whole == pytest.approx(4.0 * (np.hypot(0.5, 0.5) + 1.0))
+    assert beyond_plan_shift_px({"pose_before": [0, 0, 0], "pose_after": [1, 0, 0]}, 4.0) is None  # no plan kept
+
+
+def test_a_landing_is_measured_only_where_the_saved_offset_is_in_the_sources_pixels(tmp_path):
+    def saved(offset, in_image=None):
+        arrays = {"offset": np.asarray(offset, dtype=float)}
+        if in_image is not None:
+            arrays["in_image"] = np.asarray(in_image)
+        np.savez(tmp_path / "s.npz", **arrays)
+        return np.load(tmp_path / "s.npz")
+
+    assert landing_measured(saved((2.0, -1.0)))  # a recording from before the encoders' shift was kept
+    assert landing_measured(saved((2.0, -1.0), False))
+    assert not landing_measured(saved((2.0, -1.0), True))  # the encoders' shift, no landing
+    assert not landing_measured(saved((np.nan, np.nan), False))
