@@ -237,6 +237,13 @@ def excess_shift_tally(steps_json: Path, images: Path, px_per_deg: float, spread
     return rows, tally
 
 
+def _changes(tally: collections.Counter[str]) -> str:
+    """A tally of 'before -> after' verdicts said: how many kept theirs, and each change."""
+    changed = {k: n for k, n in sorted(tally.items()) if k.split(" -> ")[0] != k.split(" -> ")[1]}
+    same = sum(n for k, n in tally.items() if k not in changed)
+    return f"{same} unchanged; " + (", ".join(f"{k}: {n}" for k, n in changed.items()) or "none changed")
+
+
 def _fmt(value: float | None, spec: str = ".2f") -> str:
     return "-" if value is None else format(value, spec)
 
@@ -286,10 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\nfirst searches without a measured landing, searched again with a prior about the fovea "
           "(as recorded -> with it; right within 1.5 px of the truth, wrong beyond 3 px):")
     for reach in reaches:
-        changed = {k: n for k, n in sorted(tally[reach].items()) if k.split(" -> ")[0] != k.split(" -> ")[1]}
-        same = sum(n for k, n in tally[reach].items() if k not in changed)
-        print(f"  reach {reach:g} px: {same} unchanged; " + (", ".join(f"{k}: {n}" for k, n in changed.items())
-                                                               or "none changed"))
+        print(f"  reach {reach:g} px: {_changes(tally[reach])}")
     print(f"\nfirst fixations with their plan and truth ({len(shifts)}), by their motion beyond the plan "
           f"(px at {args.px_per_deg:g} px a degree): the target's true distance from the fovea, and from where "
           "the shift puts it, p50 / p90 (and as a fraction of the shift)")
@@ -307,10 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     print("first searches without a measured landing, about the fovea as wide as the whole motion -> centred on "
           "the shift:")
     for spread in spreads:
-        changed = {k: n for k, n in sorted(centred[spread].items()) if k.split(" -> ")[0] != k.split(" -> ")[1]}
-        same = sum(n for k, n in centred[spread].items() if k not in changed)
-        print(f"  spread {spread:g}: {same} unchanged; " + (", ".join(f"{k}: {n}" for k, n in changed.items())
-                                                            or "none changed"))
+        print(f"  spread {spread:g}: {_changes(centred[spread])}")
     return 0
 
 
