@@ -83,8 +83,7 @@ class StepRecorder:
     def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
                        warps: list[np.ndarray] | None, expected: float | None,
                        offset: tuple[float, float] | None, sighting: Any, why: str,
-                       every_warp: dict[str, Any] | None = None, step: float | None = None,
-                       in_image: bool = False) -> None:
+                       every_warp: dict[str, Any] | None = None, step: float | None = None) -> None:
         h, w = image.shape[:2]
         peaks, _ = own_view_peaks(source, source_xy, params)
         saved = None
@@ -96,15 +95,13 @@ class StepRecorder:
                                 warps=np.asarray(warps if warps is not None else []),
                                 expected=np.asarray(np.nan if expected is None else expected, dtype=float),
                                 offset=np.asarray((np.nan, np.nan) if offset is None else offset, dtype=float),
-                                step=np.asarray(np.nan if step is None else step, dtype=float),
-                                in_image=np.asarray(in_image))
+                                step=np.asarray(np.nan if step is None else step, dtype=float))
             saved, self.searches_saved = self.searches_saved, self.searches_saved + 1
         with self._lock:
             self.steps.append({
                 "every_warp": every_warp, "saved": saved,
                 "expected_error_px": None if expected is None else round(float(expected), 2),
                 "expected_offset_px": None if offset is None else [round(float(v), 2) for v in offset],
-                "prior_in_image": in_image,
                 "step_error_px": None if step is None else round(float(step), 2),
                 "search": None if sighting is None else round(float(np.hypot(
                     sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
@@ -129,12 +126,9 @@ class StepRecorder:
             measured[:] = [float(d)]
             return d
 
-        def recorded_first(source, source_xy, image, variants, magnification, expected=None, offset=None,  # type: ignore[no-untyped-def]
-                           in_image=False):
-            sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected, offset,
-                                                in_image)
-            recorder._record_search(source, source_xy, image, variant, None, expected, offset, sighting, why,
-                                    in_image=in_image)
+        def recorded_first(source, source_xy, image, variants, magnification, expected=None, offset=None):  # type: ignore[no-untyped-def]
+            sighting, variant, why = find_first(source, source_xy, image, variants, magnification, expected, offset)
+            recorder._record_search(source, source_xy, image, variant, None, expected, offset, sighting, why)
             return sighting, variant, why
 
         def recorded_find(source, source_xy, image, params, warps=None, expected=None, offset=None,  # type: ignore[no-untyped-def]

@@ -30,10 +30,8 @@ measured landing contradicts it, has a reach of its own about the fovea: a step 
 few pixels from the fovea, and that the encoders say went as planned, cannot have left the
 target farther than it aimed plus what the head did beyond the plan
 (`corrective_step_error_px`). A first saccade whose landing nothing measured is expected to
-have left the target within a pixel of the fovea (`FIRST_SACCADE_ERROR_PX`), moved as what the
-encoders say the head did beyond the plan moves the view at the fovea, by the map
-(`excess_shift_px`; the whole of that motion about the fovea where the map cannot say): a
-prior among repeats, not a bound. A corrective
+have left the target within a pixel of the fovea, and farther by what the encoders say went
+beyond the plan (`FIRST_SACCADE_ERROR_PX`): a prior among repeats, not a bound. A corrective
 step's reach bounds the search after it, not only the choice among repeats: a best match
 beyond it is a look-alike, whatever its score. In the realistic world's recorded looks (five
 seeds, 116 searches after corrective steps), 3 found the target 12-30 px from the fovea after
@@ -70,9 +68,8 @@ from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
 from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSET_SPREAD, REACH_MARGIN_DEG,
-                                           EXCESS_SHIFT_SPREAD, beyond_limits, corrective_step_error_px,
-                                           excess_shift_px, foveal_jacobian, foveal_px_per_deg, left_landing_px,
-                                           step_turn_bound_deg, vergence_goal)
+                                           beyond_limits, corrective_step_error_px, foveal_px_per_deg,
+                                           left_landing_px, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
@@ -243,11 +240,11 @@ class LookController:
                 return
             sighting, why = None, ""
             step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
-            expected, offset, in_image = self._landing_prior(fixation, target_before, to_source, step,
-                                                             first=step_aim_px is None)
+            expected, offset = self._landing_prior(fixation, target_before, to_source, step,
+                                                   first=step_aim_px is None)
             if warps is None:
                 sighting, variant, why = find_first_sighting(source, source_xy, final_left, variants,
-                                                             self.magnification, expected, offset, in_image)
+                                                             self.magnification, expected, offset)
                 if sighting is not None:
                     variants = [variant]  # the same patch from here on, its warp carried over
             else:
@@ -304,10 +301,10 @@ class LookController:
 
     def _landing_prior(self, fixation: FixationRecord, target_before: np.ndarray, to_source: np.ndarray,
                        step: float | None = None,
-                       first: bool = False) -> tuple[float | None, tuple[float, float] | None, bool]:
+                       first: bool = False) -> tuple[float | None, tuple[float, float] | None]:
         """Where `fixation` is expected to have left the target, for the search after it: (the
-        expected error, the target's expected offset from the fovea, whether both are in the
-        image searched's pixels (else `source`'s)), or (None, None, False) where nothing says.
+        expected error, the target's expected offset from the fovea), both in `source`'s
+        pixels, or (None, None) where nothing says.
 
         Where the fixation measured where its left fovea landed (`left_landing_px`), the target
         is expected at its offset from that landing (`target_before` less the landing, carried
@@ -320,8 +317,7 @@ class LookController:
         was confident but wrong, hundreds of pixels off in the realistic world), and the step's
         own prior is used; and it bounds the search (`search_target`'s `step_error_px`). The
         `first` fixation, the saccade, has a prior about the fovea where its landing was not
-        measured: `FIRST_SACCADE_ERROR_PX`, about where what the encoders say went beyond the plan
-        moved the target (`_first_saccade_prior`). The
+        measured: `FIRST_SACCADE_ERROR_PX` and what the encoders say went beyond the plan. The
         map's recent landing errors are no stand-in: a fixation whose correspondence was refused
         went otherwise than the map's typical one (a depth not measured, eyes that did not
         converge), and with them a look took a nearby repeat for the target in 5 of 100 random
@@ -332,27 +328,10 @@ class LookController:
             offset = to_source @ (np.asarray(target_before, dtype=float) - landed)
             distance = float(np.hypot(*offset))
             if step is None or distance <= PRIOR_SIGMAS * max(MIN_EXPECTED_ERROR_PX, step):
-                return LANDING_OFFSET_SPREAD * distance, (float(offset[0]), float(offset[1])), False
+                return LANDING_OFFSET_SPREAD * distance, (float(offset[0]), float(offset[1]))
         if first:
-            return self._first_saccade_prior(fixation)
-        return step, None, False
-
-    def _first_saccade_prior(self, fixation: FixationRecord) -> tuple[float | None, tuple[float, float] | None, bool]:
-        """`_landing_prior` of a first saccade whose landing was not measured: the target where
-        the motion beyond the plan moved it (`excess_shift_px`, in the image searched), to within
-        `FIRST_SACCADE_ERROR_PX` and `EXCESS_SHIFT_SPREAD` of that shift. Where the map cannot say
-        what a motion does at the fovea (`foveal_jacobian`), about the fovea, to within
-        `FIRST_SACCADE_ERROR_PX` and the whole of that motion (`corrective_step_error_px`)."""
-        error = self._corrective_step_error_px(fixation, FIRST_SACCADE_ERROR_PX)
-        if error is None or fixation.pose_before is None or fixation.pose_after is None or fixation.planned is None:
-            return error, None, False
-        height, width = fixation.final_left_image.shape[:2] if fixation.final_left_image is not None else (0, 0)
-        jacobian = foveal_jacobian(self.fixation.map, fixation.pose_before, (width, height))
-        if jacobian is None:
-            return error, None, False
-        shift = excess_shift_px(jacobian, fixation.pose_after - fixation.pose_before, fixation.planned)
-        return (FIRST_SACCADE_ERROR_PX + EXCESS_SHIFT_SPREAD * float(np.hypot(*shift)),
-                (float(shift[0]), float(shift[1])), True)
+            return self._corrective_step_error_px(fixation, FIRST_SACCADE_ERROR_PX), None
+        return step, None
 
     def _corrective_step_error_px(self, fixation: FixationRecord, step_aim_px: float) -> float | None:
         """`corrective_step_error_px` of a corrective fixation that aimed `step_aim_px` from the

@@ -1,7 +1,6 @@
 """What a look knows of its fixations' motion, images aside: whether a saccade's goal lay beyond
 the joint limits, where a fixation is expected to have left the target (the landing its left
-eye measured, where its motion beyond the plan moved it, or the error a saccade or a
-corrective step is expected to have), and how far a
+eye measured, or the error a saccade or a corrective step is expected to have), and how far a
 corrective step may turn the head. `calib_free.gaze.look` closes the loop with them; the
 service's API refuses a look whose saccade would go beyond the limits with `beyond_limits`."""
 from __future__ import annotations
@@ -35,19 +34,6 @@ LANDING_OFFSET_SPREAD = 0.15
 # that had found nothing or a repeat, and a repeat in none; one of 6 px found one more and took a
 # repeat for the target in two (`benchmarks.diag.ambiguous_places`, docs/results/realistic-world.md).
 FIRST_SACCADE_ERROR_PX = 1.0
-# Where the map can say what a motion does at the fovea (`foveal_jacobian`), a first saccade's
-# motion beyond its plan (fine vergence after it, mostly: the left eye turns with the vergence)
-# is taken for where it moved the target, not only for how far (`excess_shift_px`): the target
-# is expected there, to within FIRST_SACCADE_ERROR_PX and this fraction of that shift. In the
-# recorded first saccades of two realistic seeds and an ideal one (396), the 17 that went 4 px
-# or more beyond the plan truly left the target p50 6.6 / p90 17 px from the fovea, and p50 2.1
-# / p90 3.1 px (0.31 / 0.48 of the shift) from where the shift puts it; those that went 1-4 px
-# beyond (35), p50 2.2 / p90 6.3 px from the fovea and p50 1.6 / p90 6.2 px from there: the
-# map's own error, as large. Searched again so, of their 127 first searches without a measured
-# landing, one that had taken a repeat found the target and one that had found nothing came
-# within 3 px of it; none did worse (`python -m benchmarks.diag.ambiguous_places`,
-# docs/results/realistic-world.md).
-EXCESS_SHIFT_SPREAD = 0.25
 # A corrective step's command turning pan and tilt farther than this many times what the step
 # calls for (its aim's offset from the fovea, and half its vergence change: the left eye turns
 # by half of it, which the head makes up for), plus the slack, is the map's beyond what it
@@ -108,38 +94,6 @@ def foveal_px_per_deg(gaze_map: MapReader, pose: np.ndarray, image_size: tuple[i
     turn_deg = abs(pan[1] - pan[0])
     px_per_deg = 2 * FOVEAL_SPAN_PX / turn_deg if turn_deg > 0 else float("inf")
     return px_per_deg if PLAUSIBLE_PX_PER_DEG[0] <= px_per_deg <= PLAUSIBLE_PX_PER_DEG[1] else None
-
-
-def foveal_jacobian(gaze_map: MapReader, pose: np.ndarray, image_size: tuple[int, int]) -> np.ndarray | None:
-    """The map's command (deg of pan, tilt and vergence, rows) per pixel of a target's (x, y, d)
-    (columns) at the fovea, seen at `pose`: central differences `FOVEAL_SPAN_PX` either side.
-    None where the map does not cover them, or learned no plausible pixels a degree there
-    (`foveal_px_per_deg`: a young map), or cannot be inverted there."""
-    width, height = image_size
-    if foveal_px_per_deg(gaze_map, pose, image_size) is None:
-        return None
-    centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0, 0.0])
-    columns = []
-    try:
-        for axis in range(3):
-            step = np.zeros(3)
-            step[axis] = FOVEAL_SPAN_PX
-            ahead, behind = (np.asarray(gaze_map.command(tuple(centre + side * step), pose=pose), dtype=float)
-                             for side in (1, -1))
-            columns.append((ahead - behind) / (2 * FOVEAL_SPAN_PX))
-    except OutOfRangeError:
-        return None
-    jacobian = np.column_stack(columns)
-    return jacobian if np.linalg.cond(jacobian) < 1e6 else None
-
-
-def excess_shift_px(jacobian: np.ndarray, moved: np.ndarray, planned: np.ndarray) -> np.ndarray:
-    """Where a fixation's motion beyond its plan (`moved` less `planned`, (pan, tilt, vergence)
-    deg) moved what lay at the left fovea, (dx, dy) px: that motion is the command the map
-    (`jacobian`, `foveal_jacobian`) gives for the target at J^-1 of it, which it brings to the
-    fovea; so what was at the fovea moved the other way."""
-    beyond = np.asarray(moved, dtype=float) - np.asarray(planned, dtype=float)
-    return -np.linalg.solve(jacobian, beyond)[:2]
 
 
 def corrective_step_error_px(aim_px: float, moved: np.ndarray, planned: np.ndarray, px_per_deg: float) -> float:

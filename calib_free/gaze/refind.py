@@ -164,8 +164,8 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
     `MIN_EXPECTED_ERROR_PX`) of the expected place is the target (`expected_place`). None: no
     such prior; the place whose repeats `source` shows around the target is it
     (`place_told_by_repeats`). `prior_in_image`: the offset and the error are in the pixels of
-    the image searched, about its fovea (what the encoders say a fixation did, through the map),
-    not `source`'s, and no warp carries them.
+    the image searched, about its fovea, and no warp carries them (a prior a diagnostic tries:
+    where the encoders say the head's motion moved the view, `benchmarks.diag.ambiguous_places`).
 
     `step_error_px`: a corrective step's expected error (`calib_free.gaze.look_geometry.corrective_step_error_px`),
     which bounds where the target can be, not only which repeat it is: a step that aimed a few
@@ -279,8 +279,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
                     why = (f"{ambiguous}, and where the saccade landed is not known to tell them apart (its "
                            f"correspondence was not accepted; {undecided})")
                     continue
-                put_by = ("the head's motion as the encoders read it" if prior_in_image
-                          else "the fixation's measured landing")
+                put_by = "the prior in the image's pixels" if prior_in_image else "the fixation's measured landing"
                 where = (f"within {reach:.1f} px of the fovea, where the fixation was expected to bring it "
                          f"({PRIOR_SIGMAS:g} x its expected error)" if expected_offset_px is None else
                          f"within {reach:.1f} px of ({origin[0] + expected_at[0]:.1f}, "
@@ -310,7 +309,7 @@ def step_reach_px(step_error_px: float) -> int:
 def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,
                         variants: list[LookParams], magnification: LearnedMagnification,
                         expected_error_px: float | None = None, expected_offset_px: tuple[float, float] | None = None,
-                        prior_in_image: bool = False) -> tuple[TargetSighting | None, LookParams, str]:
+                        ) -> tuple[TargetSighting | None, LookParams, str]:
     """The target after a look's first saccade: searched by each of the patches `variants` in
     turn (`search_target`), first with only the radial scales the looks have learned the lens
     to show at the target's distance from the centre (`LearnedMagnification.radial_scales`),
@@ -320,8 +319,7 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
     scale is tried: a stretch beyond the learned one would only find a look-alike. Where the
     patch found the target and a larger one finds it elsewhere, the nearer the fovea is taken
     (`nearer_of_two_patches`). (sighting, the patch it was found by, '') or (None, the first
-    patch, why not). The prior (`expected_error_px`, `expected_offset_px`, `prior_in_image`) is
-    `search_target`'s."""
+    patch, why not)."""
     centre = fovea(source)
     distance = float(np.hypot(source_xy[0] - centre[0], source_xy[1] - centre[1]))
 
@@ -331,11 +329,10 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
             return None  # nothing learned at this distance: every scale
         return search_target(source, source_xy, image, variant,
                              candidate_warps(source_xy, centre, variant.max_target_scale, scales), expected_error_px,
-                             expected_offset_px, prior_in_image=prior_in_image)
+                             expected_offset_px)
 
     def every_scale(variant: LookParams) -> TargetSearch:
-        return search_target(source, source_xy, image, variant, None, expected_error_px, expected_offset_px,
-                             prior_in_image=prior_in_image)
+        return search_target(source, source_xy, image, variant, None, expected_error_px, expected_offset_px)
 
     learned_why, matched = "", False
     for k, variant in enumerate(variants):
