@@ -168,14 +168,15 @@ class FixationParams:
             raise ValueError(f"exploration must be one of {', '.join(EXPLORATION_KINDS)}, got {self.exploration!r}")
 
 
-STUCK_PX = 0.25  # a corrective step that changed its error by less than this was not made
+STUCK_PX = 0.25  # a corrective step that moved what it corrects by less than this was not made
 MAX_BOOST = 2.0  # the most a step not made is lengthened, times its own
 
 
 def next_boost(boost: float, change: float | None) -> float:
-    """How much longer than planned the next corrective step goes, after one that changed its
-    error by `change` (None: the first). A step smaller than the servos' dead band, or taken up
-    by the play of a reversal, leaves the error as it was: the next is twice as long."""
+    """How much longer than planned the next corrective step goes, after one that moved what it
+    corrects by `change` (None: the first): fine vergence's foveal disparity, signed; a look's
+    target, its displacement in the image. A step smaller than the servos' dead band, or taken
+    up by the play of a reversal, leaves it where it was: the next is twice as long."""
     return min(boost * 2.0, MAX_BOOST) if change is not None and abs(change) < STUCK_PX else 1.0
 
 

@@ -228,7 +228,7 @@ class LookController:
             return
         source = fixation.pre_left_image
         warps: list[np.ndarray] | None = None  # the first search tries every candidate warp
-        last_error: float | None = None  # the target's distance from the fovea before the last step
+        last_offset: np.ndarray | None = None  # where the target was from the fovea before the last step
         step_aim_px: float | None = None  # how far from the fovea the last corrective step aimed
         target_before = np.array(source_xy)  # where the target was in the last fixation's image before it
         to_source = np.eye(2)  # the linear warp from that image to `source` (the patch's own view)
@@ -290,9 +290,12 @@ class LookController:
                                  f"{record.corrective_steps} corrective steps")
                 return
             # A step that left the target where it was: the next aims farther beyond the fovea.
-            boost = next_boost(boost, None if last_error is None else error - last_error)
-            last_error = error
+            # Where it was, not how far: a step that carried the target across the fovea to as
+            # far the other side was made, and a longer one would only carry it farther.
             cx, cy = fovea(final_left)
+            seen_at = np.array([sighting.x - cx, sighting.y - cy])
+            boost = next_boost(boost, None if last_offset is None else float(np.hypot(*(seen_at - last_offset))))
+            last_offset = seen_at
             aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
             step_aim_px = float(np.hypot(aim_x - cx, aim_y - cy))
             target_before, to_source = np.array([sighting.x, sighting.y]), np.linalg.inv(sighting.warp)

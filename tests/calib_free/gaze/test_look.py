@@ -96,6 +96,31 @@ class FramedHead(PlanarHead):
         return super().wait_pair(after_s, timeout_s)
 
 
+def test_a_step_that_carried_the_target_across_the_fovea_is_not_taken_for_one_not_made():
+    """The saccade leaves the target 3 px right of the fovea; the first corrective step turns
+    the head twice as far as commanded (play taken up at once), carrying the target 3 px left:
+    as far from the fovea as before, but moved. The next step goes as planned, not twice as
+    long, and the look ends on target after it."""
+    head = PlanarHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    before: list[np.ndarray] = []
+
+    def unruly(h) -> None:
+        if len(h.moves) == 1:
+            h.pose[0] += 0.75  # the target 3 px right of the fovea (pan + moves the view left)
+        elif len(h.moves) == 2:
+            h.pose[:2] = before[0][:2] + 2.0 * (h.pose[:2] - before[0][:2])
+        before[:] = [h.pose.copy()]
+
+    head.on_move = unruly
+    controller, _ = looker(head, gain=1.0)
+    record = controller.look((*target, 0.0))
+    assert [round(float(s.x - FOVEA[0]), 1) for s in record.sightings[:2]] == [3.0, -3.0]
+    assert record.on_target and record.corrective_steps == 2, record.detail
+    assert true_error_px(head, texel) <= 1.0
+
+
 def test_a_corrective_step_starts_from_the_pair_its_target_was_found_in():
     """Every pair but the look's first is one exposed after a move: a corrective fixation, aimed
     from the pair its target was just found in, waits for no new one before it moves."""
