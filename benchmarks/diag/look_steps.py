@@ -8,9 +8,9 @@ its detail, whether the eyes converged and in how many vergence steps (and the f
 disparity before each), the saccade's planned command, the pose before and after, and the
 truth: where the world point the pixel showed before the look lies from the left fovea,
 projected at the servos' true position then (x, y, and its distance); and after each
-fixation the target search's answer (the patch's distance from
-the fovea, or why it was not found), with the patch's size, how much less well it matches
-the best other place of its own view than its own, and how far the target lay from the image
+fixation the target search's answer (the patch's distance from the fovea and its offset, or
+why it was not found), with the patch's size, how much less well it matches the best other
+place of its own view than its own, and how far the target lay from the image
 centre, the scales of the warp it was found with (its singular values), and the landing error
 the search was told to expect (measured, or a corrective step's own) and, after a corrective
 step, the step's own expected error, which bounds the search. Summarised: how
@@ -105,6 +105,8 @@ class StepRecorder:
                 "step_error_px": None if step is None else round(float(step), 2),
                 "search": None if sighting is None else round(float(np.hypot(
                     sighting.x - (w - 1) / 2.0, sighting.y - (h - 1) / 2.0)), 2), "why": why,
+                "seen_at_px": None if sighting is None else [round(float(sighting.x - (w - 1) / 2.0), 2),
+                                                             round(float(sighting.y - (h - 1) / 2.0), 2)],
                 "patch": list(params.target_patch_size),
                 "warp_scales": None if sighting is None else [
                     round(float(v), 3) for v in np.linalg.svd(sighting.warp, compute_uv=False)],

@@ -84,6 +84,9 @@ def test_the_recorder_sees_every_fixation_and_search_of_a_look_even_one_refused_
         assert len(recorded["vergence_disparities_px"]) == len(ran.vergence_disparities_px) >= 1
     assert fixations[-1]["planned"] is None
     assert len([s for s in steps if "search" in s]) == len(record.sightings)
+    # Where each search saw the target, from the fovea, as the look's sightings say.
+    for recorded, sighting in zip([s for s in steps if "search" in s], record.sightings):
+        assert recorded["seen_at_px"] == [round(sighting.x - 159.5, 2), round(sighting.y - 119.5, 2)]
     # A corrective step records the d measured before it (the plane's: 0 at converged eyes); the
     # first fixation measures none.
     look_fixations = fixations[:len(record.fixations)]
