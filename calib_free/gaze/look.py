@@ -296,7 +296,7 @@ class LookController:
             seen_at = np.array([sighting.x - cx, sighting.y - cy])
             boost = next_boost(boost, None if last_offset is None else float(np.hypot(*(seen_at - last_offset))))
             last_offset = seen_at
-            aim_x, aim_y = cx + boost * (sighting.x - cx), cy + boost * (sighting.y - cy)
+            aim_x, aim_y = cx + boost * seen_at[0], cy + boost * seen_at[1]
             step_aim_px = float(np.hypot(aim_x - cx, aim_y - cy))
             target_before, to_source = np.array([sighting.x, sighting.y]), np.linalg.inv(sighting.warp)
             d = self._step_disparity(record, fixation, sighting, (aim_x, aim_y))
