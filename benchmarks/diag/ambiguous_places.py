@@ -49,7 +49,7 @@ import numpy as np
 from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_searches
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import LookParams
-from calib_free.gaze.look_geometry import FIRST_SACCADE_ERROR_PX
+from calib_free.gaze.look_geometry import FIRST_SACCADE_ERROR_PX, corrective_step_error_px
 from calib_free.gaze.refind import (PRIOR_SIGMAS, _refine, candidate_warps, distinct_places, fovea, search_target,
                                     warped_patch)
 
@@ -191,9 +191,11 @@ def beyond_plan_shift_px(fixation: dict[str, Any], px_per_deg: float) -> tuple[n
     None for a recording without its plan."""
     if fixation.get("planned") is None or fixation.get("pose_after") is None:
         return None
-    beyond = np.asarray(fixation["pose_after"]) - np.asarray(fixation["pose_before"]) - np.asarray(fixation["planned"])
+    moved = np.asarray(fixation["pose_after"], dtype=float) - np.asarray(fixation["pose_before"], dtype=float)
+    planned = np.asarray(fixation["planned"], dtype=float)
+    beyond = moved - planned
     shift = px_per_deg * np.array([beyond[0] - beyond[2] / 2.0, beyond[1]])
-    return shift, float(px_per_deg * (np.hypot(beyond[0], beyond[1]) + abs(beyond[2]) / 2.0))
+    return shift, corrective_step_error_px(0.0, moved, planned, px_per_deg)
 
 
 BEYOND_BANDS_PX = ((0.0, 1.0), (1.0, 4.0), (4.0, float("inf")))
