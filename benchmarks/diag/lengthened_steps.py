@@ -13,7 +13,6 @@ lengthened step left the target truly farther from the fovea than it was.
 """
 from __future__ import annotations
 
-import argparse
 import collections
 import json
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.diag.look_steps import recording_files
 from calib_free.gaze.fixation import STUCK_PX, next_boost
 
 FOVEA = np.array([159.5, 119.5])  # the simulated cameras' 320 x 240 images
@@ -69,13 +69,8 @@ def tally(recordings: list[Path]) -> tuple[int, collections.Counter[str], list[d
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("recordings", type=Path, nargs="+", help="look_steps --json files")
-    args = parser.parse_args(argv)
-    missing = [str(p) for p in args.recordings if not p.is_file()]
-    if missing:
-        parser.error(f"no such recording: {', '.join(missing)}")
-    steps, counts, rows = tally(args.recordings)
+    recordings = recording_files(__doc__.split("\n")[0], argv)
+    steps, counts, rows = tally(recordings)
     print(f"{steps} corrective steps, {len(rows)} lengthened; by whether the step before had moved the target "
           f"{STUCK_PX} px or more, and whether the lengthened one left it farther from the fovea:")
     for key, n in sorted(counts.items()):

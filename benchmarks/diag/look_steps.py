@@ -208,6 +208,18 @@ def recording_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--images", type=Path, action="append", required=True, help="its --images directory")
 
 
+def recording_files(description: str, argv: list[str] | None) -> list[Path]:
+    """The look_steps `--json` files named on a diagnostic's command line (`argv`), each checked
+    to exist; a usage error naming those that do not."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("recordings", type=Path, nargs="+", help="look_steps --json files")
+    args = parser.parse_args(argv)
+    missing = [str(p) for p in args.recordings if not p.is_file()]
+    if missing:
+        parser.error(f"no such recording: {', '.join(missing)}")
+    return list(args.recordings)
+
+
 def recordings(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[tuple[Path, Path]]:
     """The (steps, images) pairs of `recording_arguments`; a usage error where they do not pair up."""
     if len(args.steps) != len(args.images):
