@@ -6,9 +6,10 @@ closes the loop on what it sees: the target's patch, taken around (x, y) in the 
 just before the saccade, is found again in the left image after it (`calib_free.gaze.refind`),
 and while it lies farther than `LookParams.tolerance_px` from the left fovea a corrective
 fixation goes to where it is now -- the map's command for that position and the disparity
-measured there (d = 0, the depth the eyes fixate, where that d would verge them away from the
-target's known depth, or the map's command for it turn the head beyond what a step this short
-calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
+measured there (the fovea's, where the target lies so near the fovea the eyes converged on that
+it shares its surroundings; d = 0, the depth the eyes fixate, where the measured d would verge
+them away from the target's known depth, or the map's command for it turn the head beyond what
+a step this short calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
 other: converged and confident, it teaches the map. A saccade the joint limits stopped ends
 the look: no correction can go further.
 
@@ -69,7 +70,7 @@ from calib_free.gaze.fixation import (FixationController, FixationInterrupted, F
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
 from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSET_SPREAD, REACH_MARGIN_DEG,
                                            beyond_limits, corrective_step_error_px, foveal_px_per_deg,
-                                           left_landing_px, step_turn_bound_deg, vergence_goal)
+                                           left_landing_px, shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
@@ -418,16 +419,35 @@ class LookController:
 
     def _step_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
                         aim: tuple[float, float]) -> float:
-        """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
-        there, held to the target's depth (`_held_disparity`); d = 0, the depth the eyes fixate,
-        where the map's command for it would turn the head beyond what the step calls for
-        (`_turn_beyond_step`)."""
-        d = self._held_disparity(record, fixation, sighting, aim)
+        """d for a corrective step aimed at `aim` from the target's `sighting`: the fovea's, where
+        the sighting is near enough the fovea the eyes converged on (`_foveal_disparity`); else
+        the one measured there, held to the target's depth (`_held_disparity`); d = 0, the depth
+        the eyes fixate, where the map's command for it would turn the head beyond what the step
+        calls for (`_turn_beyond_step`)."""
+        foveal = self._foveal_disparity(fixation, sighting)
+        d = foveal if foveal is not None else self._held_disparity(record, fixation, sighting, aim)
         beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d)
         if beyond:
             log.debug("corrective step at (%.1f, %.1f): %s: d 0", aim[0], aim[1], beyond)
             return 0.0
         return d
+
+    def _foveal_disparity(self, fixation: FixationRecord, sighting: TargetSighting) -> float | None:
+        """The disparity fine vergence left at the fovea, where `fixation` converged and the
+        target's `sighting` lies so near the fovea that the fine vergence patch about it mostly
+        covers the fovea's (`shares_the_fovea`): what the eyes fixate is the target's
+        surroundings, at the target's depth. A disparity measured there that differs by pixels
+        is the right eye's match on something else (a repeat along the rows; the realistic
+        world's webcams that differ in roll and focal length), and a step that planned with it
+        verges the eyes away, fine vergence verges them back and turns the left eye off the
+        target by half of it. None where that does not hold."""
+        if not fixation.converged or not fixation.vergence_disparities_px or fixation.final_left_image is None:
+            return None
+        cx, cy = fovea(fixation.final_left_image)
+        offset = (sighting.x - cx, sighting.y - cy)
+        if not shares_the_fovea(offset, self.fixation.params.vergence_patch_size):
+            return None
+        return float(fixation.vergence_disparities_px[-1])
 
     def _turn_beyond_step(self, fixation: FixationRecord, aim: tuple[float, float], d: float) -> str:
         """Why the map's command for the step (`aim`, d), from where `fixation` left the head,

@@ -16,7 +16,7 @@ from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
 from calib_free.gaze.look import LookController, LookOutcome, LookRecord
 from calib_free.gaze.look_geometry import (corrective_step_error_px, foveal_px_per_deg, left_landing_px,
-                                           step_turn_bound_deg, vergence_goal)
+                                           shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.target_depth import target_disparity, vergence_on_a_repeat
 from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
                                     own_view_peaks, patch_problem, search_target,
@@ -425,6 +425,31 @@ def test_a_corrective_step_takes_no_disparity_whose_command_turns_the_head_beyon
     look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
     aim = (sighting.x, sighting.y)
     assert controller._step_disparity(look, fixation, sighting, aim) == pytest.approx(step_d, abs=0.3)
+
+
+@pytest.mark.parametrize("converged, offset_px, step_d", [
+    (True, (2.0, 1.0), 0.4),  # near the fovea the eyes converged on: what fine vergence left there
+    (True, (9.0, 0.0), 6.0),  # the fine vergence patch about it covers 72 % of the fovea's: measured
+    (True, (0.0, 4.5), 6.0),  # 77 % of it, a patch 20 px high: measured
+    (False, (2.0, 1.0), 6.0),  # eyes that did not converge fixate nothing to go by: measured
+])
+def test_a_corrective_step_near_the_fovea_the_eyes_converged_on_takes_the_foveas_disparity(converged, offset_px,
+                                                                                          step_d):
+    """The right image matches the target 6 px to the right, though fine vergence left 0.4 px at
+    the fovea a few pixels away: a step from there plans with the fovea's 0.4, not 6 px that
+    would verge the eyes away for fine vergence to verge them back."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(FOVEA[0] + offset_px[0], FOVEA[1] + offset_px[1], 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([200.0, 100.0, 0.0]), converged=converged,
+                              outcome=FixationOutcome.TAUGHT if converged else FixationOutcome.NOT_CONVERGED,
+                              pose_after=np.array([0.0, 0.0, 8.0]), vergence_disparities_px=[3.0, 0.4])
+    fixation.final_left_image, fixation.final_right_image = left, np.roll(left, 6, axis=1)
+    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
+    assert controller._step_disparity(look, fixation, sighting, (sighting.x, sighting.y)) == \
+        pytest.approx(step_d, abs=0.3)
+    assert shares_the_fovea((-3.0, 0.0), (32, 20)) and not shares_the_fovea((40.0, 30.0), (32, 20))
 
 
 def test_a_steps_turn_bound_is_twice_its_aims_turn_and_half_its_vergence_change_with_slack():
