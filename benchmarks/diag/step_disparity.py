@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.diag.lengthened_steps import FOVEA
 from benchmarks.diag.look_steps import recording_files
 from calib_free.gaze.fixation import FixationParams
 from calib_free.gaze.look_geometry import shares_the_fovea
 
-FOVEA = np.array([159.5, 119.5])  # the simulated cameras' 320 x 240 images
 D_BANDS = ((0.0, 1.0), (1.0, 2.0), (2.0, float("inf")))  # |d| the step planned with, px
 ON_FOVEA_PX = 1.0  # the looks' tolerance
 MIN_PLANNED_DEG = 0.25  # a planned vergence change smaller than the eyes' play is not told undone

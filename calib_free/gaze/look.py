@@ -2,16 +2,16 @@
 
 One fixation through the map (`FixationController.fixate`: saccade, fine vergence,
 correspondence) brings the target near the foveae, as near as the map is right. A look then
-closes the loop on what it sees: the target's patch, taken around (x, y) in the left image
-just before the saccade, is found again in the left image after it (`calib_free.gaze.refind`),
-and while it lies farther than `LookParams.tolerance_px` from the left fovea a corrective
-fixation goes to where it is now -- the map's command for that position and the disparity
-measured there (the fovea's, where the target lies so near the fovea the eyes converged on that
-it shares its surroundings; d = 0, the depth the eyes fixate, where the measured d would verge
-them away from the target's known depth, or the map's command for it turn the head beyond what
-a step this short calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
-other: converged and confident, it teaches the map. A saccade the joint limits stopped ends
-the look: no correction can go further.
+closes the loop on what it sees: the target's patch, taken around (x, y) in the left image just
+before the saccade, is found again in the left image after it (`calib_free.gaze.refind`), and
+while it lies farther than `LookParams.tolerance_px` from the left fovea a corrective fixation
+goes to where it is now -- the map's command for that position and the disparity measured there
+(the fovea's, where the target lies so near the fovea the eyes converged on that it shares its
+surroundings; d = 0, the depth the eyes fixate, where the measured d would verge them away from
+the target's known depth, or the map's command for it turn the head beyond what a step this
+short calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
+other: converged and confident, it teaches the map. A saccade the joint limits stopped ends the
+look: no correction can go further.
 
 A target is in the view of the pose it was chosen in (`reference_pose`). When the head has
 moved since (a queued look), the look first returns to that pose, so that the image before
