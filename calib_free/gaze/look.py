@@ -423,10 +423,12 @@ class LookController:
         the sighting is near enough the fovea the eyes converged on (`_foveal_disparity`); else
         the one measured there, held to the target's depth (`_held_disparity`); d = 0, the depth
         the eyes fixate, where the map's command for it would turn the head beyond what the step
-        calls for (`_turn_beyond_step`)."""
+        calls for (`_turn_beyond_step`) or verge the eyes beyond the vergence's limits
+        (`_verges_beyond_range`)."""
         foveal = self._foveal_disparity(fixation, sighting)
         d = foveal if foveal is not None else self._held_disparity(record, fixation, sighting, aim)
-        beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d)
+        beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d) or self._verges_beyond_range(
+            fixation, aim, d)
         if beyond:
             log.debug("corrective step at (%.1f, %.1f): %s: d 0", aim[0], aim[1], beyond)
             return 0.0
@@ -475,6 +477,23 @@ class LookController:
             return ""
         return (f"d {d:.1f} px: the map's command turns the head {turn:.1f} deg, beyond the {bound:.1f} deg a step "
                 f"aimed {aim_px:.1f} px from the fovea with a vergence change of {float(command[2]):.1f} deg calls for")
+
+    def _verges_beyond_range(self, fixation: FixationRecord, aim: tuple[float, float], d: float) -> str:
+        """Why the map's command for the step (`aim`, d), from where `fixation` left the head,
+        cannot be the step's ('' if it may be): it verges the eyes more than `REACH_MARGIN_DEG`
+        beyond the vergence's joint limits. The head stops the vergence at its limit, while
+        the command's pan and tilt keep the left eye's direction only for the whole vergence
+        change: the left eye turns by half of what the limit cut off, degrees for a d of tens of
+        pixels, and the step leaves the target farther than it found it. No depth the eyes can
+        verge to is that d's: a look-alike's, or the right eye's on something else."""
+        pose = fixation.pose_after
+        if pose is None:
+            return ""
+        verged = vergence_goal(self.fixation.map, pose, (*aim, d))
+        low, high = float(self.fixation.head.pose_low[2]), float(self.fixation.head.pose_high[2])
+        if verged is None or low - REACH_MARGIN_DEG <= verged <= high + REACH_MARGIN_DEG:
+            return ""
+        return f"d {d:.1f} px: the map's command verges the eyes at {verged:.1f} deg, outside [{low:g}, {high:g}] deg"
 
     def _held_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
                         aim: tuple[float, float]) -> float:

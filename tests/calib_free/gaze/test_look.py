@@ -419,12 +419,38 @@ def test_a_corrective_step_takes_no_disparity_whose_command_turns_the_head_beyon
     left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
     sighting = TargetSighting(FOVEA[0] + 2.0, FOVEA[1] + 1.0, 0.95, np.eye(2))
     fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([200.0, 100.0, 0.0]), converged=False,
-                              outcome=FixationOutcome.NO_VERGENCE_MATCH, pose_after=np.array([0.0, 0.0, 8.0]))
+                              outcome=FixationOutcome.NO_VERGENCE_MATCH, pose_after=np.array([0.0, 0.0, 12.0]))
     fixation.final_left_image, fixation.final_right_image = left, np.roll(left, shift_px, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=80)
     look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
     aim = (sighting.x, sighting.y)
     assert controller._step_disparity(look, fixation, sighting, aim) == pytest.approx(step_d, abs=0.3)
+
+
+@pytest.mark.parametrize("vergence_deg, step_d", [
+    (12.0, 45.0),  # the map verges the eyes 9 deg, to 3: within the limits [1, 20]
+    (10.2, 45.0),  # to 1.2: within
+    (9.5, 0.0),  # to 0.5: the vergence stops at 1 and the left eye turns by half the cut
+    (8.0, 0.0),  # to -1
+])
+def test_a_corrective_step_takes_no_disparity_that_verges_the_eyes_beyond_their_limits(vergence_deg, step_d):
+    """The right image matches the target 45 px to the right, which the map verges the eyes 9
+    deg for, turning the head by half of it to keep the left eye's direction. Where that
+    vergence lies beyond the joint limits the head stops it there, the left eye turns by half
+    of what was cut off, and the step takes d = 0 instead."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    controller.fixation.map = MapKeepingTheLeftEye(1.0)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(FOVEA[0] + 2.0, FOVEA[1] + 1.0, 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([200.0, 100.0, 0.0]), converged=False,
+                              outcome=FixationOutcome.NO_VERGENCE_MATCH,
+                              pose_after=np.array([0.0, 0.0, vergence_deg]))
+    fixation.final_left_image, fixation.final_right_image = left, np.roll(left, 45, axis=1)
+    controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=80)
+    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
+    assert controller._step_disparity(look, fixation, sighting, (sighting.x, sighting.y)) == \
+        pytest.approx(step_d, abs=0.3)
 
 
 @pytest.mark.parametrize("converged, offset_px, step_d", [
