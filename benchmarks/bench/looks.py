@@ -202,6 +202,13 @@ def draw_target(rig, adapter, rng, textured: bool, counts: collections.Counter, 
     raise RuntimeError("no usable target in 1000 draws")
 
 
+def second_attempts(looks: list[dict[str, Any]]) -> dict[str, int]:
+    """How many looks tried a second time at the depth their first attempt found, and how many
+    of those ended on target (`calib_free.gaze.second_attempt`)."""
+    again = [r for r in looks if (r.get("attempts") or 1) > 1]
+    return {"looks": len(again), "on_target": sum(bool(r["on_target"]) for r in again)}
+
+
 def summary(rows: list[dict[str, Any]], counts: collections.Counter, tolerance_px: float) -> dict[str, Any]:
     looks = [r for r in rows if r["outcome"] is not None]
     on = [r for r in looks if r["on_target"]]
@@ -227,6 +234,7 @@ def summary(rows: list[dict[str, Any]], counts: collections.Counter, tolerance_p
         "corrective_steps": {"median": q(steps, 50), "max": q(steps, 100),
                              "histogram": dict(collections.Counter(int(s) for s in steps))},
         "landing_error_px_accepted": {"count": len(landing), "median": q(landing, 50), "p90": q(landing, 90)},
+        "second_attempts": second_attempts(looks),
         "outcomes": dict(collections.Counter(r["outcome"] or "refused at the API (422)" for r in rows)),
         "draws": dict(counts),
         "seconds_per_look_simulated": float(np.mean([r["duration_s"] for r in looks])) if looks else None,
@@ -251,7 +259,8 @@ def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
         rows.append({"target": target, "d_measured": measured, "outcome": str(record.outcome),
                      "on_target": record.on_target,
                      "final_error_px": record.final_error_px, "true_error_px": truth, "hidden": hidden,
-                     "corrective_steps": record.corrective_steps, "landing_error_px": record.landing_error_px,
+                     "corrective_steps": record.corrective_steps, "attempts": record.attempts,
+                     "landing_error_px": record.landing_error_px,
                      "duration_s": record.duration_s, "detail": record.detail})
     return {"summary": summary(rows, counts, looker.params.tolerance_px), "looks": rows}
 

@@ -34,7 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from benchmarks.bench.looks import world_error_px
+from benchmarks.bench.looks import second_attempts, world_error_px
 from headctl.api.client import ApiClient, ApiError
 from headctl.api.compose import serve
 from headctl.config.head import DEFAULT_CONFIG, load_config
@@ -71,7 +71,8 @@ def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, hei
     return {"xy": [x, y], "start": [pan, tilt], "state": str(answer["state"]), "outcome": answer["outcome"],
             "detail": answer["detail"], "on_target": bool(result.get("on_target")),
             "final_error_px": result.get("final_error_px"), "duration_s": result.get("duration_s"),
-            "corrective_steps": result.get("corrective_steps"), "d_measured": answer["request"].get("d_measured"),
+            "corrective_steps": result.get("corrective_steps"), "attempts": result.get("attempts"),
+            "d_measured": answer["request"].get("d_measured"),
             "true_error_px": truth, "hidden": hidden, "first_goal": goal,
             "first_goal_beyond_deg": beyond_deg(goal, low, high)}
 
@@ -129,6 +130,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "true_error_px_on_target": {"p50": q(truth, 50), "p90": q(truth, 90), "max": q(truth, 100),
                                         "over_3px": sum(t > 3 for t in truth)},
             "d_not_measured": sum(r.get("d_measured") is False for r in run),
+            "second_attempts": second_attempts(run),
             # the looks taken on whose first saccade the map sent beyond the pan or tilt limits,
             # by how far, and how many of them ended on target: what the API's reach margin costs
             "first_goal_beyond": {band: {"looks": len(mine), "on_target": sum(r["on_target"] for r in mine)}

@@ -50,7 +50,10 @@ is not taken for the target.
 The target not found again, or found where the eyes converged far from the vergence the map
 gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth; judged only
 where d is the target's, given or measured, and the fovea's patch does not repeat along its rows
-in the right image, where the right eye may be on a repeat), fails the look saying so. A look's figures come only from accepted measurements: `final_error_px` from
+in the right image, where the right eye may be on a repeat), fails the look saying so. A look that lost its target or ran out of steps after its first
+fixation's eyes converged at another depth than the saccade planned with tries once more from
+the target's view, at the depth they found (`calib_free.gaze.second_attempt`); not one that
+refused a look-alike at another depth. A look's figures come only from accepted measurements: `final_error_px` from
 the target found after the last step, `landing_error_px` from a first fixation whose
 correspondence was accepted (it taught).
 """
@@ -64,7 +67,7 @@ from typing import Callable
 
 import numpy as np
 
-from calib_free.correspondence.disparity import horizontal_offset
+from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
 from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
@@ -72,6 +75,7 @@ from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSE
                                            beyond_limits, corrective_step_error_px, foveal_px_per_deg,
                                            left_landing_px, shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
+from calib_free.gaze.second_attempt import depth_found_elsewhere, disparity_for_vergence, target_in_restored_view
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
 from calib_free.gaze.target_depth import vergence_on_a_repeat
@@ -128,6 +132,13 @@ class LookRecord:
     view_restored_deg: float | None = None  # how far the head was from the target's view when the look began
     depth_known: bool = True  # d is the target's (given or measured), not the fixation's depth in its stead
     duration_s: float = 0.0
+    at_another_depth: bool = False  # lost: what the eyes converged on is at another depth than the target
+    first_attempt: LookRecord | None = None  # where this is a second attempt (`calib_free.gaze.second_attempt`)
+    second_attempt_why: str = ""
+
+    @property
+    def attempts(self) -> int:
+        return 1 if self.first_attempt is None else 1 + self.first_attempt.attempts
 
     @property
     def on_target(self) -> bool:
@@ -183,6 +194,11 @@ class LookController:
         record = LookRecord(np.asarray(target, dtype=float), depth_known=depth_known)
         try:
             self._run(record, reference_pose)
+            again = self._second_attempt(record, reference_pose)
+            if again is not None:
+                record, reference = again
+                self._run(record, reference)
+                record.detail = f"{record.detail} ({record.second_attempt_why})"
         except FixationInterrupted as err:
             record.outcome, record.detail = err.outcome, str(err)
         except HeadTimeoutError as err:
@@ -193,6 +209,42 @@ class LookController:
         log.debug("look at %s: %s %s (%d corrective steps, final error %s px)", record.target.tolist(),
                   record.outcome, record.detail, record.corrective_steps, record.final_error_px)
         return record
+
+    def _second_attempt(self, record: LookRecord,
+                        reference_pose: Vector | None) -> tuple[LookRecord, np.ndarray] | None:
+        """The look's second attempt, ready to run from the view its target was chosen in, and
+        that view's pose; None where the first attempt ended otherwise than lost or off the
+        fovea, or lost as a look-alike at another depth (a second attempt at that depth would
+        take what the first refused), or its first fixation's eyes converged at the vergence
+        its saccade planned, or the map gives no d for the vergence they converged at, or the
+        target's patch is not found again in the restored view
+        (`calib_free.gaze.second_attempt`)."""
+        if record.outcome not in (LookOutcome.TARGET_LOST, LookOutcome.NOT_ON_TARGET) or record.at_another_depth \
+                or not record.fixations:
+            return None
+        first, head = record.fixations[0], self.fixation.head
+        converged = depth_found_elsewhere(first, float(head.pose_low[2]), float(head.pose_high[2]))
+        source = first.pre_left_image
+        if converged is None or source is None or first.pose_before is None or first.planned is None:
+            return None
+        reference = np.asarray(reference_pose if reference_pose is not None else first.pose_before, dtype=float)
+        xy = (float(record.target[0]), float(record.target[1]))
+        d = disparity_for_vergence(self.fixation.map, reference, xy, converged)
+        if d is None:
+            return None
+        head.move_to(reference)
+        left, _ = head.wait_pair(head.wait_settled(self.fixation.params.settle_timeout_s),
+                                 self.fixation.params.frame_timeout_s)
+        found = target_in_restored_view(source, xy, as_grey_float(left), self.params.target_patch_size)
+        if found is None:
+            log.debug("look at %s: no second attempt, the target's patch is not in the restored view", xy)
+            return None
+        again = LookRecord(np.array([found[0], found[1], d]), depth_known=False, first_attempt=record,
+                           view_restored_deg=record.view_restored_deg)
+        again.second_attempt_why = (f"second attempt, with d {d:.1f} px: the first's eyes converged at "
+                                    f"{converged:.1f} deg, not the {first.pose_before[2] + first.planned[2]:.1f} "
+                                    f"it planned, and it ended {record.outcome}")
+        return again, reference
 
     def _restore_view(self, record: LookRecord, reference_pose: Vector) -> None:
         head = self.fixation.head
@@ -267,7 +319,7 @@ class LookController:
             if error <= p.tolerance_px and mismatch:
                 # The patch's look-alike at another depth (a patch across a depth edge, whose two
                 # parts moved apart): what the eyes converged on is not the target.
-                record.outcome, record.detail = LookOutcome.TARGET_LOST, mismatch
+                record.outcome, record.detail, record.at_another_depth = LookOutcome.TARGET_LOST, mismatch, True
                 return
             if error <= p.tolerance_px:
                 # On target: the left fovea is the look's reference. Eyes that did not converge

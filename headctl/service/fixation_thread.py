@@ -250,6 +250,7 @@ class FixationThread(threading.Thread):
         result: dict[str, object] = {
             "on_target": look.on_target, "final_error_px": look.final_error_px,
             "tolerance_px": self.looker.params.tolerance_px, "corrective_steps": look.corrective_steps,
+            "attempts": look.attempts,
             "landing_error_px": look.landing_error_px,
             "target_px": None if sighting is None else [sighting.x, sighting.y],
             "target_ncc": None if sighting is None else sighting.ncc,

@@ -51,6 +51,7 @@ def test_a_look_ends_done_only_with_the_target_on_the_fovea():
     truth = float(np.hypot(*(head.image_position(texel) - FOVEA)))
     assert truth <= 1.0 and result["final_error_px"] == pytest.approx(truth, abs=0.3)
     assert 1 <= result["corrective_steps"] <= 3 and len(result["fixations"]) == result["corrective_steps"] + 1
+    assert result["attempts"] == 1
     assert result["landing_error_px"] > 5  # the open-loop figure: the first saccade fell short
     assert result["taught"] == len(result["fixations"]) and thread.taught == result["taught"]
     assert list(thread.landing_errors_px) == [pytest.approx(result["landing_error_px"], abs=1e-3)]
