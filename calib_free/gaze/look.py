@@ -50,12 +50,13 @@ is not taken for the target.
 The target not found again, or found where the eyes converged far from the vergence the map
 gives the target's d (`max_vergence_mismatch_deg`: a look-alike at another depth; judged only
 where d is the target's, given or measured, and the fovea's patch does not repeat along its rows
-in the right image, where the right eye may be on a repeat), fails the look saying so. A look that lost its target or ran out of steps after its first
-fixation's eyes converged at another depth than the saccade planned with tries once more from
-the target's view, at the depth they found (`calib_free.gaze.second_attempt`); not one that
-refused a look-alike at another depth. A look's figures come only from accepted measurements: `final_error_px` from
-the target found after the last step, `landing_error_px` from a first fixation whose
-correspondence was accepted (it taught).
+in the right image, where the right eye may be on a repeat), fails the look saying so. A look
+that lost its target or ran out of steps after its first fixation's eyes converged at another
+depth than the saccade planned with tries once more from the target's view, at the depth they
+found (`calib_free.gaze.second_attempt`); not one that refused a look-alike at another depth. A
+look's figures come only from accepted measurements: `final_error_px` from the target found
+after the last step, `landing_error_px` from a first fixation whose correspondence was accepted
+(it taught).
 """
 from __future__ import annotations
 
@@ -75,9 +76,9 @@ from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSE
                                            beyond_limits, corrective_step_error_px, foveal_px_per_deg,
                                            left_landing_px, shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
-from calib_free.gaze.second_attempt import depth_found_elsewhere, disparity_for_vergence, target_in_restored_view
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
+from calib_free.gaze.second_attempt import depth_found_elsewhere, disparity_for_vergence, target_in_restored_view
 from calib_free.gaze.target_depth import vergence_on_a_repeat
 from calib_free.map.gaze_map import Vector
 
