@@ -78,7 +78,8 @@ from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSE
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
-from calib_free.gaze.second_attempt import depth_found_elsewhere, disparity_for_vergence, target_in_restored_view
+from calib_free.gaze.second_attempt import (depth_found_elsewhere, disparity_for_vergence, target_in_restored_view,
+                                            why_again)
 from calib_free.gaze.target_depth import vergence_on_a_repeat
 from calib_free.map.gaze_map import Vector
 
@@ -135,7 +136,6 @@ class LookRecord:
     duration_s: float = 0.0
     at_another_depth: bool = False  # lost: what the eyes converged on is at another depth than the target
     first_attempt: LookRecord | None = None  # where this is a second attempt (`calib_free.gaze.second_attempt`)
-    second_attempt_why: str = ""
 
     @property
     def attempts(self) -> int:
@@ -199,7 +199,10 @@ class LookController:
             if again is not None:
                 record, reference = again
                 self._run(record, reference)
-                record.detail = f"{record.detail} ({record.second_attempt_why})"
+                first = record.first_attempt
+                assert first is not None
+                record.view_restored_deg = first.view_restored_deg  # the look's, not the return to its view
+                record.detail = f"{record.detail} ({why_again(first.fixations[0], record.target[2], first.outcome)})"
         except FixationInterrupted as err:
             record.outcome, record.detail = err.outcome, str(err)
         except HeadTimeoutError as err:
@@ -226,7 +229,7 @@ class LookController:
         first, head = record.fixations[0], self.fixation.head
         converged = depth_found_elsewhere(first, float(head.pose_low[2]), float(head.pose_high[2]))
         source = first.pre_left_image
-        if converged is None or source is None or first.pose_before is None or first.planned is None:
+        if converged is None or source is None or first.pose_before is None:
             return None
         reference = np.asarray(reference_pose if reference_pose is not None else first.pose_before, dtype=float)
         xy = (float(record.target[0]), float(record.target[1]))
@@ -240,11 +243,7 @@ class LookController:
         if found is None:
             log.debug("look at %s: no second attempt, the target's patch is not in the restored view", xy)
             return None
-        again = LookRecord(np.array([found[0], found[1], d]), depth_known=False, first_attempt=record,
-                           view_restored_deg=record.view_restored_deg)
-        again.second_attempt_why = (f"second attempt, with d {d:.1f} px: the first's eyes converged at "
-                                    f"{converged:.1f} deg, not the {first.pose_before[2] + first.planned[2]:.1f} "
-                                    f"it planned, and it ended {record.outcome}")
+        again = LookRecord(np.array([found[0], found[1], d]), depth_known=False, first_attempt=record)
         return again, reference
 
     def _restore_view(self, record: LookRecord, reference_pose: Vector) -> None:

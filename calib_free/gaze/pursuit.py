@@ -42,7 +42,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
-from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, stereo_offset
+from calib_free.correspondence.disparity import DISPARITY_BAND_PX, as_grey_float, stereo_offset, subpixel_peak
 from calib_free.errors import OutOfRangeError
 
 log = logging.getLogger(__name__)
@@ -171,15 +171,8 @@ class PatchMatch:
 def _peak(scores: np.ndarray) -> tuple[float, float, float]:
     """(x, y, score) of the best score, refined to sub-pixel by a parabola on each axis."""
     _, best, _, (ix, iy) = cv2.minMaxLoc(scores)
-
-    def offset(a: float, b: float, c: float) -> float:
-        denom = a - 2 * b + c
-        return 0.0 if denom >= 0 else float(np.clip(0.5 * (a - c) / denom, -0.5, 0.5))
-
-    h, w = scores.shape
-    dx = offset(scores[iy, ix - 1], scores[iy, ix], scores[iy, ix + 1]) if 0 < ix < w - 1 else 0.0
-    dy = offset(scores[iy - 1, ix], scores[iy, ix], scores[iy + 1, ix]) if 0 < iy < h - 1 else 0.0
-    return ix + dx, iy + dy, float(best)
+    x, y = subpixel_peak(scores, iy, ix)
+    return x, y, float(best)
 
 
 class PatchTracker:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from calib_free.correspondence.disparity import subpixel_peak
 from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import FixationRecord, MapReader
 
@@ -86,12 +87,16 @@ def target_in_restored_view(source: np.ndarray, source_xy: tuple[float, float], 
     iy, ix = np.unravel_index(int(np.argmax(scores)), scores.shape)
     if scores[iy, ix] < RESTORED_VIEW_MIN_NCC:
         return None
+    u, v = subpixel_peak(scores, int(iy), int(ix))
+    # The template's top-left sat at (tx0, ty0) about source_xy; the best place moved it by (u - r, v - r).
+    return source_xy[0] + u - r, source_xy[1] + v - r
 
-    def vertex(before: float, at: float, after: float) -> float:
-        curvature = before - 2.0 * at + after
-        return 0.0 if curvature >= 0.0 else float(np.clip(0.5 * (before - after) / curvature, -0.5, 0.5))
 
-    dx = vertex(scores[iy, ix - 1], scores[iy, ix], scores[iy, ix + 1]) if 0 < ix < scores.shape[1] - 1 else 0.0
-    dy = vertex(scores[iy - 1, ix], scores[iy, ix], scores[iy + 1, ix]) if 0 < iy < scores.shape[0] - 1 else 0.0
-    # The template's top-left sat at (tx0, ty0) about source_xy; the best place moved it by (ix - r, iy - r).
-    return source_xy[0] + ix - r + dx, source_xy[1] + iy - r + dy
+def why_again(first: FixationRecord, d: float, ended: object) -> str:
+    """What a look's detail says of its second attempt: the `d` it went with, where the first
+    attempt's first fixation (`first`) converged against the vergence its saccade planned, and how
+    the first attempt `ended`."""
+    if first.pose_before is None or first.planned is None or first.pose_after is None:
+        return f"second attempt, with d {d:.1f} px; the first ended {ended}"
+    return (f"second attempt, with d {d:.1f} px: the first's eyes converged at {first.pose_after[2]:.1f} deg, "
+            f"not the {first.pose_before[2] + first.planned[2]:.1f} it planned, and it ended {ended}")

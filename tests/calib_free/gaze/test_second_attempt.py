@@ -56,6 +56,7 @@ def test_a_look_whose_eyes_converged_at_another_depth_tries_again_from_its_view_
     assert record.attempts == 2 and record.on_target and record.corrective_steps == 0
     assert record.target[2] == pytest.approx(4.0 * DISPARITY_PX_PER_DEG, abs=0.5)
     assert np.allclose(record.fixations[0].pose_before, start)  # from the view the target was chosen in
+    assert record.view_restored_deg is None  # the look's own: it began in the target's view
     assert float(np.hypot(*(head.image_position(texel) - FOVEA))) < 1.0
     assert "second attempt" in record.detail and "converged at 8.0 deg" in record.detail
 
