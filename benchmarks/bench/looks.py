@@ -209,7 +209,15 @@ def second_attempts(looks: list[dict[str, Any]]) -> dict[str, int]:
     return {"looks": len(again), "on_target": sum(bool(r["on_target"]) for r in again)}
 
 
-def summary(rows: list[dict[str, Any]], counts: collections.Counter, tolerance_px: float) -> dict[str, Any]:
+def finishing_steps(looks: list[dict[str, Any]], max_corrective_steps: int) -> dict[str, int]:
+    """How many looks took finishing steps (corrective steps past `max_corrective_steps`, the
+    target then within `finishing_reach_px` of the fovea), and how many of those ended on target."""
+    finished = [r for r in looks if (r.get("corrective_steps") or 0) > max_corrective_steps]
+    return {"looks": len(finished), "on_target": sum(bool(r["on_target"]) for r in finished)}
+
+
+def summary(rows: list[dict[str, Any]], counts: collections.Counter, params: LookParams) -> dict[str, Any]:
+    tolerance_px = params.tolerance_px
     looks = [r for r in rows if r["outcome"] is not None]
     on = [r for r in looks if r["on_target"]]
     unmeasured = [r for r in looks if not r["d_measured"]]
@@ -235,6 +243,7 @@ def summary(rows: list[dict[str, Any]], counts: collections.Counter, tolerance_p
                              "histogram": dict(collections.Counter(int(s) for s in steps))},
         "landing_error_px_accepted": {"count": len(landing), "median": q(landing, 50), "p90": q(landing, 90)},
         "second_attempts": second_attempts(looks),
+        "finishing_steps": finishing_steps(looks, params.max_corrective_steps),
         "outcomes": dict(collections.Counter(r["outcome"] or "refused at the API (422)" for r in rows)),
         "draws": dict(counts),
         "seconds_per_look_simulated": float(np.mean([r["duration_s"] for r in looks])) if looks else None,
@@ -262,7 +271,7 @@ def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
                      "corrective_steps": record.corrective_steps, "attempts": record.attempts,
                      "landing_error_px": record.landing_error_px,
                      "duration_s": record.duration_s, "detail": record.detail})
-    return {"summary": summary(rows, counts, looker.params.tolerance_px), "looks": rows}
+    return {"summary": summary(rows, counts, looker.params), "looks": rows}
 
 
 def main() -> int:

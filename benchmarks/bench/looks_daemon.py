@@ -34,7 +34,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from benchmarks.bench.looks import second_attempts, world_error_px
+from benchmarks.bench.looks import finishing_steps, second_attempts, world_error_px
+from calib_free.gaze.fixation import LookParams
 from headctl.api.client import ApiClient, ApiError
 from headctl.api.compose import serve
 from headctl.config.head import DEFAULT_CONFIG, load_config
@@ -102,7 +103,8 @@ def beyond_bands(rows: list[dict[str, Any]]) -> dict[str, list[dict[str, Any]]]:
     return bands
 
 
-def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+def summary(rows: list[dict[str, Any]], max_corrective_steps: int = LookParams().max_corrective_steps
+            ) -> dict[str, Any]:
     on = [r for r in rows if r["on_target"]]
     run = [r for r in rows if r["state"] != "refused"]
 
@@ -131,6 +133,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
                                         "over_3px": sum(t > 3 for t in truth)},
             "d_not_measured": sum(r.get("d_measured") is False for r in run),
             "second_attempts": second_attempts(run),
+            "finishing_steps": finishing_steps(run, max_corrective_steps),
             # the looks taken on whose first saccade the map sent beyond the pan or tilt limits,
             # by how far, and how many of them ended on target: what the API's reach margin costs
             "first_goal_beyond": {band: {"looks": len(mine), "on_target": sum(r["on_target"] for r in mine)}
@@ -186,7 +189,7 @@ def main() -> int:
     fix = explored["fixation"]
     out = {"config": args.config.name, "world": (explored.get("world") or {}).get("kind"),
            "explore_s": args.explore_s, "fixations": fix.get("done"), "taught": fix.get("taught"),
-           "load_average": load, **summary(rows)}
+           "load_average": load, **summary(rows, config.fixation.params.look.max_corrective_steps)}
     report(out, {"rows": rows}, args.json)
     return 0
 

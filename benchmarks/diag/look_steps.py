@@ -46,6 +46,7 @@ import calib_free.gaze.look as look_module
 from benchmarks.bench.looks import world_offset_px
 from benchmarks.bench.looks_daemon import look_arguments, report, run_looks
 from calib_free.gaze.refind import own_view_peaks
+from calib_free.gaze.step_disparity import StepDisparity
 from headctl.api.client import ApiClient
 from headctl.api.compose import serve
 from headctl.config.head import load_config
@@ -119,12 +120,12 @@ class StepRecorder:
         """The look module's target searches and fixations wrapped to record, for the block."""
         find_first, find_target = look_module.find_first_sighting, look_module.find_target
         fixate = look_module.LookController._fixate
-        disparity_at = look_module.LookController._disparity_at
+        disparity_at = StepDisparity.measured_at
         recorder = self
         measured: list[float] = []  # the d measured for the corrective step about to be taken
 
-        def recorded_disparity(controller, fixation, sighting):  # type: ignore[no-untyped-def]
-            d = disparity_at(controller, fixation, sighting)
+        def recorded_disparity(chooser, fixation, sighting):  # type: ignore[no-untyped-def]
+            d = disparity_at(chooser, fixation, sighting)
             measured[:] = [float(d)]
             return d
 
@@ -171,13 +172,13 @@ class StepRecorder:
 
         look_module.find_first_sighting, look_module.find_target = recorded_first, recorded_find
         look_module.LookController._fixate = recorded_fixate  # type: ignore[method-assign]
-        look_module.LookController._disparity_at = recorded_disparity  # type: ignore[method-assign]
+        StepDisparity.measured_at = recorded_disparity  # type: ignore[method-assign]
         try:
             yield self
         finally:
             look_module.find_first_sighting, look_module.find_target = find_first, find_target
             look_module.LookController._fixate = fixate  # type: ignore[method-assign]
-            look_module.LookController._disparity_at = disparity_at  # type: ignore[method-assign]
+            StepDisparity.measured_at = disparity_at  # type: ignore[method-assign]
 
 
 def saved_first_search(look: dict[str, Any], images: Path) -> tuple[dict[str, Any], dict[str, Any], Any] | None:

@@ -84,6 +84,11 @@ class LookParams:
 
     tolerance_px: float = 1.0  # the target this near the left fovea: the look is on target
     max_corrective_steps: int = 3  # corrective fixations after the first before giving up
+    # Past those, up to this many more while the target lies within `finishing_reach_px` of the
+    # fovea: a target that near is found where a step can have left it, not taken from among
+    # repeats, and the servos' play can leave it a pixel or two off after a step.
+    finishing_steps: int = 2
+    finishing_reach_px: float = 3.0
     target_patch_size: tuple[int, int] = (21, 21)  # (w, h) of the target's patch, px
     min_target_ncc: float = 0.7  # the target's patch matched less well than this: not found
     # Grey levels: a patch less textured than this has nothing to be found by. Two exposures of
@@ -105,6 +110,11 @@ class LookParams:
             raise ValueError(f"tolerance_px must be positive, got {self.tolerance_px}")
         if self.max_corrective_steps < 0:
             raise ValueError(f"max_corrective_steps must be >= 0, got {self.max_corrective_steps}")
+        if self.finishing_steps < 0:
+            raise ValueError(f"finishing_steps must be >= 0, got {self.finishing_steps}")
+        if not self.finishing_reach_px >= self.tolerance_px:
+            raise ValueError(f"finishing_reach_px must be at least tolerance_px ({self.tolerance_px}), "
+                             f"got {self.finishing_reach_px}")
         if min(self.target_patch_size) < 5:
             raise ValueError(f"target_patch_size must be at least 5 x 5 pixels, got {self.target_patch_size}")
         if not -1.0 < self.min_target_ncc < 1.0:

@@ -9,7 +9,9 @@ goes to where it is now -- the map's command for that position and the disparity
 (the fovea's, where the target lies so near the fovea the eyes converged on that it shares its
 surroundings; d = 0, the depth the eyes fixate, where the measured d would verge them away from
 the target's known depth, or the map's command for it turn the head beyond what a step this
-short calls for) -- up to `max_corrective_steps` of them. Every step is a fixation like any
+short calls for: `calib_free.gaze.step_disparity`) -- up to `max_corrective_steps` of them, and
+`finishing_steps` more while the target lies within `finishing_reach_px` of the fovea (the
+servos' play can leave it a pixel or two off after a step). Every step is a fixation like any
 other: converged and confident, it teaches the map. A saccade the joint limits stopped ends the
 look: no correction can go further.
 
@@ -68,18 +70,18 @@ from typing import Callable
 
 import numpy as np
 
-from calib_free.correspondence.disparity import as_grey_float, horizontal_offset
-from calib_free.errors import OutOfRangeError
+from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import (FixationController, FixationInterrupted, FixationOutcome, FixationRecord,
                                       HeadTimeoutError, LookParams, PairTimeoutError, next_boost)
 from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSET_SPREAD, REACH_MARGIN_DEG,
                                            beyond_limits, corrective_step_error_px, foveal_px_per_deg,
-                                           left_landing_px, shares_the_fovea, step_turn_bound_deg, vergence_goal)
+                                           left_landing_px)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
                                     find_target, fovea, identifying_patches, patch_variants)
 from calib_free.gaze.second_attempt import (depth_found_elsewhere, disparity_for_vergence, target_in_restored_view,
                                             why_again)
+from calib_free.gaze.step_disparity import StepDisparity, vergence_search_px
 from calib_free.gaze.target_depth import vergence_on_a_repeat
 from calib_free.map.gaze_map import Vector
 
@@ -183,6 +185,7 @@ class LookController:
         # The lens's magnification as the looks on target found it, which the first search of
         # every look narrows its scales by (`calib_free.gaze.magnification`).
         self.magnification = magnification if magnification is not None else LearnedMagnification()
+        self.step_disparity = StepDisparity(fixation, self.params)  # the d each corrective step takes
         self.clock = fixation.clock
 
     def look(self, target: Vector, reference_pose: Vector | None = None, depth_known: bool = True) -> LookRecord:
@@ -337,7 +340,8 @@ class LookController:
                 record.outcome = LookOutcome.OUT_OF_REACH
                 record.detail = f"{error:.2f} px from the fovea; {beyond}"
                 return
-            if record.corrective_steps >= p.max_corrective_steps:
+            if record.corrective_steps >= p.max_corrective_steps + (p.finishing_steps if error <= p.finishing_reach_px
+                                                                     else 0):
                 record.outcome = LookOutcome.NOT_ON_TARGET
                 record.detail = (f"{error:.2f} px from the fovea (tolerance {p.tolerance_px} px) after "
                                  f"{record.corrective_steps} corrective steps")
@@ -352,7 +356,7 @@ class LookController:
             aim_x, aim_y = cx + boost * seen_at[0], cy + boost * seen_at[1]
             step_aim_px = float(np.hypot(aim_x - cx, aim_y - cy))
             target_before, to_source = np.array([sighting.x, sighting.y]), np.linalg.inv(sighting.warp)
-            d = self._step_disparity(record, fixation, sighting, (aim_x, aim_y))
+            d = self.step_disparity.for_step(fixation, sighting, (aim_x, aim_y), self._target_vergence(record))
             fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
 
     def _landing_prior(self, fixation: FixationRecord, target_before: np.ndarray, to_source: np.ndarray,
@@ -443,13 +447,9 @@ class LookController:
         if left is None or right is None:
             return ""
         fp = self.fixation.params
-        return vergence_on_a_repeat(left, right, fp.vergence_patch_size, self._vergence_search_px(left.shape[1]),
+        search = vergence_search_px(self.fixation, left.shape[1])
+        return vergence_on_a_repeat(left, right, fp.vergence_patch_size, search,
                                     self.fixation.row_offset_px, fp.correspondence.stereo_rival_margin)
-
-    def _vergence_search_px(self, width: int) -> int:
-        """How far either side of the right fovea fine vergence looks (`vergence_search_px`)."""
-        search = self.fixation.params.vergence_search_px
-        return search if search is not None else width // 3
 
     def _target_vergence(self, record: LookRecord) -> float | None:
         """The vergence (deg) the map gave the first saccade for the target's d, within the joint
@@ -468,131 +468,3 @@ class LookController:
             return ""
         head = self.fixation.head
         return beyond_limits(fixation.pose_before + fixation.planned, head.pose_low, head.pose_high, REACH_MARGIN_DEG)
-
-    def _step_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
-                        aim: tuple[float, float]) -> float:
-        """d for a corrective step aimed at `aim` from the target's `sighting`: the fovea's, where
-        the sighting is near enough the fovea the eyes converged on (`_foveal_disparity`); else
-        the one measured there, held to the target's depth (`_held_disparity`); d = 0, the depth
-        the eyes fixate, where the map's command for it would turn the head beyond what the step
-        calls for (`_turn_beyond_step`) or verge the eyes beyond the vergence's limits
-        (`_verges_beyond_range`)."""
-        foveal = self._foveal_disparity(fixation, sighting)
-        d = foveal if foveal is not None else self._held_disparity(record, fixation, sighting, aim)
-        beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d) or self._verges_beyond_range(
-            fixation, aim, d)
-        if beyond:
-            log.debug("corrective step at (%.1f, %.1f): %s: d 0", aim[0], aim[1], beyond)
-            return 0.0
-        return d
-
-    def _foveal_disparity(self, fixation: FixationRecord, sighting: TargetSighting) -> float | None:
-        """The disparity fine vergence left at the fovea, where `fixation` converged and the
-        target's `sighting` lies so near the fovea that the fine vergence patch about it mostly
-        covers the fovea's (`shares_the_fovea`): what the eyes fixate is the target's
-        surroundings, at the target's depth. A disparity measured there that differs by pixels
-        is the right eye's match on something else (a repeat along the rows; the realistic
-        world's webcams that differ in roll and focal length), and a step that planned with it
-        verges the eyes away, fine vergence verges them back and turns the left eye off the
-        target by half of it. None where that does not hold."""
-        if not fixation.converged or not fixation.vergence_disparities_px or fixation.final_left_image is None:
-            return None
-        cx, cy = fovea(fixation.final_left_image)
-        offset = (sighting.x - cx, sighting.y - cy)
-        if not shares_the_fovea(offset, self.fixation.params.vergence_patch_size):
-            return None
-        return float(fixation.vergence_disparities_px[-1])
-
-    def _turn_beyond_step(self, fixation: FixationRecord, aim: tuple[float, float], d: float) -> str:
-        """Why the map's command for the step (`aim`, d), from where `fixation` left the head,
-        is not the step's ('' if it may be): it turns pan and tilt beyond `step_turn_bound_deg`.
-        A d the map has few samples near (a near thing's large disparity, or a repeat's) is
-        where its command goes astray: in the realistic world a d of 58 px measured 1.6 px from
-        the fovea turned the pan 9.7 deg with a vergence change of 3.6, and left the target 47
-        px off. Not judged where the map cannot say its pixels a degree at the fovea."""
-        pose, image = fixation.pose_after, fixation.final_left_image
-        if pose is None or image is None:
-            return ""
-        height, width = image.shape[:2]
-        px_per_deg = foveal_px_per_deg(self.fixation.map, pose, (width, height))
-        if px_per_deg is None:
-            return ""
-        try:
-            command = self.fixation.map.command((*aim, d), pose=pose)
-        except OutOfRangeError:
-            return ""
-        cx, cy = fovea(image)
-        aim_px = float(np.hypot(aim[0] - cx, aim[1] - cy))
-        turn = float(np.hypot(command[0], command[1]))
-        bound = step_turn_bound_deg(aim_px, float(command[2]), px_per_deg)
-        if turn <= bound:
-            return ""
-        return (f"d {d:.1f} px: the map's command turns the head {turn:.1f} deg, beyond the {bound:.1f} deg a step "
-                f"aimed {aim_px:.1f} px from the fovea with a vergence change of {float(command[2]):.1f} deg calls for")
-
-    def _verges_beyond_range(self, fixation: FixationRecord, aim: tuple[float, float], d: float) -> str:
-        """Why the map's command for the step (`aim`, d), from where `fixation` left the head,
-        cannot be the step's ('' if it may be): it verges the eyes more than `REACH_MARGIN_DEG`
-        beyond the vergence's joint limits. The head stops the vergence at its limit, while
-        the command's pan and tilt keep the left eye's direction only for the whole vergence
-        change: the left eye turns by half of what the limit cut off, degrees for a d of tens of
-        pixels, and the step leaves the target farther than it found it. No depth the eyes can
-        verge to is that d's: a look-alike's, or the right eye's on something else."""
-        pose = fixation.pose_after
-        if pose is None:
-            return ""
-        verged = vergence_goal(self.fixation.map, pose, (*aim, d))
-        low, high = float(self.fixation.head.pose_low[2]), float(self.fixation.head.pose_high[2])
-        if verged is None or low - REACH_MARGIN_DEG <= verged <= high + REACH_MARGIN_DEG:
-            return ""
-        return f"d {d:.1f} px: the map's command verges the eyes at {verged:.1f} deg, outside [{low:g}, {high:g}] deg"
-
-    def _held_disparity(self, record: LookRecord, fixation: FixationRecord, sighting: TargetSighting,
-                        aim: tuple[float, float]) -> float:
-        """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
-        there (`_disparity_at`), unless the eyes converged at the target's depth (within
-        `max_vergence_mismatch_deg` of `_target_vergence`) and the map would verge them with
-        the measured d farther from it than that, a depth `_depth_mismatch` would refuse. Such
-        a d is the right eye's match on a repeat of the texture along its rows, and the map
-        turns the head with the vergence it gives it (the left eye keeps its direction only if
-        the head turns by about half the vergence's change): in the realistic world's recorded
-        looks (seven recordings, 460 looks taken on), 13 corrective steps took a d of 10 px or
-        more, 10 of them left the target 3 px or more off the fovea, and 2 of their 13 looks
-        ended on target. The step then takes d = 0: the depth the eyes fixate, the target's.
-        Where they converged elsewhere, the target's d itself is in doubt (measured on a
-        repeat before the look, say), and the step keeps what it measured."""
-        d = self._disparity_at(fixation, sighting)
-        meant, pose = self._target_vergence(record), fixation.pose_after
-        if meant is None or pose is None or not fixation.converged:
-            return d
-        tolerance = self.params.max_vergence_mismatch_deg
-        verged = vergence_goal(self.fixation.map, pose, (*aim, d))
-        if abs(pose[2] - meant) > tolerance or verged is None or abs(verged - meant) <= tolerance:
-            return d
-        log.debug("corrective step at (%.1f, %.1f): d %.1f px would verge the eyes at %.1f deg, the target's "
-                  "depth and the eyes' at %.1f and %.1f deg: d 0", aim[0], aim[1], d, verged, meant, pose[2])
-        return 0.0
-
-    def _disparity_at(self, fixation: FixationRecord, sighting: TargetSighting) -> float:
-        """d at the target's new position, measured between the final left and right images as
-        fine vergence measures it at the fovea; else what fine vergence left (0 once converged).
-        A d beyond the map's disparity range is no measurement, measured or left: a target a few
-        pixels from the foveae the eyes converged on is near their depth, and such a d is a
-        look-alike; and the map has no command for it (in the ideal world two looks of 674
-        failed so, fine vergence having left 75 and 101 px)."""
-        left, right = fixation.final_left_image, fixation.final_right_image
-        assert left is not None and right is not None
-        fp = self.fixation.params
-        search = self._vergence_search_px(left.shape[1])
-        d, ncc = horizontal_offset(left, right, (sighting.x, sighting.y), fp.vergence_patch_size, (-search, search),
-                                   fp.vergence_band_px)
-
-        def in_map(disparity: float) -> bool:
-            return not self.fixation.map.check_position((sighting.x, sighting.y, disparity))
-
-        if ncc >= fp.min_vergence_ncc and in_map(d):
-            return d
-        left_by_vergence = fixation.vergence_disparities_px[-1] if fixation.vergence_disparities_px else 0.0
-        if fixation.outcome is FixationOutcome.NOT_CONVERGED and in_map(left_by_vergence):
-            return left_by_vergence
-        return 0.0

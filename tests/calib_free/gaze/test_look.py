@@ -257,6 +257,10 @@ def test_look_params_are_checked_and_read_from_the_fixation_section(tmp_path):
         LookParams(tolerance_px=0.0)
     with pytest.raises(ValueError, match="max_corrective_steps"):
         LookParams(max_corrective_steps=-1)
+    with pytest.raises(ValueError, match="finishing_steps"):
+        LookParams(finishing_steps=-1)
+    with pytest.raises(ValueError, match="finishing_reach_px must be at least tolerance_px"):
+        LookParams(tolerance_px=1.0, finishing_reach_px=0.5)
     data = yaml.safe_load((CONFIGS / "sim.yaml").read_text())
     data["fixation"]["look"] = {"tolerance_px": 0.5, "max_corrective_steps": 5}
     path = tmp_path / "head.yaml"
@@ -360,10 +364,10 @@ def test_a_corrective_step_takes_no_disparity_beyond_the_maps_range():
                               outcome=FixationOutcome.TAUGHT)
     fixation.final_left_image = left
     fixation.final_right_image = np.roll(left, 12, axis=1)
-    assert controller._disparity_at(fixation, sighting) == pytest.approx(12.0, abs=0.3)
+    assert controller.step_disparity.measured_at(fixation, sighting) == pytest.approx(12.0, abs=0.3)
     fixation.final_right_image = np.roll(left, 90, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=120)
-    assert controller._disparity_at(fixation, sighting) == 0.0
+    assert controller.step_disparity.measured_at(fixation, sighting) == 0.0
 
 
 @pytest.mark.parametrize("left_by_vergence, step_d", [(25.0, 25.0), (90.0, 0.0)])
@@ -378,7 +382,7 @@ def test_a_step_after_eyes_that_did_not_converge_takes_what_vergence_left_within
     fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([162.0, 121.0, 0.0]), converged=False,
                               outcome=FixationOutcome.NOT_CONVERGED, vergence_disparities_px=[40.0, left_by_vergence])
     fixation.final_left_image, fixation.final_right_image = left, rich_texture(seed=5, size=(WIDTH, HEIGHT))
-    assert controller._disparity_at(fixation, sighting) == step_d
+    assert controller.step_disparity.measured_at(fixation, sighting) == step_d
 
 
 class MapBeyondItsSamples(LinearMap):
@@ -422,9 +426,8 @@ def test_a_corrective_step_takes_no_disparity_whose_command_turns_the_head_beyon
                               outcome=FixationOutcome.NO_VERGENCE_MATCH, pose_after=np.array([0.0, 0.0, 12.0]))
     fixation.final_left_image, fixation.final_right_image = left, np.roll(left, shift_px, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=80)
-    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
     aim = (sighting.x, sighting.y)
-    assert controller._step_disparity(look, fixation, sighting, aim) == pytest.approx(step_d, abs=0.3)
+    assert controller.step_disparity.for_step(fixation, sighting, aim, None) == pytest.approx(step_d, abs=0.3)
 
 
 @pytest.mark.parametrize("vergence_deg, step_d", [
@@ -448,8 +451,7 @@ def test_a_corrective_step_takes_no_disparity_that_verges_the_eyes_beyond_their_
                               pose_after=np.array([0.0, 0.0, vergence_deg]))
     fixation.final_left_image, fixation.final_right_image = left, np.roll(left, 45, axis=1)
     controller.fixation.params = dataclasses.replace(controller.fixation.params, vergence_search_px=80)
-    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
-    assert controller._step_disparity(look, fixation, sighting, (sighting.x, sighting.y)) == \
+    assert controller.step_disparity.for_step(fixation, sighting, (sighting.x, sighting.y), None) == \
         pytest.approx(step_d, abs=0.3)
 
 
@@ -472,8 +474,7 @@ def test_a_corrective_step_near_the_fovea_the_eyes_converged_on_takes_the_foveas
                               outcome=FixationOutcome.TAUGHT if converged else FixationOutcome.NOT_CONVERGED,
                               pose_after=np.array([0.0, 0.0, 8.0]), vergence_disparities_px=[3.0, 0.4])
     fixation.final_left_image, fixation.final_right_image = left, np.roll(left, 6, axis=1)
-    look = LookRecord(np.array([200.0, 100.0, 0.0]), fixations=[fixation], depth_known=False)
-    assert controller._step_disparity(look, fixation, sighting, (sighting.x, sighting.y)) == \
+    assert controller.step_disparity.for_step(fixation, sighting, (sighting.x, sighting.y), None) == \
         pytest.approx(step_d, abs=0.3)
     assert shares_the_fovea((-3.0, 0.0), (32, 20)) and not shares_the_fovea((40.0, 30.0), (32, 20))
 
@@ -1150,3 +1151,29 @@ def test_where_the_two_patches_disagree_the_first_search_takes_the_one_nearer_th
     for x, y in ((180.0, 119.5), (168.0, 119.5), (None, None)):
         assert nearer_of_two_patches(found, small, [large], larger_finds(x, y), fovea_xy) == (found, small)
     assert nearer_of_two_patches(found, large, [], larger_finds(160.0, 119.5), fovea_xy) == (found, large)
+
+
+@pytest.mark.parametrize("finishing_steps, on_target", [(2, True), (0, False)])
+def test_a_target_left_within_the_finishing_reach_takes_the_finishing_steps(finishing_steps, on_target):
+    """A map that makes every move half what it should: 10 px from the fovea, the saccade leaves the
+    target 5 px off, the one corrective step 2.5 px, within the 3 px finishing reach."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=0.5, max_corrective_steps=1, finishing_steps=finishing_steps)
+    target = (FOVEA[0] + 8.0, FOVEA[1] + 6.0)
+    texel = head.texel_at(target)
+    record = controller.look((*target, 0.0))
+    assert record.on_target is on_target
+    if on_target:
+        assert record.corrective_steps > 1 and true_error_px(head, texel) <= 1.0
+    else:
+        assert record.outcome is LookOutcome.NOT_ON_TARGET and record.corrective_steps == 1
+        assert 1.0 < true_error_px(head, texel) <= 3.0
+
+
+def test_a_target_beyond_the_finishing_reach_takes_no_finishing_step():
+    head = PlanarHead()
+    controller, _ = looker(head, gain=0.5, max_corrective_steps=1, finishing_steps=2)
+    target = (FOVEA[0] + 40.0, FOVEA[1] + 30.0)  # 50 px: 25 px off after the saccade, 12.5 after the step
+    record = controller.look((*target, 0.0))
+    assert record.outcome is LookOutcome.NOT_ON_TARGET and record.corrective_steps == 1
+    assert record.final_error_px > 3.0
