@@ -340,8 +340,8 @@ class LookController:
                 record.outcome = LookOutcome.OUT_OF_REACH
                 record.detail = f"{error:.2f} px from the fovea; {beyond}"
                 return
-            if record.corrective_steps >= p.max_corrective_steps + (p.finishing_steps if error <= p.finishing_reach_px
-                                                                     else 0):
+            finishing = p.finishing_steps if error <= p.finishing_reach_px else 0
+            if record.corrective_steps >= p.max_corrective_steps + finishing:
                 record.outcome = LookOutcome.NOT_ON_TARGET
                 record.detail = (f"{error:.2f} px from the fovea (tolerance {p.tolerance_px} px) after "
                                  f"{record.corrective_steps} corrective steps")
