@@ -42,7 +42,7 @@ from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
 from calib_free.map.adapter import MapAdapter
 from calib_free.gaze.look import LookController, LookRecord
-from calib_free.gaze.refind import patch_problem
+from calib_free.gaze.target_patch import patch_problem
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import FixationController, LookParams
 from drivers.sim.truth import first_surface, hidden_from

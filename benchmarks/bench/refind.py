@@ -28,6 +28,7 @@ from benchmarks.support.baseline import baseline_module
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze import refind
 from calib_free.gaze.fixation import LookParams
+from calib_free.gaze.target_patch import patch_problem
 from calib_free.sim.head_model import FixationSampler, HeadModel
 from drivers.sim.scene import StereoRenderer, shared_scene
 from headctl.experiments.online import RoomSurfaces
@@ -54,7 +55,7 @@ def cases(count: int, seed: int, landing_deg: float) -> list[Case]:
             before = as_grey_float(renderer.render(joints_of(sample.pose_before))[0])
             after = as_grey_float(renderer.render(joints_of(landed))[0])
             x, y = (float(v) for v in sample.position[:2])
-            if refind.patch_problem(before, (x, y), LookParams()):
+            if patch_problem(before, (x, y), LookParams()):
                 continue  # a look refuses such a target before the head moves
             out.append(Case(before, (x, y), after))
     return out

@@ -45,7 +45,7 @@ import numpy as np
 import calib_free.gaze.look as look_module
 from benchmarks.bench.looks import world_offset_px
 from benchmarks.bench.looks_daemon import look_arguments, report, run_looks
-from calib_free.gaze.refind import own_view_peaks
+from calib_free.gaze.target_patch import own_view_peaks
 from calib_free.gaze.step_disparity import StepDisparity
 from headctl.api.client import ApiClient
 from headctl.api.compose import serve
@@ -84,7 +84,7 @@ class StepRecorder:
     def _record_search(self, source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray, params: Any,
                        warps: list[np.ndarray] | None, expected: float | None,
                        offset: tuple[float, float] | None, sighting: Any, why: str,
-                       every_warp: dict[str, Any] | None = None, step: float | None = None) -> None:
+                       step: float | None = None) -> None:
         h, w = image.shape[:2]
         peaks, _ = own_view_peaks(source, source_xy, params)
         saved = None
@@ -100,7 +100,7 @@ class StepRecorder:
             saved, self.searches_saved = self.searches_saved, self.searches_saved + 1
         with self._lock:
             self.steps.append({
-                "every_warp": every_warp, "saved": saved,
+                "saved": saved,
                 "expected_error_px": None if expected is None else round(float(expected), 2),
                 "expected_offset_px": None if offset is None else [round(float(v), 2) for v in offset],
                 "step_error_px": None if step is None else round(float(step), 2),
@@ -118,7 +118,7 @@ class StepRecorder:
     @contextlib.contextmanager
     def installed(self) -> Iterator["StepRecorder"]:
         """The look module's target searches and fixations wrapped to record, for the block."""
-        find_first, find_target = look_module.find_first_sighting, look_module.find_target
+        find_first, find_later = look_module.find_first_sighting, look_module.find_later_sighting
         fixate = look_module.LookController._fixate
         disparity_at = StepDisparity.measured_at
         recorder = self
@@ -134,19 +134,10 @@ class StepRecorder:
             recorder._record_search(source, source_xy, image, variant, None, expected, offset, sighting, why)
             return sighting, variant, why
 
-        def recorded_find(source, source_xy, image, params, warps=None, expected=None, offset=None,  # type: ignore[no-untyped-def]
-                          step=None):
-            sighting, why = find_target(source, source_xy, image, params, warps, expected, offset, step)
-            every_warp: dict[str, Any] | None = None
-            if sighting is None and warps is not None:
-                # What the search would say trying every candidate warp, not the one carried over.
-                again, again_why = find_target(source, source_xy, image, params, None, expected, offset, step)
-                h, w = image.shape[:2]
-                every_warp = {"search": None if again is None else round(float(np.hypot(
-                    again.x - (w - 1) / 2.0, again.y - (h - 1) / 2.0)), 2), "why": again_why}
-            recorder._record_search(source, source_xy, image, params, warps, expected, offset, sighting, why,
-                                    every_warp, step)
-            return sighting, why
+        def recorded_later(source, source_xy, image, variants, warps, expected, offset, step):  # type: ignore[no-untyped-def]
+            sighting, variant, why = find_later(source, source_xy, image, variants, warps, expected, offset, step)
+            recorder._record_search(source, source_xy, image, variant, warps, expected, offset, sighting, why, step)
+            return sighting, variant, why
 
         def recorded_fixate(controller, record, target, reference_pose=None, continues=False,  # type: ignore[no-untyped-def]
                             target_check=None):
@@ -170,13 +161,13 @@ class StepRecorder:
                     "true_offset_px": None if truth is None else [round(v, 2) for v in truth]})
             return fixation
 
-        look_module.find_first_sighting, look_module.find_target = recorded_first, recorded_find
+        look_module.find_first_sighting, look_module.find_later_sighting = recorded_first, recorded_later
         look_module.LookController._fixate = recorded_fixate  # type: ignore[method-assign]
         StepDisparity.measured_at = recorded_disparity  # type: ignore[method-assign]
         try:
             yield self
         finally:
-            look_module.find_first_sighting, look_module.find_target = find_first, find_target
+            look_module.find_first_sighting, look_module.find_later_sighting = find_first, find_later
             look_module.LookController._fixate = fixate  # type: ignore[method-assign]
             StepDisparity.measured_at = disparity_at  # type: ignore[method-assign]
 

@@ -50,7 +50,7 @@ PARTS: list[tuple[Any, str, str]] = [
     (fixation_module, "stereo_inconsistency", "stereo check"),
     (look_module, "identifying_patches", "patches judged in their own view"),
     (look_module, "find_first_sighting", "target searches"),
-    (look_module, "find_target", "target searches"),
+    (look_module, "find_later_sighting", "target searches"),
 ]
 REST = "the rest"
 FIXATION_THREAD = "fixation"

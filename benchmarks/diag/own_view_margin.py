@@ -24,7 +24,7 @@ import numpy as np
 
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.look import LookController
-from calib_free.gaze.refind import own_view_peaks
+from calib_free.gaze.target_patch import own_view_peaks
 from calib_free.sim.head_model import HeadModel
 from drivers.cameras.camera import create_camera
 from drivers.cameras.config import CameraConfig

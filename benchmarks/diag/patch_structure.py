@@ -32,7 +32,7 @@ import numpy as np
 
 from benchmarks.diag import own_view_margin
 from benchmarks.diag.look_steps import saved_first_searches
-from calib_free.gaze import refind
+from calib_free.gaze import target_patch
 from calib_free.gaze.fixation import LookParams
 
 HALF_PATCH = 10  # the look's 21 px patch
@@ -77,7 +77,7 @@ def rendered_ratios(pixels: int, poses: int = 40, seed: int = 0) -> np.ndarray:
         for _ in range(pixels):
             xy = (float(rng.uniform(0, frame.shape[1] - 1)), float(rng.uniform(0, frame.shape[0] - 1)))
             eigen = structure(frame, xy)
-            if eigen is None or refind.target_patch_problem(frame, xy, LookParams()):
+            if eigen is None or target_patch.target_patch_problem(frame, xy, LookParams()):
                 continue
             ratios.append(eigen[1] / max(eigen[0], 1e-9))
     return np.asarray(ratios)

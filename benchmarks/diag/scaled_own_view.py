@@ -24,7 +24,8 @@ import numpy as np
 
 from benchmarks.diag.look_steps import recording_arguments, recordings, saved_first_searches
 from calib_free.gaze.fixation import LookParams
-from calib_free.gaze.refind import fovea, own_view_window, second_peak, warped_patch
+from calib_free.gaze.refind import fovea, second_peak, warped_patch
+from calib_free.gaze.target_patch import own_view_window
 
 THRESHOLDS = (0.05, 0.075, 0.1, 0.125, 0.15)
 

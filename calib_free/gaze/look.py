@@ -78,11 +78,12 @@ from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSE
                                            left_landing_px)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
 from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
-                                    find_target, fovea, identifying_patches, patch_variants)
+                                    find_later_sighting, fovea)
 from calib_free.gaze.second_attempt import (depth_found_elsewhere, disparity_for_vergence, target_in_restored_view,
                                             why_again)
 from calib_free.gaze.step_disparity import StepDisparity, vergence_search_px
 from calib_free.gaze.target_depth import vergence_on_a_repeat
+from calib_free.gaze.target_patch import identifying_patches, patch_variants
 from calib_free.map.gaze_map import Vector
 
 log = logging.getLogger(__name__)
@@ -304,12 +305,8 @@ class LookController:
                 if sighting is not None:
                     variants = [variant]  # the same patch from here on, its warp carried over
             else:
-                for variant in variants:
-                    sighting, reason = find_target(source, source_xy, final_left, variant, warps, expected, offset,
-                                                   step)
-                    why = why or reason
-                    if sighting is not None:
-                        break
+                sighting, _, why = find_later_sighting(source, source_xy, final_left, variants, warps, expected, offset,
+                                                       step)
             if sighting is None:
                 beyond = self._beyond_limits(fixation)
                 record.outcome = LookOutcome.OUT_OF_REACH if beyond else LookOutcome.TARGET_LOST

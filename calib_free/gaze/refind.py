@@ -8,7 +8,7 @@ searched for by NCC near the fovea first, then farther (`find_target`); the best
 warp is fitted by ECC (an affine fit of the patch, `cv2.findTransformECC`), the region
 scored again with it, and the position taken from ECC, to sub-pixel. Later steps start from
 the warp found before. A patch too flat or repetitive to identify the target in its own view
-is refused before it is used (`patch_problem`, `target_patch_problem`). A best match below
+is refused before it is used (`calib_free.gaze.target_patch`). A best match below
 `min_target_ncc` (occluded, out of view) or a second place nearly as good
 (`ambiguity_ncc_margin`: repetitive texture) is refused: the target is not found, unless
 the places are told apart by where the fixation was expected to bring the target (its
@@ -16,18 +16,18 @@ measured landing error, `expected_place`) or, where that was not measured or rea
 than one of them, by the view before: only the true target has, in that view, repeats where
 the other places lie (`place_told_by_repeats`).
 
-Where the patch repeats within the search radius of its own view, the patch twice as large is
-used only if its own view's second place matches it worse than the best by
-`context_ncc_margin` (0.25), not just `ambiguity_ncc_margin` (0.1): it differs from its
-repeats only by its rim, and at the fovea the rim is what the patch's warp matches worst (the
-lens's magnification changes across a patch that large). Its own-view margin then shrinks below
-0.1 on the way to the fovea: in the offline looks of the realistic world (two seeds, 381
-looks), 8 of the 20 that failed as ambiguous after the saccade had a larger patch within 0.25
-in its own view, and none of the 329 that ended on target did.
+Where no place matches at `min_target_ncc`, the view may have changed in a way the warps
+tried do not show: a corrective step's search then tries every candidate warp, not only the
+one carried over (`find_later_sighting`), and both searches try them turned about the patch's
+centre (`turned`, `TURNS_DEG`). A neck that pans about an axis the tilt leans away from the
+optical axis turns the view by about the pan times the sine of the tilt; in the realistic
+world's offline looks, 7 of 11 targets within 1.5 px of the fovea that no candidate warp matched
+at 0.7 were seen turned by 2.7-9.0 deg (ECC's fit), each within 1.0 deg of -pan x sin(tilt).
+A place that matched, but could not be told from a repeat, is not searched for again with
+other warps: a warp beyond those the view shows would only find a look-alike.
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
@@ -38,7 +38,6 @@ from calib_free.correspondence.disparity import as_grey_float, subpixel_peak
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.magnification import LearnedMagnification
 
-AMBIGUOUS_IN_OWN_VIEW = "is ambiguous in its own view"  # `patch_problem`'s words for repeats
 # Where two places match the target's patch nearly alike, the one within this many times the
 # expected error of where the target was expected is the target, if it is the only one there.
 PRIOR_SIGMAS = 3.0
@@ -60,6 +59,11 @@ REPEAT_REFUTE_MARGIN = 0.3
 # smaller one's, and nearer the fovea (`nearer_of_two_patches`): farther than the two patches'
 # disagreement about one point where both are right (in the recorded looks p90 0.56 px, p99 1.3 px).
 PATCHES_DISAGREE_PX = 2.0
+# The warps tried again turned about the patch's centre (deg), where none matched a place: a neck
+# that pans about an axis the tilt leans away from the optical axis turns the view about that
+# axis, by about the pan times the sine of the tilt (a 30 deg pan at a 15 deg tilt: 8 deg). No
+# warp of `candidate_warps` turns, and ECC refines only a match near min_target_ncc.
+TURNS_DEG = (-12.0, -6.0, 6.0, 12.0)
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,16 @@ def candidate_warps(source_xy: tuple[float, float], centre: tuple[float, float],
                 continue
             warps.append(rotation @ np.diag([s_radial, s_tangential]) @ rotation.T)
     return warps
+
+
+def turned(warps: list[np.ndarray], angles_deg: tuple[float, ...] = TURNS_DEG) -> list[np.ndarray]:
+    """Each of `warps` turned by each of `angles_deg` (a positive angle turns x towards y:
+    clockwise as the image is seen, y down)."""
+    out: list[np.ndarray] = []
+    for angle in np.radians(angles_deg):
+        rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        out.extend(rotation @ warp for warp in warps)
+    return out
 
 
 def warped_patch(source: np.ndarray, source_xy: tuple[float, float], warp: np.ndarray,
@@ -344,12 +358,44 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
         learned_why, matched = learned_why or found.why, matched or found.matched
     if matched:
         return None, variants[0], learned_why
+    def every_turn(variant: LookParams) -> TargetSearch:
+        return search_target(source, source_xy, image, variant,
+                             turned(candidate_warps(source_xy, centre, variant.max_target_scale)), expected_error_px,
+                             expected_offset_px)
+
     why = ""
-    for k, variant in enumerate(variants):
-        found = every_scale(variant)
-        if found.sighting is not None:
-            return (*nearer_of_two_patches(found.sighting, variant, variants[k + 1:], every_scale, fovea(image)), "")
-        why = why or found.why
+    for search in (every_scale, every_turn):
+        for k, variant in enumerate(variants):
+            found = search(variant)
+            if found.sighting is not None:
+                return (*nearer_of_two_patches(found.sighting, variant, variants[k + 1:], search, fovea(image)), "")
+            why, matched = why or found.why, matched or found.matched
+        if matched:
+            break
+    return None, variants[0], why
+
+
+def find_later_sighting(source: np.ndarray, source_xy: tuple[float, float], image: np.ndarray,
+                        variants: list[LookParams], warps: list[np.ndarray], expected_error_px: float | None,
+                        expected_offset_px: tuple[float, float] | None, step_error_px: float | None,
+                        ) -> tuple[TargetSighting | None, LookParams, str]:
+    """The target after a corrective step: searched by each of the patches `variants` with
+    `warps` (the one found before), then, where no place matched by any, with every candidate
+    warp (the step's view changed more than the warp carried), then every one turned
+    (`turned`). (sighting, its patch, '') or (None, the first patch, why not: the search with
+    the warp carried)."""
+    centre = fovea(source)
+    why, matched = "", False
+    for every in (None, lambda v: candidate_warps(source_xy, centre, v.max_target_scale),
+                  lambda v: turned(candidate_warps(source_xy, centre, v.max_target_scale))):
+        for variant in variants:
+            found = search_target(source, source_xy, image, variant, warps if every is None else every(variant),
+                                  expected_error_px, expected_offset_px, step_error_px)
+            if found.sighting is not None:
+                return found.sighting, variant, ""
+            why, matched = why or found.why, matched or found.matched
+        if matched:
+            break
     return None, variants[0], why
 
 
@@ -466,87 +512,6 @@ def second_peak(scores: np.ndarray, ix: int, iy: int, min_distance_px: float) ->
     ys, xs = np.nonzero(maxima)
     far = np.hypot(xs - ix, ys - iy) > min_distance_px
     return float(scores[ys[far], xs[far]].max()) if np.any(far) else -1.0
-
-
-def patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: LookParams,
-                  margin: float | None = None) -> str:
-    """Why the patch around `source_xy` cannot identify the target ('' if it can): beyond the
-    image, too flat, or matching another place of its own image within the search radius
-    within `margin` (default `ambiguity_ncc_margin`) of itself (repetitive texture)."""
-    margin = params.ambiguity_ncc_margin if margin is None else margin
-    peaks, why = own_view_peaks(source, source_xy, params)
-    if peaks is None:
-        return why
-    peak, second = peaks
-    if second > peak - margin:
-        return (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) {AMBIGUOUS_IN_OWN_VIEW}: "
-                f"another place matches it with NCC {second:.2f} (repetitive texture)")
-    return ""
-
-
-def own_view_peaks(source: np.ndarray, source_xy: tuple[float, float],
-                   params: LookParams) -> tuple[tuple[float, float] | None, str]:
-    """How well the patch around `source_xy` matches its own place in `source` and the best
-    other place within the search radius (`second_peak`, -1 if none), both NCC, and ''; or
-    (None, why the patch has no place: it reaches beyond the image, or is too flat)."""
-    source = as_grey_float(source)
-    template = warped_patch(source, source_xy, np.eye(2), params.target_patch_size)
-    if template is None:
-        return None, f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) reaches beyond the image"
-    if float(template.std()) < params.min_patch_std:
-        return None, (f"the target's patch at ({source_xy[0]:.1f}, {source_xy[1]:.1f}) has no texture to find it "
-                      f"by (grey levels' std {float(template.std()):.1f} < min_patch_std {params.min_patch_std:g}: "
-                      "what it shows is mostly the camera's noise)")
-    w, h = params.target_patch_size
-    scores = np.nan_to_num(cv2.matchTemplate(own_view_window(source, source_xy, params), template,
-                                             cv2.TM_CCOEFF_NORMED), nan=0.0, posinf=0.0, neginf=0.0)
-    _, peak, _, (ix, iy) = cv2.minMaxLoc(scores)
-    return (float(peak), second_peak(scores, ix, iy, max(w, h) / 2)), ""
-
-
-def own_view_window(source: np.ndarray, source_xy: tuple[float, float], params: LookParams) -> np.ndarray:
-    """The part of `source` whose patches of `target_patch_size` lie within the search radius
-    of `source_xy` (`search_radius_px`, default a third of the width): where the own-view
-    checks look for the patch's other places."""
-    w, h = params.target_patch_size
-    radius = params.search_radius_px if params.search_radius_px is not None else source.shape[1] // 3
-    x0 = int(max(0, np.floor(source_xy[0] - radius - w / 2)))
-    y0 = int(max(0, np.floor(source_xy[1] - radius - h / 2)))
-    return source[y0:int(np.ceil(source_xy[1] + radius + h / 2)) + 1, x0:int(np.ceil(source_xy[0] + radius + w / 2)) + 1]
-
-
-def patch_variants(params: LookParams) -> list[LookParams]:
-    """The target's patches a look tries: of `target_patch_size`, or twice it (more context:
-    what sets a repeating texture's places apart), whichever identify the target in its own
-    view (`identifying_patches`)."""
-    w, h = params.target_patch_size
-    return [dataclasses.replace(params, target_patch_size=size) for size in ((w, h), (2 * w - 1, 2 * h - 1))]
-
-
-def identifying_patches(source: np.ndarray, source_xy: tuple[float, float],
-                        params: LookParams) -> tuple[list[LookParams], str]:
-    """The target's patches (`patch_variants`) that identify it in its own view
-    (`patch_problem`), and why the smaller does not ('' if it does). The larger, where the
-    smaller is ambiguous there, is held to `context_ncc_margin` (see the module doc). Where the
-    smaller is flat (or reaches beyond the image) none is: what the saccade brings to the fovea
-    then has nothing for fine vergence to converge on nor for the correspondence to measure the
-    landing by, and the larger patch would find the target only by its rim, 10-20 px away."""
-    small, large = patch_variants(params)
-    why = patch_problem(source, source_xy, small)
-    repeats = AMBIGUOUS_IN_OWN_VIEW in why
-    if why and not repeats:
-        return [], why
-    usable = [small] if not why else []
-    if not patch_problem(source, source_xy, large, params.context_ncc_margin if repeats else None):
-        usable.append(large)
-    return usable, why
-
-
-def target_patch_problem(source: np.ndarray, source_xy: tuple[float, float], params: LookParams) -> str:
-    """Why a look cannot find the target at `source_xy` again ('' if it can): neither of its
-    patches identifies the target in its own view (`identifying_patches`)."""
-    usable, why = identifying_patches(source, source_xy, params)
-    return "" if usable else why
 
 
 def _refine(template: np.ndarray, image: np.ndarray, u: float, v: float,

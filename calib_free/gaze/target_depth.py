@@ -19,7 +19,7 @@ from calib_free.correspondence.search import CorrespondenceParams
 from calib_free.correspondence.stereo import row_repeat_ncc
 from calib_free.errors import DisparityError, TargetPatchError
 from calib_free.gaze.fixation import LookParams
-from calib_free.gaze.refind import target_patch_problem
+from calib_free.gaze.target_patch import target_patch_problem
 
 
 @dataclass(frozen=True)

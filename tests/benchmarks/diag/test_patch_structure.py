@@ -47,5 +47,5 @@ def test_first_searches_reads_each_look_taken_on_and_sorts_by_the_ratio(tmp_path
 def test_rendered_ratios_counts_only_the_targets_the_look_accepts(monkeypatch):
     ratios = patch_structure.rendered_ratios(pixels=30, poses=1, seed=0)
     assert ratios.size > 0 and np.all(ratios >= 1.0)
-    monkeypatch.setattr(patch_structure.refind, "target_patch_problem", lambda *args: "refused")
+    monkeypatch.setattr(patch_structure.target_patch, "target_patch_problem", lambda *args: "refused")
     assert patch_structure.rendered_ratios(pixels=30, poses=1, seed=0).size == 0

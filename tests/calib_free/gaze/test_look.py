@@ -18,9 +18,8 @@ from calib_free.gaze.look import LookController, LookOutcome, LookRecord
 from calib_free.gaze.look_geometry import (corrective_step_error_px, foveal_px_per_deg, left_landing_px,
                                            shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.target_depth import target_disparity, vergence_on_a_repeat
-from calib_free.gaze.refind import (TargetSearch, TargetSighting, find_target, identifying_patches, nearer_of_two_patches,
-                                    own_view_peaks, patch_problem, search_target,
-                                    target_patch_problem)
+from calib_free.gaze.refind import TargetSearch, TargetSighting, find_target, nearer_of_two_patches, search_target
+from calib_free.gaze.target_patch import identifying_patches, own_view_peaks, patch_problem, target_patch_problem
 from calib_free.gaze.fixation import (FixationController, FixationKind, FixationOutcome, FixationParams,
                                       FixationRecord, LookParams)
 from headctl.config.head import load_config

@@ -9,8 +9,8 @@ from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.look import LookOutcome
 from calib_free.gaze.magnification import (MEMORY, MIN_SAMPLES, LearnedMagnification, MagnificationFileError,
                                            radial_scale)
-from calib_free.gaze.refind import (find_first_sighting, find_target, radial_scale_grid, target_patch_problem,
-                                    warped_patch)
+from calib_free.gaze.refind import find_first_sighting, find_target, radial_scale_grid, warped_patch
+from calib_free.gaze.target_patch import target_patch_problem
 from tests.calib_free.gaze.test_look import looker
 from tests.support.planar_head import HEIGHT, WIDTH, PlanarHead, rich_texture
 

@@ -26,7 +26,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from calib_free.map.file import read_map, write_map
 from calib_free.map.gaze_map import GazeMap
-from calib_free.gaze.refind import target_patch_problem
+from calib_free.gaze.target_patch import target_patch_problem
 from calib_free.correspondence.disparity import as_grey_float
 from headctl.api.server import ApiServer
 from headctl.cli.main import main
