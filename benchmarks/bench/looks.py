@@ -34,7 +34,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -251,7 +251,11 @@ def summary(rows: list[dict[str, Any]], counts: collections.Counter, params: Loo
 
 
 def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
-              band_px: int = DISPARITY_BAND_PX) -> dict[str, Any]:
+              band_px: int = DISPARITY_BAND_PX,
+              before_look: Callable[[dict[str, float], tuple[float, float]], None] | None = None,
+              after_look: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> dict[str, Any]:
+    """`count` looks of a kind and their summary; `before_look` is told the true joints and the
+    target pixel as each look starts, `after_look` may add to each look's row."""
     rows: list[dict[str, Any]] = []
     counts: collections.Counter = collections.Counter()
     world = rig.devices.world
@@ -263,14 +267,17 @@ def run_looks(rig, adapter, controller, looker, rng, count: int, textured: bool,
             continue
         target, measured = drawn
         before = world.true_joints()
+        if before_look is not None:
+            before_look(before, (float(target[0]), float(target[1])))
         record: LookRecord = looker.look(target, rig.head.read_pose(), depth_known=measured)
         truth, hidden = true_error_px(rig, before, world.true_joints(), target[:2])
-        rows.append({"target": target, "d_measured": measured, "outcome": str(record.outcome),
-                     "on_target": record.on_target,
-                     "final_error_px": record.final_error_px, "true_error_px": truth, "hidden": hidden,
-                     "corrective_steps": record.corrective_steps, "attempts": record.attempts,
-                     "landing_error_px": record.landing_error_px,
-                     "duration_s": record.duration_s, "detail": record.detail})
+        row = {"target": target, "d_measured": measured, "outcome": str(record.outcome),
+               "on_target": record.on_target,
+               "final_error_px": record.final_error_px, "true_error_px": truth, "hidden": hidden,
+               "corrective_steps": record.corrective_steps, "attempts": record.attempts,
+               "landing_error_px": record.landing_error_px,
+               "duration_s": record.duration_s, "detail": record.detail}
+        rows.append(after_look(row) if after_look is not None else row)
     return {"summary": summary(rows, counts, looker.params), "looks": rows}
 
 

@@ -50,7 +50,7 @@ from benchmarks.diag.look_steps import recording_arguments, recordings, saved_fi
 from calib_free.correspondence.disparity import as_grey_float
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.look_geometry import FIRST_SACCADE_ERROR_PX, corrective_step_error_px
-from calib_free.gaze.refind import (PRIOR_SIGMAS, _refine, candidate_warps, distinct_places, fovea, search_target,
+from calib_free.gaze.refind import (PRIOR_SIGMAS, candidate_warps, distinct_places, ecc_fit, fovea, search_target,
                                     warped_patch)
 
 REPEAT_PX = 3.0  # a place this far from the truth or farther is a repeat, not the target
@@ -60,7 +60,7 @@ def fitted_ncc(template: np.ndarray, image: np.ndarray, xy: tuple[float, float])
     """NCC of `template` centred at `xy` in `image` with its warp fitted there (ECC); None
     where the fit did not converge or wandered more than 2 px."""
     h, w = template.shape
-    fitted = _refine(template, image, xy[0] - (w - 1) / 2.0, xy[1] - (h - 1) / 2.0)
+    fitted = ecc_fit(template, image, xy[0] - (w - 1) / 2.0, xy[1] - (h - 1) / 2.0)
     if fitted is None or np.hypot(fitted[0][0] - xy[0], fitted[0][1] - xy[1]) > 2.0:
         return None
     return fitted[2]

@@ -247,7 +247,7 @@ def search_target(source: np.ndarray, source_xy: tuple[float, float], image: np.
             # scored again with the patch so warped: the grid's nearest warp can fall short
             # of the view's, which lowers the true match more than the others.
             u, v = subpixel_peak(region, iy, ix)
-            refined = _refine(template, image, x0 + b[0] + u, y0 + a[0] + v)
+            refined = ecc_fit(template, image, x0 + b[0] + u, y0 + a[0] + v)
             if refined is not None and np.hypot(refined[0][0] - (x0 + b[0] + u + c[0]),
                                                 refined[0][1] - (y0 + a[0] + v + c[1])) > 2.0:
                 refined = None  # ECC wandered off to something else
@@ -514,7 +514,7 @@ def second_peak(scores: np.ndarray, ix: int, iy: int, min_distance_px: float) ->
     return float(scores[ys[far], xs[far]].max()) if np.any(far) else -1.0
 
 
-def _refine(template: np.ndarray, image: np.ndarray, u: float, v: float,
+def ecc_fit(template: np.ndarray, image: np.ndarray, u: float, v: float,
             ) -> tuple[tuple[float, float], np.ndarray, float] | None:
     """ECC's affine fit of `template` placed with its top-left at (u, v) in `image`: the
     template centre's position, the linear part, the correlation; None if it did not converge.
