@@ -77,8 +77,8 @@ from calib_free.gaze.look_geometry import (FIRST_SACCADE_ERROR_PX, LANDING_OFFSE
                                            beyond_limits, corrective_step_error_px, foveal_px_per_deg,
                                            left_landing_px)
 from calib_free.gaze.magnification import LearnedMagnification, radial_scale
-from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, find_first_sighting,
-                                    find_later_sighting, fovea)
+from calib_free.gaze.refind import (MIN_EXPECTED_ERROR_PX, PRIOR_SIGMAS, TargetSighting, fallback_note,
+                                    find_first_sighting, find_later_sighting, fovea)
 from calib_free.gaze.second_attempt import (depth_found_elsewhere, disparity_for_vergence, target_in_restored_view,
                                             why_again)
 from calib_free.gaze.step_disparity import StepDisparity, vergence_search_px
@@ -329,6 +329,7 @@ class LookController:
                 self.magnification.record(float(np.hypot(*(np.asarray(source_xy) - fovea(source)))),
                                           radial_scale(first.warp, source_xy, fovea(source)))
                 record.detail = (f"{error:.2f} px from the fovea after {record.corrective_steps} corrective steps"
+                                 + fallback_note(record.sightings)
                                  + ("" if fixation.converged else f"; the eyes did not converge: {fixation.outcome}")
                                  + depth_note)
                 return

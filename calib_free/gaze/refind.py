@@ -28,6 +28,8 @@ other warps: a warp beyond those the view shows would only find a look-alike.
 """
 from __future__ import annotations
 
+import dataclasses
+import enum
 from dataclasses import dataclass
 from typing import Callable
 
@@ -66,15 +68,27 @@ PATCHES_DISAGREE_PX = 2.0
 TURNS_DEG = (-12.0, -6.0, 6.0, 12.0)
 
 
+class SearchStage(enum.StrEnum):
+    """Which warps of the patch found a look's target (`find_first_sighting`, `find_later_sighting`)."""
+
+    LEARNED_SCALES = "the lens's learned scales"
+    EVERY_SCALE = "every scale"
+    CARRIED = "the warp found before"
+    EVERY_WARP = "every warp, the one found before matching nothing"
+    TURNED = "every warp turned, none unturned matching"
+
+
 @dataclass(frozen=True)
 class TargetSighting:
-    """Where the target's patch is in an image, how well it matched, and the linear part of the
-    warp from the image the patch was taken in to this one."""
+    """Where the target's patch is in an image, how well it matched, the linear part of the
+    warp from the image the patch was taken in to this one, and which warps found it (None: a
+    search of `search_target`'s caller's choosing)."""
 
     x: float
     y: float
     ncc: float
     warp: np.ndarray  # 2 x 2
+    found_by: SearchStage | None = None
 
     def distance_px(self, point: tuple[float, float]) -> float:
         return float(np.hypot(self.x - point[0], self.y - point[1]))
@@ -354,7 +368,8 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
         if found is None:
             break
         if found.sighting is not None:
-            return (*nearer_of_two_patches(found.sighting, variant, variants[k + 1:], learned, fovea(image)), "")
+            return (*_found_by(SearchStage.LEARNED_SCALES, *nearer_of_two_patches(
+                found.sighting, variant, variants[k + 1:], learned, fovea(image))), "")
         learned_why, matched = learned_why or found.why, matched or found.matched
     if matched:
         return None, variants[0], learned_why
@@ -364,11 +379,12 @@ def find_first_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
                              expected_offset_px)
 
     why = ""
-    for search in (every_scale, every_turn):
+    for stage, search in ((SearchStage.EVERY_SCALE, every_scale), (SearchStage.TURNED, every_turn)):
         for k, variant in enumerate(variants):
             found = search(variant)
             if found.sighting is not None:
-                return (*nearer_of_two_patches(found.sighting, variant, variants[k + 1:], search, fovea(image)), "")
+                return (*_found_by(stage, *nearer_of_two_patches(found.sighting, variant, variants[k + 1:], search,
+                                                                 fovea(image))), "")
             why, matched = why or found.why, matched or found.matched
         if matched:
             break
@@ -385,18 +401,36 @@ def find_later_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
     (`turned`). (sighting, its patch, '') or (None, the first patch, why not: the search with
     the warp carried)."""
     centre = fovea(source)
+
+    def warps_of(stage: SearchStage, variant: LookParams) -> list[np.ndarray]:
+        if stage is SearchStage.CARRIED:
+            return warps
+        every = candidate_warps(source_xy, centre, variant.max_target_scale)
+        return turned(every) if stage is SearchStage.TURNED else every
+
     why, matched = "", False
-    for every in (None, lambda v: candidate_warps(source_xy, centre, v.max_target_scale),
-                  lambda v: turned(candidate_warps(source_xy, centre, v.max_target_scale))):
+    for stage in (SearchStage.CARRIED, SearchStage.EVERY_WARP, SearchStage.TURNED):
         for variant in variants:
-            found = search_target(source, source_xy, image, variant, warps if every is None else every(variant),
-                                  expected_error_px, expected_offset_px, step_error_px)
+            found = search_target(source, source_xy, image, variant, warps_of(stage, variant), expected_error_px,
+                                  expected_offset_px, step_error_px)
             if found.sighting is not None:
-                return found.sighting, variant, ""
+                return dataclasses.replace(found.sighting, found_by=stage), variant, ""
             why, matched = why or found.why, matched or found.matched
         if matched:
             break
     return None, variants[0], why
+
+
+def fallback_note(sightings: list[TargetSighting]) -> str:
+    """'; found again by ...' naming, in order, the fallback searches (every warp, every warp
+    turned) that found the target of `sightings`; '' where none did."""
+    stages = [s.found_by for s in sightings if s.found_by in (SearchStage.EVERY_WARP, SearchStage.TURNED)]
+    return "; found again by " + ", then by ".join(dict.fromkeys(str(s) for s in stages)) if stages else ""
+
+
+def _found_by(stage: SearchStage, sighting: TargetSighting, variant: LookParams,
+              ) -> tuple[TargetSighting, LookParams]:
+    return dataclasses.replace(sighting, found_by=stage), variant
 
 
 def nearer_of_two_patches(sighting: TargetSighting, variant: LookParams, larger: list[LookParams],

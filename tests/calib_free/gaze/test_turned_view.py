@@ -3,16 +3,20 @@ head is tilted), and a corrective step whose view changed more than the warp car
 fallbacks of calib_free.gaze.refind's first and later searches."""
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 
+import calib_free.gaze.look as look_module
 import calib_free.gaze.refind as refind
 from calib_free.gaze.fixation import LookParams
 from calib_free.gaze.magnification import LearnedMagnification
-from calib_free.gaze.refind import (TURNS_DEG, candidate_warps, find_first_sighting, find_later_sighting, find_target,
-                                    turned)
-from tests.support.planar_head import HEIGHT, WIDTH
+from calib_free.gaze.refind import (TURNS_DEG, SearchStage, TargetSighting, candidate_warps, fallback_note,
+                                    find_first_sighting, find_later_sighting, find_target, turned)
+from tests.calib_free.gaze.test_look import looker
+from tests.support.planar_head import HEIGHT, WIDTH, PlanarHead
 
 FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
 SOURCE_XY = (262.3, 71.6)
@@ -61,7 +65,7 @@ def test_a_view_turned_about_its_axis_is_found_by_the_turned_warps():
     assert unturned is None and "NCC" in why  # no warp of the grid turns: the target is not found by them
     sighting, variant, why = find_first_sighting(image, SOURCE_XY, after, [params], LearnedMagnification())
     assert why == "" and sighting is not None and variant == params
-    assert sighting.distance_px(tuple(landed)) <= 0.3
+    assert sighting.distance_px(tuple(landed)) <= 0.3 and sighting.found_by is SearchStage.TURNED
     assert np.allclose(sighting.warp, linear, atol=0.05)  # ECC fits the turn the grid came near
 
 
@@ -81,6 +85,7 @@ def test_a_step_that_changed_the_view_more_than_the_warp_carried_is_searched_wit
     assert alone is None and "NCC" in why
     sighting, _, why = find_later_sighting(image, SOURCE_XY, after, [params], carried, None, None, 1.5)
     assert why == "" and sighting is not None and sighting.distance_px(tuple(landed)) <= 0.3
+    assert sighting.found_by is SearchStage.EVERY_WARP
 
 
 def test_a_step_whose_view_also_turned_is_searched_with_every_warp_turned():
@@ -94,6 +99,10 @@ def test_a_step_whose_view_also_turned_is_searched_with_every_warp_turned():
     assert every is None
     sighting, _, why = find_later_sighting(image, SOURCE_XY, after, [params], [radial(1.9)], None, None, 1.5)
     assert why == "" and sighting is not None and sighting.distance_px(tuple(landed)) <= 0.3
+    assert sighting.found_by is SearchStage.TURNED
+    # A view the warp carried still fits is found by it.
+    again, _, _ = find_later_sighting(image, SOURCE_XY, after, [params], [sighting.warp], None, None, 1.5)
+    assert again is not None and again.found_by is SearchStage.CARRIED
 
 
 @pytest.mark.parametrize("later", [False, True])
@@ -113,3 +122,27 @@ def test_a_search_that_matched_a_place_tries_no_other_warp(monkeypatch, later):
     else:
         sighting, _, why = find_first_sighting(image, SOURCE_XY, after, [params], LearnedMagnification())
     assert sighting is None and "ambiguous" in why
+
+
+def test_a_look_says_which_fallback_searches_found_its_target():
+    def seen(stage):
+        return TargetSighting(160.0, 120.0, 0.9, np.eye(2), stage)
+
+    assert fallback_note([seen(SearchStage.EVERY_SCALE), seen(SearchStage.CARRIED)]) == ""
+    note = fallback_note([seen(SearchStage.TURNED), seen(SearchStage.CARRIED), seen(SearchStage.EVERY_WARP),
+                          seen(SearchStage.TURNED)])
+    assert note == f"; found again by {SearchStage.TURNED}, then by {SearchStage.EVERY_WARP}"
+
+
+def test_a_look_on_target_says_the_fallback_search_that_found_its_target(monkeypatch):
+    real = look_module.find_later_sighting
+
+    def found_turned(*args):  # the later searches as they are, said to be found turned
+        sighting, variant, why = real(*args)
+        return (None if sighting is None else dataclasses.replace(sighting, found_by=SearchStage.TURNED)), variant, why
+
+    monkeypatch.setattr(look_module, "find_later_sighting", found_turned)
+    controller, _ = looker(PlanarHead(), gain=0.8)  # every saccade falls 20 % short: a corrective step
+    record = controller.look((262.0, 58.0, 0.0))
+    assert record.on_target and record.corrective_steps >= 1
+    assert f"found again by {SearchStage.TURNED}" in record.detail
