@@ -67,6 +67,12 @@ class StepRecorder:
         with self._lock:
             self.steps, self._before, self._xy = [], before, xy
 
+    @property
+    def joints_before(self) -> dict[str, float] | None:
+        """The servos' true joints as the look running began; None before a look."""
+        with self._lock:
+            return None if self._before is None else dict(self._before)
+
     def take(self) -> list[dict[str, Any]]:
         with self._lock:
             steps, self.steps = self.steps, []

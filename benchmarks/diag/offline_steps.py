@@ -64,18 +64,12 @@ def recorded_looks(offline: OfflineRig, seed: int, count: int, images: Path | No
     rig = offline.rig
     recorder = StepRecorder(rig.devices.world, rig.devices.cameras["left"].unit_lens, images)
     looks: list[dict[str, Any]] = []
-    began: list[dict[str, float]] = []
-
-    def posted(joints: dict[str, float], xy: tuple[float, float]) -> None:
-        began[:] = [dict(joints)]
-        recorder.look_posted(joints, xy)
-
     with recorder.installed():
         for kind, textured in KINDS:
             def kept(row: dict[str, Any], kind: str = kind) -> dict[str, Any]:
-                looks.append({**row, "kind": kind, "joints_before": began[0], "steps": recorder.take()})
+                looks.append({**row, "kind": kind, "joints_before": recorder.joints_before, "steps": recorder.take()})
                 print(f"{kind} look {sum(lk['kind'] == kind for lk in looks)}", file=sys.stderr, flush=True)
                 return row
             run_looks(rig, offline.adapter, offline.controller, offline.looker, rng, count, textured,
-                      before_look=posted, after_look=kept)
+                      before_look=recorder.look_posted, after_look=kept)
     return looks
