@@ -58,11 +58,13 @@ def turn_at_truth(saved: Any, truth_offset: tuple[float, float], params: LookPar
     centre = fovea(image)
     truth = (centre[0] + truth_offset[0], centre[1] + truth_offset[1])
     warps = [*list(saved["warps"]), *candidate_warps(source_xy, fovea(source), params.max_target_scale)]
+    there = warped_patch(image, truth, np.eye(2), size)
+    if there is None or there.std() == 0:
+        return None
     best: tuple[float, np.ndarray, np.ndarray] | None = None
     for warp in warps:
         template = warped_patch(source, source_xy, warp, size)
-        there = warped_patch(image, truth, np.eye(2), size)
-        if template is None or there is None or template.std() == 0 or there.std() == 0:
+        if template is None or template.std() == 0:
             continue
         ncc = float(np.corrcoef(template.ravel(), there.ravel())[0, 1])
         if best is None or ncc > best[0]:
