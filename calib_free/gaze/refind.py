@@ -16,15 +16,16 @@ measured landing error, `expected_place`) or, where that was not measured or rea
 than one of them, by the view before: only the true target has, in that view, repeats where
 the other places lie (`place_told_by_repeats`).
 
-Where no place matches at `min_target_ncc`, the view may have changed in a way the warps
-tried do not show: a corrective step's search then tries every candidate warp, not only the
-one carried over (`find_later_sighting`), and both searches try them turned about the patch's
-centre (`turned`, `TURNS_DEG`). A neck that pans about an axis the tilt leans away from the
-optical axis turns the view by about the pan times the sine of the tilt; in the realistic
-world's offline looks, 7 of 11 targets within 1.5 px of the fovea that no candidate warp matched
-at 0.7 were seen turned by 2.7-9.0 deg (ECC's fit), each within 1.0 deg of -pan x sin(tilt).
-A place that matched, but could not be told from a repeat, is not searched for again with
-other warps: a warp beyond those the view shows would only find a look-alike.
+Where no place matches at `min_target_ncc`, the view may have turned in a way the warps tried
+do not show: both searches then try every candidate warp turned about the patch's centre
+(`turned`, `TURNS_DEG`; `find_first_sighting`, `find_later_sighting`). A neck that pans about
+an axis the tilt leans away from the optical axis turns the view by about the pan times the
+sine of the tilt; in the realistic world's offline looks, 7 of 11 targets within 1.5 px of the
+fovea that no candidate warp matched at 0.7 were seen turned by 2.7-9.0 deg (ECC's fit), each
+within 1.0 deg of -pan x sin(tilt). A corrective step's search does not try every candidate
+warp unturned: of the targets that search found offline, 4 of 7 were look-alikes. A place that
+matched, but could not be told from a repeat, is not searched for again with other warps: a
+warp beyond those the view shows would only find a look-alike.
 """
 from __future__ import annotations
 
@@ -74,7 +75,6 @@ class SearchStage(enum.StrEnum):
     LEARNED_SCALES = "the lens's learned scales"
     EVERY_SCALE = "every scale"
     CARRIED = "the warp found before"
-    EVERY_WARP = "every warp, the one found before matching nothing"
     TURNED = "every warp turned, none unturned matching"
 
 
@@ -397,19 +397,17 @@ def find_later_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
                         ) -> tuple[TargetSighting | None, LookParams, str]:
     """The target after a corrective step: searched by each of the patches `variants` with
     `warps` (the one found before), then, where no place matched by any, with every candidate
-    warp (the step's view changed more than the warp carried), then every one turned
-    (`turned`). (sighting, its patch, '') or (None, the first patch, why not: the search with
-    the warp carried)."""
+    warp turned (`turned`: the view turned with the step's pan). (sighting, its patch, '') or
+    (None, the first patch, why not: the search with the warp carried)."""
     centre = fovea(source)
 
     def warps_of(stage: SearchStage, variant: LookParams) -> list[np.ndarray]:
         if stage is SearchStage.CARRIED:
             return warps
-        every = candidate_warps(source_xy, centre, variant.max_target_scale)
-        return turned(every) if stage is SearchStage.TURNED else every
+        return turned(candidate_warps(source_xy, centre, variant.max_target_scale))
 
     why, matched = "", False
-    for stage in (SearchStage.CARRIED, SearchStage.EVERY_WARP, SearchStage.TURNED):
+    for stage in (SearchStage.CARRIED, SearchStage.TURNED):
         for variant in variants:
             found = search_target(source, source_xy, image, variant, warps_of(stage, variant), expected_error_px,
                                   expected_offset_px, step_error_px)
@@ -422,10 +420,9 @@ def find_later_sighting(source: np.ndarray, source_xy: tuple[float, float], imag
 
 
 def fallback_note(sightings: list[TargetSighting]) -> str:
-    """'; found again by ...' naming, in order, the fallback searches (every warp, every warp
-    turned) that found the target of `sightings`; '' where none did."""
-    stages = [s.found_by for s in sightings if s.found_by in (SearchStage.EVERY_WARP, SearchStage.TURNED)]
-    return "; found again by " + ", then by ".join(dict.fromkeys(str(s) for s in stages)) if stages else ""
+    """'; found again by every warp turned, ...' where a fallback search (every warp turned)
+    found the target of any of `sightings`; '' where none did."""
+    return f"; found again by {SearchStage.TURNED}" if any(s.found_by is SearchStage.TURNED for s in sightings) else ""
 
 
 def _found_by(stage: SearchStage, sighting: TargetSighting, variant: LookParams,
