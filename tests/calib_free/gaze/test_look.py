@@ -478,6 +478,32 @@ def test_a_corrective_step_near_the_fovea_the_eyes_converged_on_takes_the_foveas
     assert shares_the_fovea((-3.0, 0.0), (32, 20)) and not shares_the_fovea((40.0, 30.0), (32, 20))
 
 
+@pytest.mark.parametrize("target_vergence, step_d", [
+    (None, 6.0),  # the target's depth not known: measured
+    (7.0, 6.0),  # the measured d verges the eyes to 6.8 deg, within 3 of the target's depth: measured
+    (12.0, -20.0),  # 5.2 deg from it: the d that verges them back to 12, from 8
+    (2.0, 30.0),  # and to 2
+])
+def test_a_corrective_step_after_eyes_that_did_not_converge_verges_them_back_to_the_targets_depth(
+        target_vergence, step_d):
+    """Fine vergence that did not converge left the eyes at 8 deg, and the right image matches
+    the target 6 px to the right (the map: -0.2 deg of vergence a pixel of d, to 6.8 deg). Where
+    that is farther from the target's depth than `max_vergence_mismatch_deg`, it is what the
+    right eye found on something else, wherever the eyes wandered; the step verges them back to
+    the target's depth instead."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    left = rich_texture(seed=4, size=(WIDTH, HEIGHT))
+    sighting = TargetSighting(FOVEA[0] + 12.0, FOVEA[1] + 5.0, 0.95, np.eye(2))
+    fixation = FixationRecord(0, FixationKind.TARGET, target=np.array([200.0, 100.0, 0.0]), converged=False,
+                              outcome=FixationOutcome.NOT_CONVERGED, pose_after=np.array([0.0, 0.0, 8.0]),
+                              vergence_disparities_px=[9.0, 7.0])
+    fixation.final_left_image, fixation.final_right_image = left, np.roll(left, 6, axis=1)
+    aim = (sighting.x, sighting.y)
+    assert controller.step_disparity.for_step(fixation, sighting, aim, target_vergence) == \
+        pytest.approx(step_d, abs=0.3)
+
+
 def test_a_steps_turn_bound_is_twice_its_aims_turn_and_half_its_vergence_change_with_slack():
     assert step_turn_bound_deg(8.0, 0.0, 4.0) == pytest.approx(2 * 2.0 + 0.5)
     assert step_turn_bound_deg(8.0, -3.0, 4.0) == pytest.approx(2 * (2.0 + 1.5) + 0.5)
