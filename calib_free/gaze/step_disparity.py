@@ -45,9 +45,10 @@ class StepDisparity:
         None where the look does not know it): the fovea's, where the sighting is near enough
         the fovea the eyes converged on (`_foveal`); else the one measured there, held to the
         target's depth (`_held`: d = 0 after eyes that converged there, the d that verges them
-        back to it after eyes that did not converge); d = 0, the depth the eyes fixate, where the map's command for
-        it would turn the head beyond what the step calls for (`_turn_beyond_step`) or verge the
-        eyes beyond the vergence's limits (`_verges_beyond_range`)."""
+        back to it after eyes that did not converge); d = 0, the depth the eyes fixate, where
+        the map's command for it would turn the head beyond what the step calls for
+        (`_turn_beyond_step`) or verge the eyes beyond the vergence's limits
+        (`_verges_beyond_range`)."""
         foveal = self._foveal(fixation, sighting)
         d = foveal if foveal is not None else self._held(fixation, sighting, aim, target_vergence)
         beyond = "" if d == 0.0 else self._turn_beyond_step(fixation, aim, d) or self._verges_beyond_range(
@@ -164,7 +165,7 @@ class StepDisparity:
         kept where the map has none). In the realistic world's offline looks (two seeds, 437
         corrective steps), 17 of the 31 steps that followed eyes not converged with a d so far
         from the target's depth left the target 3 px or more off and farther than before, and 4
-        of their looks ended on target."""
+        of the 31 belonged to looks that ended on target."""
         d = self.measured_at(fixation, sighting)
         pose = fixation.pose_after
         if target_vergence is None or pose is None:
@@ -175,7 +176,12 @@ class StepDisparity:
             if verged is not None and abs(verged - target_vergence) <= tolerance:
                 return d
             back = disparity_for_vergence(self.fixation.map, pose, aim, target_vergence)
-            return d if back is None else back
+            if back is None:
+                return d
+            log.debug("corrective step at (%.1f, %.1f) after eyes that did not converge: d %.1f px would verge them "
+                      "at %s deg, the target's depth at %.1f: d %.1f", aim[0], aim[1], d,
+                      "?" if verged is None else f"{verged:.1f}", target_vergence, back)
+            return back
         if abs(pose[2] - target_vergence) > tolerance or verged is None or abs(verged - target_vergence) <= tolerance:
             return d
         log.debug("corrective step at (%.1f, %.1f): d %.1f px would verge the eyes at %.1f deg, the target's "
