@@ -122,6 +122,12 @@ LOOK_FLAT_FRACTION = 0.7
 # docs/results/realistic-world.md). At the full margin, 3 of 200 looks in the realistic world were
 # refused after the saccade that had brought the target within 0.5-1.9 px of the fovea.
 LOOK_AMBIGUITY_FRACTION = 0.5
+# A fixation of a look whose eyes did not converge, and which fine vergence left more than this
+# beyond the vergence it planned, has its eyes turned back to that vergence before the target is
+# searched for (`LookController._verged_back`): each degree of vergence turns the left eye half
+# a degree, 2 px at the fovea of a 320 px wide fish-eye image, and where the eyes converged
+# nowhere that turn is no measure of anything, only a widening of where the target may be.
+VERGED_BACK_BEYOND_DEG = 2.0
 
 
 @dataclass
@@ -295,6 +301,9 @@ class LookController:
             if fixation.outcome in _STOPS_A_LOOK or final_left is None or source is None:
                 record.outcome, record.detail = fixation.outcome, fixation.detail
                 return
+            fixation = record.fixations[-1] = self._verged_back(fixation)
+            final_left = fixation.final_left_image
+            assert final_left is not None
             sighting, why = None, ""
             step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
             expected, offset = self._landing_prior(fixation, target_before, to_source, step,
@@ -356,6 +365,36 @@ class LookController:
             target_before, to_source = np.array([sighting.x, sighting.y]), np.linalg.inv(sighting.warp)
             d = self.step_disparity.for_step(fixation, sighting, (aim_x, aim_y), self._target_vergence(record))
             fixation = self._fixate(record, (aim_x, aim_y, d), continues=True)
+
+    def _verged_back(self, fixation: FixationRecord) -> FixationRecord:
+        """`fixation`, or, where its eyes did not converge and fine vergence left them more than
+        `VERGED_BACK_BEYOND_DEG` from the vergence its saccade (or step) planned, the same
+        fixation with the eyes turned back to that vergence (the head's limits clamp it) and the
+        pair taken there at rest. Fine vergence that converged nowhere (a flat face, a depth
+        edge, a repeat along the rows) wandered: in two seeds of recorded offline looks in the
+        realistic world (`benchmarks.diag.offline_steps`), 7 of the 20 first saccades whose
+        eyes ended 3 deg or more from the plan had not converged, and 6 of those looks failed,
+        lost among repeats within the prior that the turn widened (the left eye turns half the
+        vergence) or left off the fovea. Turned back, the left eye sees the target where the
+        saccade put it, and the prior is the saccade's own. Its correspondence is dropped: the
+        left eye's landing is matched again in the new image (`left_landing_px`)."""
+        if fixation.converged or fixation.pose_before is None or fixation.pose_after is None \
+                or fixation.planned is None:
+            return fixation
+        planned = float(fixation.pose_before[2] + fixation.planned[2])
+        wandered = float(fixation.pose_after[2]) - planned
+        if abs(wandered) <= VERGED_BACK_BEYOND_DEG:
+            return fixation
+        head, p = self.fixation.head, self.fixation.params
+        commanded = head.verge_to(planned)
+        left, right = head.wait_pair(head.wait_settled(p.settle_timeout_s), p.frame_timeout_s)
+        log.debug("fixation %d: eyes not converged %.1f deg from the planned vergence, turned back to %.1f deg",
+                  fixation.index, wandered, commanded)
+        return dataclasses.replace(
+            fixation, pose_after=head.read_pose(), match=None,
+            final_left_image=as_grey_float(left), final_right_image=as_grey_float(right),
+            detail=f"{fixation.detail}; the eyes turned back from {wandered:+.1f} deg beyond the planned "
+                   f"vergence to {commanded:.1f} deg")
 
     def _landing_prior(self, fixation: FixationRecord, target_before: np.ndarray, to_source: np.ndarray,
                        step: float | None = None,

@@ -14,7 +14,7 @@ import yaml
 
 from calib_free.correspondence.search import EyeMatch, FixationMatch
 from calib_free.errors import TargetPatchError
-from calib_free.gaze.look import LookController, LookOutcome, LookRecord
+from calib_free.gaze.look import VERGED_BACK_BEYOND_DEG, LookController, LookOutcome, LookRecord
 from calib_free.gaze.look_geometry import (corrective_step_error_px, foveal_px_per_deg, left_landing_px,
                                            shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.target_depth import target_disparity, vergence_on_a_repeat
@@ -25,7 +25,7 @@ from calib_free.gaze.fixation import (FixationController, FixationKind, Fixation
 from headctl.config.head import load_config
 from headctl.errors import ConfigError
 from tests.support import CONFIGS
-from tests.support.planar_head import HEIGHT, WIDTH, LinearMap, PlanarHead, rich_texture
+from tests.support.planar_head import HEIGHT, PX_PER_DEG, WIDTH, LinearMap, PlanarHead, rich_texture
 
 FOVEA = np.array([(WIDTH - 1) / 2, (HEIGHT - 1) / 2])
 
@@ -502,6 +502,63 @@ def test_a_corrective_step_after_eyes_that_did_not_converge_verges_them_back_to_
     aim = (sighting.x, sighting.y)
     assert controller.step_disparity.for_step(fixation, sighting, aim, target_vergence) == \
         pytest.approx(step_d, abs=0.3)
+
+
+class WanderingVergenceHead(PlanarHead):
+    """A plane head whose left eye turns with half the vergence (its view moves `PX_PER_DEG / 2`
+    px a degree of vergence from the one at the vergence it started at), and whose right eye
+    sees the left eye's view `aside_px` aside whatever the vergence: fine vergence never
+    converges and runs the eyes off towards their limit."""
+
+    def __init__(self, aside_px: float = 12.0) -> None:
+        super().__init__()
+        self.start_vergence = float(self.pose[2])
+        self.aside_px = aside_px
+
+    def view_centre(self, pose: np.ndarray | None = None) -> np.ndarray:
+        pose = self.pose if pose is None else pose
+        return super().view_centre(pose) + np.array([PX_PER_DEG * (pose[2] - self.start_vergence) / 2, 0.0])
+
+    def wait_pair(self, after_s: float, timeout_s: float) -> tuple[np.ndarray, np.ndarray]:
+        cx, cy = self.view_centre()
+        left = cv2.getRectSubPix(self.plane, (WIDTH, HEIGHT), (float(cx), float(cy)))
+        right = cv2.getRectSubPix(self.plane, (WIDTH, HEIGHT), (float(cx) + self.aside_px, float(cy)))
+        return left, right
+
+
+def test_eyes_that_wandered_without_converging_are_turned_back_before_the_target_is_searched_for():
+    """The map's saccade is exact and keeps the vergence; fine vergence then runs the eyes 12
+    deg off without converging, which turns the left eye 6 deg (24 px) away from the target,
+    and once the head moved a copy of the target's surroundings lies 48 px beside it. Nothing
+    measures where the saccade landed (the left eye's own match is not trusted here): searched
+    where the eyes wandered, both places lie within the prior the wandering widened, and the
+    look would fail as ambiguous. It turns the eyes back to the vergence the saccade planned,
+    and finds the target where the saccade put it: on the fovea, no corrective step."""
+    head = WanderingVergenceHead()
+    target = (236.0, 84.0)
+    texel = head.texel_at(target)
+    head.on_move = repeat_after_the_first_move(texel, (48, 0))
+    controller, _ = looker(head, gain=1.0, params=FixationParams(confidence_floor=1.0))
+    record = controller.look((*target, 0.0))
+    first = record.fixations[0]
+    assert first.outcome is FixationOutcome.NOT_CONVERGED
+    assert any(abs(pose[2] - head.start_vergence) > 10.0 for pose in head.moves)  # it did wander
+    assert "turned back" in first.detail and first.pose_after[2] == pytest.approx(head.start_vergence)
+    assert record.on_target and record.corrective_steps == 0, record.detail
+    assert true_error_px(head, texel) <= 1.0
+
+
+def test_eyes_that_did_not_converge_near_the_planned_vergence_are_left_where_they_are():
+    """Fine vergence that ended within `VERGED_BACK_BEYOND_DEG` of the plan moved the left eye
+    less than a repeat could hide in: no extra move. (One step of fine vergence, 6 px of
+    disparity at the map's 0.2 deg a pixel: 1.2 deg.)"""
+    head = WanderingVergenceHead(aside_px=6.0)
+    controller, _ = looker(head, gain=1.0, params=FixationParams(max_vergence_steps=1))
+    record = controller.look((236.0, 84.0, 0.0))
+    first = record.fixations[0]
+    assert first.outcome is FixationOutcome.NOT_CONVERGED
+    assert 0.0 < abs(first.pose_after[2] - head.start_vergence) <= VERGED_BACK_BEYOND_DEG
+    assert "turned back" not in first.detail
 
 
 def test_a_steps_turn_bound_is_twice_its_aims_turn_and_half_its_vergence_change_with_slack():
