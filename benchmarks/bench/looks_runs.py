@@ -125,6 +125,7 @@ def figures(seeds: list[Seed], width: int, columns: int) -> dict[str, Any]:
     look_alikes = [r for r in rows if is_look_alike(r)]
     low, high = wilson_interval(on, len(rows))
     failures = collections.Counter(failure_class(r) for r in rows if not r["on_target"])
+    shares = [sum(bool(r["on_target"]) for r in s.taken_on) / len(s.taken_on) for s in seeds if s.taken_on]
     bands: list[dict[str, Any]] = []
     edges = np.linspace(0.0, float(width), columns + 1)
     for left, right in zip(edges[:-1], edges[1:]):
@@ -136,10 +137,8 @@ def figures(seeds: list[Seed], width: int, columns: int) -> dict[str, Any]:
     return {
         "files": [str(s.path) for s in seeds],
         "taken_on": len(rows), "on_target": on,
-        "seeds_on_target_fraction": [sum(bool(r["on_target"]) for r in s.taken_on) / len(s.taken_on)
-                                     for s in seeds if s.taken_on],
-        "on_target_fraction": quartiles([sum(bool(r["on_target"]) for r in s.taken_on) / len(s.taken_on)
-                                         for s in seeds if s.taken_on]),
+        "seeds_on_target_fraction": shares,
+        "on_target_fraction": quartiles(shares),
         "pooled": {"fraction": on / len(rows), "interval_95": [low, high]},
         "pooled_without_joint_limits": sum(bool(r["on_target"]) for r in within_reach) / len(within_reach)
         if within_reach else None,

@@ -297,13 +297,12 @@ class LookController:
         to_source = np.eye(2)  # the linear warp from that image to `source` (the patch's own view)
         boost = 1.0
         while True:
-            final_left = fixation.final_left_image
-            if fixation.outcome in _STOPS_A_LOOK or final_left is None or source is None:
+            if fixation.outcome in _STOPS_A_LOOK or fixation.final_left_image is None or source is None:
                 record.outcome, record.detail = fixation.outcome, fixation.detail
                 return
             fixation = record.fixations[-1] = self._verged_back(fixation)
             final_left = fixation.final_left_image
-            assert final_left is not None
+            assert final_left is not None  # a pair taken after the eyes turned back, if they did
             sighting, why = None, ""
             step = None if step_aim_px is None else self._corrective_step_error_px(fixation, step_aim_px)
             expected, offset = self._landing_prior(fixation, target_before, to_source, step,
