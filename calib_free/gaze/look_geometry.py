@@ -52,6 +52,14 @@ STEP_TURN_SLACK_DEG = 0.5
 # within 1 px of the fovea, against 112 of the 135 with |d| below 1 px
 # (`benchmarks.diag.step_disparity`, docs/results/realistic-world.md).
 FOVEA_SHARED_FRACTION = 0.8
+# A corrective step's measured d that the map would verge farther than this from the target's
+# depth is taken for the right eye's match on a repeat or on something else, and the step keeps
+# the eyes at the target's depth instead (`calib_free.gaze.step_disparity`); so are eyes that
+# converged this near the target's depth taken as at it. Tighter than the look's own judgement
+# of where the eyes ended (`LookParams.max_vergence_mismatch_deg`): a step that keeps the depth
+# loses nothing where the measured d was right, one that follows a repeat's d turns the head
+# away (the recordings cited in `StepDisparity._held`).
+STEP_DEPTH_TOLERANCE_DEG = 3.0
 # The map's pan for targets this far either side of the fovea gives its pixels a degree there
 # (`foveal_px_per_deg`); a slope outside the plausible range (a young map) gives none.
 FOVEAL_SPAN_PX = 10.0

@@ -16,8 +16,8 @@ import numpy as np
 from calib_free.correspondence.disparity import horizontal_offset
 from calib_free.errors import OutOfRangeError
 from calib_free.gaze.fixation import FixationController, FixationOutcome, FixationRecord, LookParams
-from calib_free.gaze.look_geometry import (REACH_MARGIN_DEG, foveal_px_per_deg, shares_the_fovea, step_turn_bound_deg,
-                                           vergence_goal)
+from calib_free.gaze.look_geometry import (REACH_MARGIN_DEG, STEP_DEPTH_TOLERANCE_DEG, foveal_px_per_deg,
+                                           shares_the_fovea, step_turn_bound_deg, vergence_goal)
 from calib_free.gaze.refind import TargetSighting, fovea
 from calib_free.gaze.second_attempt import disparity_for_vergence
 
@@ -147,8 +147,8 @@ class StepDisparity:
               target_vergence: float | None) -> float:
         """d for a corrective step aimed at `aim` from the target's `sighting`: the one measured
         there (`measured_at`), unless the eyes converged at the target's depth (within
-        `max_vergence_mismatch_deg` of `target_vergence`) and the map would verge them with the
-        measured d farther from it than that, a depth the look would refuse as another's. Such a
+        `STEP_DEPTH_TOLERANCE_DEG` of `target_vergence`) and the map would verge them with the
+        measured d farther from it than that, at another depth than the target's. Such a
         d is the right eye's match on a repeat of the texture along its rows, and the map turns
         the head with the vergence it gives it (the left eye keeps its direction only if the
         head turns by about half the vergence's change): in the realistic world's recorded
@@ -160,7 +160,7 @@ class StepDisparity:
 
         Where the eyes did not converge, fine vergence left them wherever its last step did,
         and the right eye's match at the target is on whatever it sees there: a measured d the
-        map would verge farther than `max_vergence_mismatch_deg` from the target's depth is
+        map would verge farther than `STEP_DEPTH_TOLERANCE_DEG` from the target's depth is
         replaced by the d whose command verges the eyes back to it (`disparity_for_vergence`;
         kept where the map has none). In the realistic world's offline looks (two seeds, 437
         corrective steps), 17 of the 31 steps that followed eyes not converged with a d so far
@@ -170,7 +170,7 @@ class StepDisparity:
         pose = fixation.pose_after
         if target_vergence is None or pose is None:
             return d
-        tolerance = self.params.max_vergence_mismatch_deg
+        tolerance = STEP_DEPTH_TOLERANCE_DEG
         verged = vergence_goal(self.fixation.map, pose, (*aim, d))
         if not fixation.converged:
             if verged is not None and abs(verged - target_vergence) <= tolerance:

@@ -275,12 +275,22 @@ def test_look_params_are_checked_and_read_from_the_fixation_section(tmp_path):
 def test_a_look_alike_at_another_depth_is_not_taken_for_the_target():
     head = PlanarHead()  # the whole plane is at one depth: d = 0 at the start pose
     controller, _ = looker(head, gain=1.0)
-    record = controller.look((200.0, 100.0, 30.0))  # told the target is 30 px of disparity farther
-    # The eyes converge on the plane, 6 deg of vergence from what the map gives d = 30 px.
+    record = controller.look((200.0, 100.0, 40.0))  # told the target is 40 px of disparity farther
+    # The eyes converge on the plane, 8 deg of vergence from what the map gives d = 40 px.
     assert record.fixations[-1].converged
     assert record.outcome is LookOutcome.TARGET_LOST and "another depth" in record.detail
     assert "or the map's vergence for it is that far off" in record.detail
     assert not record.on_target
+
+
+def test_eyes_that_converged_as_far_from_the_targets_depth_as_a_young_maps_vergence_errs_end_on_target():
+    """After 5 minutes of exploring, the map's vergence for a target's d can be 4-7 deg off
+    where the left eye is on the target: not another depth."""
+    head = PlanarHead()
+    controller, _ = looker(head, gain=1.0)
+    record = controller.look((200.0, 100.0, 22.0))  # 4.4 deg of vergence from the plane the eyes converge on
+    assert record.fixations[-1].converged
+    assert record.outcome is LookOutcome.ON_TARGET, record.detail
 
 
 class RowRepeatHead(PlanarHead):
@@ -488,7 +498,7 @@ def test_a_corrective_step_after_eyes_that_did_not_converge_verges_them_back_to_
         target_vergence, step_d):
     """Fine vergence that did not converge left the eyes at 8 deg, and the right image matches
     the target 6 px to the right (the map: -0.2 deg of vergence a pixel of d, to 6.8 deg). Where
-    that is farther from the target's depth than `max_vergence_mismatch_deg`, it is what the
+    that is farther from the target's depth than `STEP_DEPTH_TOLERANCE_DEG`, it is what the
     right eye found on something else, wherever the eyes wandered; the step verges them back to
     the target's depth instead."""
     head = PlanarHead()
