@@ -69,13 +69,19 @@ def one_look(client: ApiClient, world, lens, rng, spread: float, width: int, hei
     truth, hidden = world_error_px(world.model, world.scene, lens, before, world.true_joints(), (x, y))
     planned, pose_before = result.get("planned"), result.get("pose_before")
     goal = None if planned is None or pose_before is None else [a + b for a, b in zip(pose_before, planned)]
+    pose_after = result.get("pose_after")  # after the look's last fixation
+    # Where the eyes ended against the vergence the first saccade planned for the target's d:
+    # the look's own judgement of another depth (`max_vergence_mismatch_deg`).
+    vergence_off = None if goal is None or pose_after is None \
+        else float(pose_after[2] - np.clip(goal[2], *vergence_range))
     return {"xy": [x, y], "start": [pan, tilt], "state": str(answer["state"]), "outcome": answer["outcome"],
             "detail": answer["detail"], "on_target": bool(result.get("on_target")),
             "final_error_px": result.get("final_error_px"), "duration_s": result.get("duration_s"),
             "corrective_steps": result.get("corrective_steps"), "attempts": result.get("attempts"),
             "d_measured": answer["request"].get("d_measured"),
             "true_error_px": truth, "hidden": hidden, "first_goal": goal,
-            "first_goal_beyond_deg": beyond_deg(goal, low, high)}
+            "first_goal_beyond_deg": beyond_deg(goal, low, high), "final_pose": pose_after,
+            "vergence_off_deg": vergence_off}
 
 
 def failure_kind(row: dict[str, Any]) -> str:

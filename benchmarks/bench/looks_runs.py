@@ -8,7 +8,8 @@ for all of them together, this prints the figures of the looks' goal:
   (Wilson's score interval);
 - the same without the looks that ended at the joint limits (their target beyond them);
 - truly on target: counted on target and truly within `LOOK_ALIKE_PX` of the fovea; the
-  look-alikes (counted on target, truly farther): their pixel and how far;
+  look-alikes (counted on target, truly farther): their pixel, how far, and where the eyes
+  ended against the vergence the first saccade planned (runs that recorded it);
 - the final error's p90 (the daemon's own) and the look time's p50: median [IQR] of the seeds;
 - the failures by kind (`failure_class`);
 - by the image's columns (`--columns`): the looks taken on, on target, look-alikes and
@@ -143,13 +144,20 @@ def figures(seeds: list[Seed], width: int, columns: int) -> dict[str, Any]:
         "pooled_without_joint_limits": sum(bool(r["on_target"]) for r in within_reach) / len(within_reach)
         if within_reach else None,
         "truly_on_target": {"looks": on - len(look_alikes), "fraction": (on - len(look_alikes)) / len(rows)},
-        "look_alikes": [{"xy": [round(float(v), 1) for v in r["xy"]], "true_error_px": round(r["true_error_px"], 2)}
-                        for r in look_alikes],
+        "look_alikes": [{"xy": [round(float(v), 1) for v in r["xy"]], "true_error_px": round(r["true_error_px"], 2),
+                         "vergence_off_deg": r.get("vergence_off_deg")} for r in look_alikes],
         "final_error_p90_px": quartiles([s.final_p90_px for s in seeds if s.final_p90_px is not None]),
         "look_time_p50_s": quartiles([s.look_time_p50_s for s in seeds if s.look_time_p50_s is not None]),
         "failures": {str(kind): failures[kind] for kind in FailureClass},
         "by_column": bands,
     }
+
+
+def vergence_note(look_alike: dict[str, Any]) -> str:
+    """Where a look-alike's eyes ended against the vergence its first saccade planned, where the
+    run recorded it."""
+    off = look_alike.get("vergence_off_deg")
+    return "" if off is None else f" (eyes {off:+.1f} deg from the planned vergence)"
 
 
 def report(name: str, f: dict[str, Any]) -> str:
@@ -172,7 +180,8 @@ def report(name: str, f: dict[str, Any]) -> str:
              f"truly on target (within {LOOK_ALIKE_PX:g} px): {f['truly_on_target']['looks']} of {f['taken_on']}, "
              f"{pct(f['truly_on_target']['fraction'])}; look-alikes {len(f['look_alikes'])}"
              + ("" if not f["look_alikes"] else ": " + ", ".join(
-                 f"({a['xy'][0]:.0f}, {a['xy'][1]:.0f}) {a['true_error_px']:.1f} px" for a in f["look_alikes"])),
+                 f"({a['xy'][0]:.0f}, {a['xy'][1]:.0f}) {a['true_error_px']:.1f} px" + vergence_note(a)
+                 for a in f["look_alikes"])),
              f"final error p90 {spread(f['final_error_p90_px'], 'px', 2)}; "
              f"look time p50 {spread(f['look_time_p50_s'], 's', 2)}",
              "failed: " + ", ".join(f"{kind} {count}" for kind, count in f["failures"].items()),

@@ -6,13 +6,16 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.bench.looks_runs import FailureClass, Seed, failure_class, figures, main, wilson_interval
+from benchmarks.bench.looks_runs import FailureClass, Seed, failure_class, figures, main, report, wilson_interval
 
 
 def look(x: float, on: bool, outcome: str = "on target", detail: str = "", true_px: float | None = 0.4,
-         state: str | None = None) -> dict:
-    return {"xy": [x, 100.0], "state": state or ("done" if on else "failed"), "outcome": outcome,
-            "detail": detail, "on_target": on, "true_error_px": true_px}
+         state: str | None = None, vergence_off_deg: float | None = None) -> dict:
+    row = {"xy": [x, 100.0], "state": state or ("done" if on else "failed"), "outcome": outcome,
+           "detail": detail, "on_target": on, "true_error_px": true_px}
+    if vergence_off_deg is not None:  # recorded by later runs only
+        row["vergence_off_deg"] = vergence_off_deg
+    return row
 
 
 AMBIGUOUS = ("target not found again", "the target's patch is ambiguous: two places match it, NCC 0.90 and 0.89")
@@ -58,7 +61,7 @@ def test_a_look_at_the_limits_counts_there_whatever_else_its_detail_says():
 
 
 def test_figures_count_the_looks_taken_on_the_look_alikes_and_where_the_failures_lie(tmp_path):
-    rows = [look(10, True), look(20, True), look(30, True, true_px=4.1),  # a look-alike
+    rows = [look(10, True), look(20, True), look(30, True, true_px=4.1, vergence_off_deg=-4.25),  # a look-alike
             look(300, False, *AMBIGUOUS), look(310, False, *AT_LIMITS),
             look(150, False, "422", "beyond the joint limits", None, state="refused")]
     seed = Seed(tmp_path / "s.json", rows, 0.8, 0.4)
@@ -67,6 +70,7 @@ def test_figures_count_the_looks_taken_on_the_look_alikes_and_where_the_failures
     assert f["pooled"]["fraction"] == pytest.approx(0.6)
     assert f["truly_on_target"]["looks"] == 2
     assert [a["xy"][0] for a in f["look_alikes"]] == [30.0]
+    assert "(30, 100) 4.1 px (eyes -4.2 deg from the planned vergence)" in report("run", f)
     assert f["pooled_without_joint_limits"] == pytest.approx(3 / 4)
     assert f["failures"] == {"ambiguous": 1, "at the joint limits": 1,
                              "off the fovea after the corrective steps": 0, "other": 0}
