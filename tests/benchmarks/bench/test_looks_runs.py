@@ -61,7 +61,7 @@ def test_a_look_at_the_limits_counts_there_whatever_else_its_detail_says():
 
 
 def test_figures_count_the_looks_taken_on_the_look_alikes_and_where_the_failures_lie(tmp_path):
-    rows = [look(10, True), look(20, True), look(30, True, true_px=4.1, vergence_off_deg=-4.25),  # a look-alike
+    rows = [look(10, True), look(20, True), look(30, True, true_px=4.1, vergence_off_deg=-4.2),  # a look-alike
             look(300, False, *AMBIGUOUS), look(310, False, *AT_LIMITS),
             look(150, False, "422", "beyond the joint limits", None, state="refused")]
     seed = Seed(tmp_path / "s.json", rows, 0.8, 0.4)
